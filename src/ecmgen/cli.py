@@ -1,0 +1,168 @@
+"""`ecmgen` command line: a thin layer over the library (see ecmgen.pipeline)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from . import __version__
+from .errors import InputError
+
+
+def _progress(enabled: bool):
+    from .pipeline import _quiet, stderr_progress
+
+    return stderr_progress if enabled else _quiet
+
+
+def cmd_build(args) -> int:
+    from .config import load_config
+    from .pipeline import build
+    from .report import build_json, validation_table
+
+    cfg = load_config(args.config)
+    out = Path(args.out) if args.out else cfg.path.parent / "ecmgen-out"
+    result = build(cfg, out, _progress(not args.quiet), plots=not args.no_plots,
+                   c_code=not args.no_c)
+    if args.json:
+        print(json.dumps(build_json(result), indent=1))
+    else:
+        print(validation_table(result))
+        for n in result.models[result.best].notes:
+            print(f"note: {n}")
+        print(f"wrote {len(result.files)} files to {result.out_dir}")
+    return 0
+
+
+def cmd_dcir(args) -> int:
+    from .dcir import extract_dcir, find_pulses
+    from .measure import read_timeseries
+
+    series = read_timeseries(args.pulses, capacity_ah=args.capacity_ah)
+    pulses = find_pulses(series, args.capacity_ah, soc0=args.soc0)
+    table = extract_dcir(series, pulses, args.times)
+    for n in table.notes:
+        print(f"note: {n}", file=sys.stderr)
+    if args.out:
+        out = Path(args.out)
+        if out.resolve() == Path(args.pulses).resolve():
+            raise InputError(out, "output would overwrite the input")
+        table.write_csv(out)
+        print(f"wrote {len(table)} pulses x {len(table.t_s)} times to {out}", file=sys.stderr)
+    else:
+        sys.stdout.write(table.to_csv_text())
+    return 0
+
+
+def cmd_fit(args) -> int:
+    from dataclasses import replace
+
+    from .config import load_config
+    from .pipeline import fit_models, prepare
+
+    cfg = load_config(args.config)
+    if args.method:
+        cfg = replace(cfg, methods=(args.method,) if args.method != "lm" else ("ga", "lm"),
+                      best=args.method)
+    progress = _progress(not args.quiet)
+    models, _ = fit_models(cfg, prepare(cfg, progress), progress)
+    out = Path(args.out)
+    if out.resolve() in {cfg.path.resolve()} | {p.resolve() for p in (cfg.pulses, cfg.ocv,
+                                                                       cfg.dcir) if p}:
+        raise InputError(out, "output would overwrite an input file")
+    models[cfg.best].save(out)
+    print(f"wrote {out} (method {cfg.best})", file=sys.stderr)
+    return 0
+
+
+def cmd_validate(args) -> int:
+    from .measure import read_timeseries
+    from .model import load_model
+    from .simulate import validate
+
+    model = load_model(args.model)
+    series = read_timeseries(args.cycle, capacity_ah=model.capacity_ah)
+    val = validate(model, series, args.soc0)
+    if args.plot:
+        from .plots import plot_validation
+
+        plot_validation(val, Path(args.plot))
+    if args.json:
+        print(json.dumps(dict(val.overall.as_dict(), soc0=val.soc0,
+                              soc_above_10=val.soc_above_10.as_dict())))
+    else:
+        m = val.overall
+        src = "from the OCV of the first rested voltage" if val.soc0_from_ocv else "given"
+        print(f"{Path(args.cycle).name}: MAE {m.mae_v * 1e3:.2f} mV  RMSE {m.rmse_v * 1e3:.2f} mV"
+              f"  max {m.max_abs_v * 1e3:.1f} mV  (soc0 {val.soc0:.4f} {src}; "
+              f"MAE at SOC>10 % {val.soc_above_10.mae_v * 1e3:.2f} mV)")
+    return 0
+
+
+def cmd_diagnose(args) -> int:
+    from .diagnose_cli import run_diagnose
+
+    return run_diagnose(args)
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="ecmgen", description=__doc__)
+    p.add_argument("--version", action="version", version=f"ecmgen {__version__}")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    b = sub.add_parser("build", help="run the whole chain from a config file")
+    b.add_argument("config")
+    b.add_argument("--out", help="output folder (default: ecmgen-out beside the config)")
+    b.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    b.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    b.add_argument("--no-plots", action="store_true")
+    b.add_argument("--no-c", action="store_true", help="skip C generation")
+    b.set_defaults(func=cmd_build)
+
+    d = sub.add_parser("dcir", help="extract the DC-IR table of a pulse test")
+    d.add_argument("pulses")
+    d.add_argument("--capacity-ah", type=float, required=True)
+    d.add_argument("--soc0", type=float, default=1.0, help="SOC at the start of the test")
+    d.add_argument("--times", type=float, nargs="+", default=[0.1, 1.0, 3.0, 6.0, 10.0])
+    d.add_argument("--out", help="CSV path (default: stdout)")
+    d.set_defaults(func=cmd_dcir)
+
+    f = sub.add_parser("fit", help="fit a model.json from a config file")
+    f.add_argument("config")
+    f.add_argument("--method", choices=["ga", "lm", "curve"])
+    f.add_argument("--out", default="model.json")
+    f.add_argument("--quiet", action="store_true")
+    f.set_defaults(func=cmd_fit)
+
+    v = sub.add_parser("validate", help="simulate a model over a measured cycle")
+    v.add_argument("model")
+    v.add_argument("cycle")
+    v.add_argument("--soc0", type=float, help="start SOC (default: from the OCV)")
+    v.add_argument("--json", action="store_true")
+    v.add_argument("--plot", help="write measured vs simulated PNG here")
+    v.set_defaults(func=cmd_validate)
+
+    g = sub.add_parser("diagnose", help="find, add and check missing model effects")
+    g.add_argument("config")
+    g.add_argument("--out")
+    g.add_argument("--json", action="store_true")
+    g.add_argument("--quiet", action="store_true")
+    g.set_defaults(func=cmd_diagnose)
+    return p
+
+
+def main(argv=None) -> int:
+    args = parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except InputError as exc:
+        print(f"ecmgen: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,182 @@
+"""The build configuration (one TOML file); paths are relative to the file.
+
+    [cell]
+    capacity_ah = 2.9
+    [data]
+    pulses = "hppc.mat"        # a pulse/HPPC test, or: dcir = "dcir.csv"
+    pulses_soc0 = 1.0          # SOC at the start of the pulse test (default 1.0)
+    ocv = "ocv-c20.mat"        # a soc,ocv_v table, a low-rate test, or "pulses" (rests)
+    cycle = "us06.mat"         # validation drive cycle
+    soc0 = 1.0                 # optional; from the first rested voltage when absent
+    extra_cycles = ["hwfet-a.mat"]   # optional further validation cycles
+    [data.columns]             # optional column mapping for CSV files from other cyclers
+    time = "Test_Time(s)"  current = "Current(A)"  voltage = "Voltage(V)"
+    [dcir]   times_s = [0.1, 1, 3, 6, 10]   c_rate = "max" | "all" | 2.0
+    [fit]    methods = ["ga", "lm", "curve"]   seed = 0   relax_s = 1800   best = "curve"
+    [c]      prefix = "ecm"   numeric = ["float", "fixed"]   dt_s = 0.1
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .errors import InputError
+
+METHODS = ("ga", "lm", "curve")
+
+
+@dataclass(frozen=True)
+class BuildConfig:
+    path: Path
+    capacity_ah: float
+    pulses: Path | None
+    dcir: Path | None
+    pulses_soc0: float
+    ocv: Path | None              # None: from the pulse-test rests
+    ocv_soc0: float | None
+    ocv_branch: str               # "both" | "charge" | "discharge"
+    cycle: Path | None
+    soc0: float | None
+    extra_cycles: tuple[Path, ...]
+    columns: dict[str, Any] | None     # raw [data.columns] table, parsed by measure
+    times_s: tuple[float, ...]
+    c_rate: str | float           # "max", "all" or a C-rate
+    methods: tuple[str, ...]
+    seed: int
+    relax_s: float
+    best: str
+    c_prefix: str = "ecm"
+    c_numeric: tuple[str, ...] = ("float", "fixed")
+    c_dt_s: float | None = None
+    raw: dict = field(default_factory=dict, repr=False)
+
+
+def _table(d: dict, key: str, path: Path) -> dict:
+    v = d.get(key, {})
+    if not isinstance(v, dict):
+        raise InputError(path, f"[{key}] must be a table")
+    return v
+
+
+def _number(d: dict, key: str, path: Path, where: str, default=None, *, positive=False,
+            unit_interval=False):
+    if key not in d:
+        if default is None and positive:
+            raise InputError(path, f"missing {where}.{key}")
+        return default
+    v = d[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise InputError(path, f"{where}.{key} must be a number, got {v!r}")
+    if positive and v <= 0:
+        raise InputError(path, f"{where}.{key} must be positive, got {v!r}")
+    if unit_interval and not 0.0 <= v <= 1.0:
+        raise InputError(path, f"{where}.{key} is a SOC and must lie in [0, 1], got {v!r}")
+    return float(v)
+
+
+def _file(base: Path, d: dict, key: str, path: Path) -> Path | None:
+    if key not in d:
+        return None
+    v = d[key]
+    if not isinstance(v, str) or not v:
+        raise InputError(path, f"data.{key} must be a file name")
+    p = (base / v).resolve()
+    if not p.is_file():
+        raise InputError(path, f"data.{key} names a missing file: {v} (looked for {p})")
+    return p
+
+
+def load_config(path: str | Path) -> BuildConfig:
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(path, "no such config file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(path, f"not valid TOML ({exc})") from None
+    base = path.resolve().parent
+    known = {"cell", "data", "dcir", "fit", "c", "diagnose"}
+    unknown = set(raw) - known
+    if unknown:
+        raise InputError(path, f"unknown section(s) {sorted(unknown)}; known: {sorted(known)}")
+    cell, data = _table(raw, "cell", path), _table(raw, "data", path)
+    dcir_t, fit, c = _table(raw, "dcir", path), _table(raw, "fit", path), _table(raw, "c", path)
+    capacity = _number(cell, "capacity_ah", path, "cell", positive=True)
+
+    pulses = _file(base, data, "pulses", path)
+    dcir = _file(base, data, "dcir", path)
+    if (pulses is None) == (dcir is None):
+        raise InputError(path, "give exactly one of data.pulses (a pulse test) or data.dcir "
+                               "(a soc,direction,c_rate,t_s,r_ohm table)")
+    ocv_raw = data.get("ocv")
+    if ocv_raw == "pulses":
+        if pulses is None:
+            raise InputError(path, "data.ocv = \"pulses\" needs data.pulses")
+        ocv = None
+    elif ocv_raw is None:
+        raise InputError(path, "missing data.ocv (a soc,ocv_v table, a low-rate test, "
+                               "or \"pulses\" for the rests of the pulse test)")
+    else:
+        ocv = _file(base, data, "ocv", path)
+    branch = data.get("ocv_branch", "both")
+    if branch not in ("both", "charge", "discharge"):
+        raise InputError(path, f"data.ocv_branch must be both, charge or discharge, got {branch!r}")
+
+    extra = data.get("extra_cycles", [])
+    if not isinstance(extra, list):
+        raise InputError(path, "data.extra_cycles must be a list of file names")
+    extra_paths = tuple(_file(base, {"extra_cycles": e}, "extra_cycles", path) for e in extra)
+
+    columns = data.get("columns")
+    if columns is not None and not isinstance(columns, dict):
+        raise InputError(path, "[data.columns] must be a table")
+
+    times = dcir_t.get("times_s", [0.1, 1.0, 3.0, 6.0, 10.0])
+    if (not isinstance(times, list) or len(times) < 4 or
+            not all(isinstance(t, (int, float)) and t > 0 for t in times) or
+            any(b <= a for a, b in zip(times, times[1:]))):
+        raise InputError(path, "dcir.times_s must be at least 4 increasing positive times in s")
+    c_rate = dcir_t.get("c_rate", "max")
+    if not (c_rate in ("max", "all") or (isinstance(c_rate, (int, float)) and c_rate > 0)):
+        raise InputError(path, f"dcir.c_rate must be \"max\", \"all\" or a C-rate, got {c_rate!r}")
+
+    methods = fit.get("methods", list(METHODS))
+    if not isinstance(methods, list) or not methods or any(m not in METHODS for m in methods):
+        raise InputError(path, f"fit.methods must be a non-empty list from {list(METHODS)}")
+    if "curve" in methods and pulses is None:
+        raise InputError(path, "fit method \"curve\" needs the pulse test (data.pulses), "
+                               "not only a DC-IR table")
+    seed = fit.get("seed", 0)
+    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+        raise InputError(path, f"fit.seed must be a non-negative integer, got {seed!r}")
+    best = fit.get("best", "curve" if "curve" in methods else methods[-1])
+    if best not in methods:
+        raise InputError(path, f"fit.best = {best!r} is not one of fit.methods {methods}")
+
+    numeric = c.get("numeric", ["float", "fixed"])
+    if isinstance(numeric, str):
+        numeric = [numeric]
+    if not isinstance(numeric, list) or any(n not in ("float", "fixed") for n in numeric):
+        raise InputError(path, "c.numeric must be \"float\", \"fixed\" or a list of them")
+    prefix = c.get("prefix", "ecm")
+    if not isinstance(prefix, str) or not prefix.isidentifier():
+        raise InputError(path, f"c.prefix must be a C identifier, got {prefix!r}")
+
+    return BuildConfig(
+        path=path, capacity_ah=capacity, pulses=pulses, dcir=dcir,
+        pulses_soc0=_number(data, "pulses_soc0", path, "data", 1.0, unit_interval=True),
+        ocv=ocv, ocv_soc0=_number(data, "ocv_soc0", path, "data", unit_interval=True),
+        ocv_branch=branch,
+        cycle=_file(base, data, "cycle", path),
+        soc0=_number(data, "soc0", path, "data", unit_interval=True),
+        extra_cycles=extra_paths, columns=columns, times_s=tuple(float(t) for t in times),
+        c_rate=c_rate if isinstance(c_rate, str) else float(c_rate),
+        methods=tuple(methods), seed=seed,
+        relax_s=_number(fit, "relax_s", path, "fit", 1800.0, positive=True),
+        best=best, c_prefix=prefix, c_numeric=tuple(numeric),
+        c_dt_s=_number(c, "dt_s", path, "c", None),
+        raw=raw)

@@ -1,0 +1,216 @@
+"""Pulse test -> pulses -> DC-IR table ``R(t) = dV/dI``.
+
+A pulse is a current step from rest: a run of samples with |i| above the rest
+threshold, preceded by a rested sample, short (at most ``max_pulse_s``) and of
+near-constant current. ``R(t)`` is taken against the last rested sample before the
+edge; time is counted from that sample, so the first on-sample is the paper's
+"0.1 s" point on a 10 Hz logger.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+from .measure import TimeSeries
+from .model import write_atomic
+
+DEFAULT_TIMES_S = (0.1, 1.0, 3.0, 6.0, 10.0)
+
+
+@dataclass(frozen=True)
+class Pulse:
+    """One current pulse of a pulse test (indices into the TimeSeries)."""
+
+    rest_index: int          # last rested sample before the edge (the reference)
+    start: int               # first sample with current on
+    stop: int                # first sample after the current switched off (exclusive end)
+    next_start: int          # first on-sample after the pulse's relaxation (or len(series))
+    current_a: float         # median current in the pulse (positive = charge)
+    direction: str           # "charge" | "discharge"
+    c_rate: float            # |current| / capacity, rounded to 0.01
+    soc: float               # SOC at the rest sample before the edge
+    duration_s: float
+    cut_short: bool          # shorter than the sibling pulses / the requested times
+
+
+@dataclass(frozen=True)
+class DcirTable:
+    """DC-IR values: one row per pulse (or given row), one column per time.
+
+    soc (n,), direction (n,) str, c_rate (n,), t_s (m,), r_ohm (n, m) with NaN where
+    a time was not reached."""
+
+    soc: np.ndarray
+    direction: np.ndarray
+    c_rate: np.ndarray
+    t_s: np.ndarray
+    r_ohm: np.ndarray
+    notes: tuple[str, ...] = field(default=())
+
+    def __len__(self) -> int:
+        return int(self.soc.shape[0])
+
+    def select(self, mask) -> "DcirTable":
+        mask = np.asarray(mask)
+        return DcirTable(self.soc[mask], self.direction[mask], self.c_rate[mask], self.t_s,
+                         self.r_ohm[mask], self.notes)
+
+    def to_csv_text(self) -> str:
+        out = io.StringIO()
+        w = csv.writer(out, lineterminator="\n")
+        w.writerow(["soc", "direction", "c_rate", "t_s", "r_ohm"])
+        for k in range(len(self)):
+            for j, t in enumerate(self.t_s):
+                if np.isfinite(self.r_ohm[k, j]):
+                    w.writerow([repr(float(self.soc[k])), self.direction[k],
+                                repr(float(self.c_rate[k])), repr(float(t)),
+                                repr(float(self.r_ohm[k, j]))])
+        return out.getvalue()
+
+    def write_csv(self, path: str | Path) -> Path:
+        path = Path(path)
+        write_atomic(path, self.to_csv_text())
+        return path
+
+
+def read_dcir_csv(path: str | Path) -> DcirTable:
+    """Read a ``soc,direction,c_rate,t_s,r_ohm`` table (c_rate optional). SOC may be given
+    in percent (values above 1.5 are divided by 100)."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(path, "no such file")
+    with open(path, newline="") as fh:
+        rows = list(csv.reader(fh))
+    if not rows:
+        raise InputError(path, "empty file")
+    header = [h.strip().lower() for h in rows[0]]
+    for col in ("soc", "direction", "t_s", "r_ohm"):
+        if col not in header:
+            raise InputError(path, f"missing column '{col}' (found: {', '.join(header)})")
+    ix = {h: header.index(h) for h in header}
+    groups: dict[tuple, dict[float, float]] = {}
+    for n, row in enumerate(rows[1:], start=2):
+        if not row or all(not c.strip() for c in row):
+            continue
+        try:
+            soc = float(row[ix["soc"]])
+            t = float(row[ix["t_s"]])
+            r = float(row[ix["r_ohm"]])
+            c = float(row[ix["c_rate"]]) if "c_rate" in ix else 0.0
+        except (ValueError, IndexError):
+            raise InputError(path, f"row {n}: not a number in soc/c_rate/t_s/r_ohm") from None
+        d = row[ix["direction"]].strip().lower()
+        if d not in ("charge", "discharge"):
+            raise InputError(path, f"row {n}: direction must be 'charge' or 'discharge', got '{d}'")
+        if not all(np.isfinite([soc, t, r, c])):
+            raise InputError(path, f"row {n}: non-finite value")
+        if r <= 0 or r > 10:
+            raise InputError(path, f"row {n}: r_ohm {r} is not a plausible cell resistance "
+                                   "(mOhm given as Ohm?)")
+        groups.setdefault((soc, d, c), {})[t] = r
+    if not groups:
+        raise InputError(path, "no data rows")
+    times = np.array(sorted({t for g in groups.values() for t in g}))
+    keys = sorted(groups)
+    soc = np.array([k[0] for k in keys])
+    if soc.max() > 1.5:
+        soc = soc / 100.0
+    r = np.array([[groups[k].get(t, np.nan) for t in times] for k in keys])
+    return DcirTable(soc, np.array([k[1] for k in keys]), np.array([k[2] for k in keys]),
+                     times, r)
+
+
+def find_pulses(series: TimeSeries, capacity_ah: float, *, soc0: float,
+                rest_current_a: float | None = None, max_pulse_s: float = 120.0,
+                min_rest_s: float = 0.0) -> list[Pulse]:
+    """Find the current steps from rest in a pulse test.
+
+    SOC at each pulse comes from ``soc0`` plus the record's cumulative charge (its Ah
+    column where it has one, which is right even when the file leaves out the
+    discharges between pulse sets)."""
+    i = series.current_a
+    t = series.time_s
+    thr = rest_current_a if rest_current_a is not None else max(0.02 * capacity_ah, 1e-3)
+    on = np.abs(i) > thr
+    starts = np.flatnonzero(on[1:] & ~on[:-1]) + 1
+    stops = np.flatnonzero(~on[1:] & on[:-1]) + 1
+    if on[-1]:
+        stops = np.append(stops, len(i))
+    stops = stops[stops > (starts[0] if starts.size else len(i))]
+    q_ah = series.coulomb_ah()
+    pulses: list[Pulse] = []
+    for n, (a, b) in enumerate(zip(starts, stops)):
+        dur = t[b - 1] - t[a - 1]
+        if dur > max_pulse_s:
+            continue  # a CC segment (SOC move, charge), not a pulse
+        rest_start = stops[n - 1] if n > 0 else 0
+        if t[a - 1] - t[rest_start] < min_rest_s:
+            continue
+        seg = i[a:b]
+        med = float(np.median(seg))
+        # a step: the current stays near its median (the first sample may ramp)
+        steady = np.abs(seg[1:] - med) <= 0.1 * abs(med) + thr if seg.size > 1 else np.array([True])
+        if np.mean(steady) < 0.9:
+            continue
+        nxt = starts[n + 1] if n + 1 < starts.size else len(i)
+        pulses.append(Pulse(
+            rest_index=int(a - 1), start=int(a), stop=int(b), next_start=int(nxt),
+            current_a=med, direction="charge" if med > 0 else "discharge",
+            c_rate=round(abs(med) / capacity_ah, 2),
+            soc=float(soc0 + q_ah[a - 1] / capacity_ah), duration_s=float(dur),
+            cut_short=False))
+    if not pulses:
+        raise InputError(series.source, f"no pulses found (current steps from rest above "
+                                        f"{thr:.3g} A lasting at most {max_pulse_s:g} s)")
+    # a pulse is cut short when it ends well before its siblings of the same C-rate
+    # and direction (a voltage limit stopped it)
+    flagged = []
+    for p in pulses:
+        sib = [q.duration_s for q in pulses if q.c_rate == p.c_rate and q.direction == p.direction]
+        typical = float(np.median(sib))
+        flagged.append(_replace_cut(p, p.duration_s < 0.95 * typical))
+    return flagged
+
+
+def _replace_cut(p: Pulse, cut: bool) -> Pulse:
+    from dataclasses import replace
+    return replace(p, cut_short=bool(cut))
+
+
+def extract_dcir(series: TimeSeries, pulses: list[Pulse],
+                 times_s=DEFAULT_TIMES_S) -> DcirTable:
+    """R(t) = (v(t) - v_rest) / (i(t) - i_rest) at each requested time into each pulse.
+
+    The first time takes the first on-sample (the step's instant response on the
+    logger's grid); later times take the on-sample nearest in time, if within half a
+    sampling interval (else NaN). Pulses flagged ``cut_short`` are left out and noted."""
+    times = np.asarray(times_s, dtype=np.float64)
+    t, i, v = series.time_s, series.current_a, series.voltage_v
+    rows, notes = [], []
+    for p in pulses:
+        if p.cut_short:
+            notes.append(f"pulse at t={t[p.start]:.1f} s ({p.direction} {p.c_rate:g}C, "
+                         f"soc {p.soc:.3f}) cut short after {p.duration_s:.2f} s: left out")
+            continue
+        t_on = t[p.start:p.stop] - t[p.rest_index]
+        r = np.full(times.size, np.nan)
+        dv = v[p.start:p.stop] - v[p.rest_index]
+        di = i[p.start:p.stop] - i[p.rest_index]
+        r[0] = dv[0] / di[0]
+        dt_local = np.median(np.diff(t_on)) if t_on.size > 1 else np.inf
+        for j in range(1, times.size):
+            k = int(np.argmin(np.abs(t_on - times[j])))
+            if abs(t_on[k] - times[j]) <= 0.5 * dt_local + 1e-6:
+                r[j] = dv[k] / di[k]
+        rows.append((p.soc, p.direction, p.c_rate, r))
+    if not rows:
+        raise InputError(series.source, "every pulse was cut short; no DC-IR values")
+    return DcirTable(np.array([x[0] for x in rows]), np.array([x[1] for x in rows]),
+                     np.array([x[2] for x in rows]), times, np.array([x[3] for x in rows]),
+                     tuple(notes))

@@ -1,0 +1,559 @@
+"""Measurement files -> :class:`TimeSeries`.
+
+Sign convention everywhere inside ecmgen: current is POSITIVE ON CHARGE, in amperes;
+time in seconds, voltage in volts, temperature in degC, cumulative charge in Ah
+(counts up on charge, i.e. the integral of the current).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import re
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from .errors import InputError
+
+
+@dataclass(frozen=True)
+class TimeSeries:
+    """One measured record, all arrays 1-D float64 of equal length.
+
+    time_s        seconds, non-decreasing (repeated stamps at switching edges are allowed)
+    current_a     amperes, positive = charge
+    voltage_v     volts at the cell terminals
+    temperature_c degC or None
+    charge_ah     cumulative charge in Ah (positive = charged) or None; where a cycler
+                  logs it, it is trusted over integrating current (files may omit segments)
+    source        file the record came from (for error messages and provenance)
+    """
+
+    time_s: np.ndarray
+    current_a: np.ndarray
+    voltage_v: np.ndarray
+    temperature_c: np.ndarray | None = None
+    charge_ah: np.ndarray | None = None
+    source: str = ""
+    notes: tuple[str, ...] = field(default=())
+
+    def __len__(self) -> int:
+        return int(self.time_s.shape[0])
+
+    def slice(self, start: int, stop: int) -> "TimeSeries":
+        """Rows [start, stop) as a new TimeSeries."""
+        def cut(a):
+            return None if a is None else a[start:stop]
+        return TimeSeries(self.time_s[start:stop], self.current_a[start:stop],
+                          self.voltage_v[start:stop], cut(self.temperature_c),
+                          cut(self.charge_ah), self.source, self.notes)
+
+    def coulomb_ah(self) -> np.ndarray:
+        """Cumulative charge in Ah from 0 at the first sample: the logged Ah column where
+        the file has one (re-zeroed), else the trapezoid integral of the current."""
+        if self.charge_ah is not None:
+            return self.charge_ah - self.charge_ah[0]
+        dt = np.diff(self.time_s)
+        inc = 0.5 * (self.current_a[1:] + self.current_a[:-1]) * dt / 3600.0
+        return np.concatenate(([0.0], np.cumsum(inc)))
+
+
+# --------------------------------------------------------------------------- column maps
+
+TIME_UNITS_S = {"s": 1.0, "min": 60.0, "h": 3600.0}
+CURRENT_UNITS_A = {"A": 1.0, "mA": 1e-3}
+VOLTAGE_UNITS_V = {"V": 1.0, "mV": 1e-3}
+CHARGE_UNITS_AH = {"Ah": 1.0, "mAh": 1e-3}
+CURRENT_SIGNS = ("charge_positive", "discharge_positive")
+
+# Plausibility limits for one cell; outside them the file is almost surely mislabelled.
+VOLTAGE_RANGE_V = (0.5, 6.0)
+MAX_C_RATE = 50.0            # used when the capacity is known
+MAX_CURRENT_A = 2000.0       # used when it is not
+
+# Canonical CSV column order; the names are also TimeSeries' field names.
+CANONICAL_HEADER = ("time_s", "current_a", "voltage_v", "temperature_c", "charge_ah")
+
+_UNIT_CHOICES = {"time_unit": TIME_UNITS_S, "current_unit": CURRENT_UNITS_A,
+                 "voltage_unit": VOLTAGE_UNITS_V, "charge_unit": CHARGE_UNITS_AH,
+                 "current_sign": dict.fromkeys(CURRENT_SIGNS)}
+_NAME_KEYS = ("time", "current", "voltage", "temperature", "charge")
+_REQUIRED_KEYS = ("time", "current", "voltage")
+
+
+@dataclass(frozen=True)
+class ColumnMap:
+    """Which columns (CSV header names, or .mat field names) hold what, in which units.
+
+    time, current, voltage  required column names
+    temperature             optional column name (degC)
+    charge                  optional cumulative-charge column name (counts up on charge
+                            after ``current_sign`` is applied to it too)
+    time_unit     "s" | "min" | "h"
+    current_unit  "A" | "mA"
+    voltage_unit  "V" | "mV"
+    charge_unit   "Ah" | "mAh"
+    current_sign  "charge_positive" (ecmgen's own convention; Arbin, CALCE, Digatron .mat)
+                  or "discharge_positive" (current AND charge are negated on reading)
+    """
+
+    time: str = "time_s"
+    current: str = "current_a"
+    voltage: str = "voltage_v"
+    temperature: str | None = None
+    charge: str | None = None
+    time_unit: str = "s"
+    current_unit: str = "A"
+    voltage_unit: str = "V"
+    charge_unit: str = "Ah"
+    current_sign: str = "charge_positive"
+
+    def __post_init__(self):
+        problem = self._problem()
+        if problem:
+            raise InputError(None, problem)
+
+    def _problem(self) -> str | None:
+        for key in _NAME_KEYS:
+            value = getattr(self, key)
+            if value is None and key not in _REQUIRED_KEYS:
+                continue
+            if not isinstance(value, str) or not value.strip():
+                return f"{key} must be a non-empty column name, got {value!r}"
+        for key, choices in _UNIT_CHOICES.items():
+            value = getattr(self, key)
+            if value not in choices:
+                allowed = ", ".join(repr(c) for c in choices)
+                return f"{key} = {value!r} is not one of {allowed}"
+        return None
+
+    @classmethod
+    def from_toml(cls, table: Any, path: str | Path | None,
+                  section: str = "[data.columns]") -> "ColumnMap":
+        """Build from a parsed TOML table such as
+        ``{time="Test_Time(s)", current="Current(A)", voltage="Voltage(V)", current_unit="mA"}``.
+
+        Any unknown key, missing required key or bad value is an InputError naming ``path``
+        (the config file) and ``section``.
+        """
+        if not isinstance(table, dict):
+            raise InputError(path, f"{section} must be a table, got {type(table).__name__}")
+        allowed = [f.name for f in fields(cls)]
+        unknown = [k for k in table if k not in allowed]
+        if unknown:
+            raise InputError(path, f"{section}: unknown key {unknown[0]!r} "
+                                   f"(allowed: {', '.join(allowed)})")
+        missing = [k for k in _REQUIRED_KEYS if k not in table]
+        if missing:
+            raise InputError(path, f"{section}: missing key {missing[0]!r} "
+                                   f"(the name of the {missing[0]} column)")
+        try:
+            return cls(**table)
+        except InputError as exc:
+            raise InputError(path, f"{section}: {exc.message}") from None
+
+    from_table = from_toml  # alias: the pipeline passes the parsed [data.columns] table
+
+    def names(self) -> dict[str, str]:
+        """role -> column name, for the columns this map uses."""
+        return {k: getattr(self, k) for k in _NAME_KEYS if getattr(self, k) is not None}
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """A known file layout: required names in ``columns``, optional ones picked if present."""
+
+    name: str
+    columns: ColumnMap
+    temperature: tuple[str, ...] = ()
+    charge: tuple[str, ...] = ()
+
+    def resolve(self, found: list[str]) -> ColumnMap | None:
+        if not all(n in found for n in (self.columns.time, self.columns.current,
+                                         self.columns.voltage)):
+            return None
+        temp = next((n for n in self.temperature if n in found), None)
+        charge = next((n for n in self.charge if n in found), None)
+        return ColumnMap(self.columns.time, self.columns.current, self.columns.voltage,
+                         temp, charge)
+
+    def present(self, found: list[str]) -> int:
+        return sum(n in found for n in (self.columns.time, self.columns.current,
+                                        self.columns.voltage))
+
+
+# CSV layouts tried in order when no mapping is given. Arbin (and the CALCE exports, which
+# come from Arbin testers) log current negative on discharge, i.e. already charge-positive.
+# Their Charge/Discharge_Capacity columns reset every cycle, so charge is left to the current.
+CSV_LAYOUTS = (
+    _Layout("ecmgen canonical", ColumnMap("time_s", "current_a", "voltage_v"),
+            ("temperature_c",), ("charge_ah",)),
+    _Layout("Arbin", ColumnMap("Test_Time(s)", "Current(A)", "Voltage(V)"),
+            ("Temperature (C)_1",)),
+    # CALCE low-rate OCV export: a single step, so Step_Time(s) is the only clock.
+    _Layout("Arbin single step (CALCE)", ColumnMap("Step_Time(s)", "Current(A)", "Voltage(V)"),
+            ("Temperature (C)_1",)),
+)
+
+# Panasonic 18650PF (Digatron) `meas` struct: current and Ah are negative on discharge.
+MAT_LAYOUT = _Layout("Digatron .mat (meas struct)", ColumnMap("Time", "Current", "Voltage"),
+                     ("Battery_Temp_degC",), ("Ah",))
+
+
+# --------------------------------------------------------------------------- reading
+
+@dataclass
+class _Raw:
+    """Columns as found in the file, before conversion and checks."""
+
+    kind: str                          # "column" (CSV) or "field" (.mat)
+    names: dict[str, str]              # role -> name in the file
+    values: dict[str, np.ndarray]      # role -> raw float64 values
+    where: Callable[[int], str]        # 0-based row -> "row 5 (line 6)"
+    notes: list[str]
+
+
+def read_timeseries(path: str | Path, columns: ColumnMap | None = None, *,
+                    capacity_ah: float | None = None) -> TimeSeries:
+    """Read a measurement file (CSV, or MATLAB v5 ``.mat``) into a checked TimeSeries.
+
+    ``columns`` None: CSV must carry the canonical header
+    ``time_s,current_a,voltage_v[,temperature_c][,charge_ah]`` or a recognised cycler
+    layout (Arbin / CALCE); a .mat must hold a Panasonic-style ``meas`` struct (or the
+    same fields at top level). ``capacity_ah`` (cell capacity) tightens the current check
+    to 50 C. Every problem is an InputError ``<file>: <column>, <row>: <problem>``.
+    """
+    path = Path(path)
+    if capacity_ah is not None and not (np.isfinite(capacity_ah) and capacity_ah > 0):
+        raise ValueError(f"capacity_ah must be a positive number of Ah, got {capacity_ah!r}")
+    if not path.exists():
+        raise InputError(path, "no such file")
+    if path.is_dir():
+        raise InputError(path, "is a directory, not a measurement file")
+    if _is_mat(path):
+        raw, colmap = _read_mat(path, columns)
+    else:
+        raw, colmap = _read_csv(path, columns)
+    return _finish(path, raw, colmap, capacity_ah)
+
+
+def _is_mat(path: Path) -> bool:
+    if path.suffix.lower() == ".mat":
+        return True
+    with open(path, "rb") as fh:
+        return fh.read(6) == b"MATLAB"
+
+
+def _read_text(path: Path) -> str:
+    data = path.read_bytes()
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        return data.decode("latin-1")  # cycler exports in a Windows code page ("°C")
+
+
+def _choose_layout(path: Path, found: list[str], kind: str, layouts) -> tuple[ColumnMap, str]:
+    for layout in layouts:
+        colmap = layout.resolve(found)
+        if colmap is not None:
+            return colmap, layout.name
+    listing = ", ".join(repr(n) for n in found) or "none"
+    best = max(layouts, key=lambda lay: lay.present(found))
+    if best.present(found) >= 2:
+        # Nearly a known layout: name what is missing rather than refuse the whole file.
+        missing = next(n for n in (best.columns.time, best.columns.current,
+                                   best.columns.voltage) if n not in found)
+        raise InputError(path, f"missing {kind} {missing!r} ({best.name} layout); "
+                               f"{kind}s found: {listing}")
+    if kind == "field":
+        expected = "a 'meas' struct with fields Time, Current, Voltage (Panasonic/Digatron)"
+    else:
+        expected = ("the header time_s,current_a,voltage_v[,temperature_c][,charge_ah] "
+                    "or an Arbin/CALCE export")
+    raise InputError(path, f"{kind}s not recognised (found: {listing}); expected {expected}, "
+                           f"otherwise a [data.columns] mapping (time, current, voltage, "
+                           f"units, current_sign) is needed")
+
+
+def _check_named(path: Path, colmap: ColumnMap, found: list[str], kind: str) -> None:
+    listing = ", ".join(repr(n) for n in found) or "none"
+    for role, name in colmap.names().items():
+        if name not in found:
+            raise InputError(path, f"missing {kind} {name!r} (the {role} {kind} of "
+                                   f"[data.columns]); {kind}s found: {listing}")
+
+
+def _read_csv(path: Path, columns: ColumnMap | None) -> tuple[_Raw, ColumnMap]:
+    text = _read_text(path)
+    first = text.split("\n", 1)[0]
+    delimiter = max((",", ";", "\t"), key=first.count)
+    reader = csv.reader(io.StringIO(text), delimiter=delimiter)
+    header = None
+    rows: list[list[str]] = []
+    lines: list[int] = []
+    for row in reader:
+        if not row or (len(row) == 1 and not row[0].strip()):
+            continue  # blank line
+        if header is None:
+            header = [name.strip() for name in row]
+            continue
+        rows.append(row)
+        lines.append(reader.line_num)
+    if header is None:
+        raise InputError(path, "empty file (no header line)")
+
+    notes = []
+    if columns is None:
+        colmap, layout = _choose_layout(path, header, "column", CSV_LAYOUTS)
+        notes.append(f"columns recognised as the {layout} layout")
+    else:
+        colmap = columns
+        _check_named(path, colmap, header, "column")
+
+    for role, name in colmap.names().items():
+        if header.count(name) > 1:
+            raise InputError(path, f"column {name!r} appears {header.count(name)} times "
+                                   f"in the header")
+
+    width = len(header)
+    if any(len(r) != width for r in rows):
+        i = next(i for i, r in enumerate(rows) if len(r) != width)
+        raise InputError(path, f"line {lines[i]} has {len(rows[i])} fields but the header "
+                               f"has {width} (a truncated row or a stray {delimiter!r}?)")
+
+    def where(i: int) -> str:
+        return f"row {i + 1} (line {lines[i]})"
+
+    values = {}
+    for role, name in colmap.names().items():
+        j = header.index(name)
+        cells = [r[j] for r in rows]
+        try:
+            values[role] = np.array(cells, dtype=np.float64)
+        except ValueError:
+            raise _non_numeric(path, name, cells, where) from None
+    return _Raw("column", colmap.names(), values, where, notes), colmap
+
+
+_DECIMAL_COMMA = re.compile(r"^\s*[-+]?\d+,\d+\s*$")
+
+
+def _non_numeric(path: Path, name: str, cells: list[str], where) -> InputError:
+    for i, cell in enumerate(cells):
+        try:
+            np.float64(cell)
+            continue
+        except ValueError:
+            pass
+        if not cell.strip():
+            return InputError(path, f"column {name!r}, {where(i)}: empty cell")
+        hint = " (decimal comma? use '.')" if _DECIMAL_COMMA.match(cell) else ""
+        return InputError(path, f"column {name!r}, {where(i)}: {cell.strip()[:40]!r} "
+                                f"is not a number{hint}")
+    return InputError(path, f"column {name!r}: holds values that are not numbers")
+
+
+def _one_struct(value):
+    """A 1x1 struct array -> the struct itself (loadmat keeps everything 2-D)."""
+    if isinstance(value, np.ndarray) and value.dtype == object and value.size == 1 \
+            and hasattr(value.flat[0], "_fieldnames"):
+        return value.flat[0]
+    return value
+
+
+def _read_mat(path: Path, columns: ColumnMap | None) -> tuple[_Raw, ColumnMap]:
+    import scipy.io
+
+    try:
+        # The 100k-row TimeStamp text is not needed: leaving chars unjoined and squeezing
+        # only what is used below saves about half the load time.
+        data = scipy.io.loadmat(path, squeeze_me=False, struct_as_record=False,
+                                chars_as_strings=False)
+    except NotImplementedError:
+        raise InputError(path, "MATLAB v7.3 (HDF5) .mat files are not supported; "
+                               "save with -v7") from None
+    except Exception as exc:  # scipy raises several types for corrupt files
+        raise InputError(path, f"not a readable MATLAB .mat file ({exc})") from None
+
+    variables = {k: _one_struct(v) for k, v in data.items() if not k.startswith("__")}
+    wanted = (columns or MAT_LAYOUT.columns).time
+    container = None
+    if "meas" in variables:
+        container = variables["meas"]
+    elif wanted not in variables:
+        structs = [v for v in variables.values() if hasattr(v, "_fieldnames")]
+        if len(structs) == 1:
+            container = structs[0]
+    if container is not None:
+        if isinstance(container, np.ndarray) and container.dtype == object:
+            raise InputError(path, f"'meas' is an array of {container.size} structs; "
+                                   f"expected one struct")
+        if not hasattr(container, "_fieldnames"):
+            raise InputError(path, "'meas' is not a struct")
+        found_fields = {n: _one_struct(getattr(container, n)) for n in container._fieldnames}
+    else:
+        found_fields = variables
+    found = list(found_fields)
+
+    notes = []
+    if columns is None:
+        colmap, layout = _choose_layout(path, found, "field", (MAT_LAYOUT,))
+        notes.append(f"fields read as the {layout} layout")
+    else:
+        colmap = columns
+        _check_named(path, colmap, found, "field")
+
+    values = {}
+    for role, name in colmap.names().items():
+        arr = np.asarray(found_fields[name])
+        if arr.ndim > 1 and sum(d > 1 for d in arr.shape) <= 1:
+            arr = arr.reshape(-1)  # MATLAB stores vectors as n-by-1 or 1-by-n
+        if arr.dtype.kind not in "biuf":
+            held = "text" if arr.dtype.kind in "US" else "cells or structs"
+            raise InputError(path, f"field {name!r} holds {held}, not numbers")
+        if arr.ndim > 1:
+            raise InputError(path, f"field {name!r} has shape {arr.shape}; expected a vector")
+        values[role] = np.atleast_1d(arr).astype(np.float64)
+
+    lengths = {role: v.size for role, v in values.items()}
+    if len(set(lengths.values())) > 1:
+        n_time = lengths["time"]
+        role = next(r for r, n in lengths.items() if n != n_time)
+        raise InputError(path, f"field {colmap.names()[role]!r} has {lengths[role]} rows "
+                               f"but {colmap.time!r} has {n_time}")
+
+    def where(i: int) -> str:
+        return f"row {i + 1}"
+
+    return _Raw("field", colmap.names(), values, where, notes), colmap
+
+
+# --------------------------------------------------------------------------- checks
+
+def _finish(path: Path, raw: _Raw, colmap: ColumnMap, capacity_ah: float | None) -> TimeSeries:
+    values = dict(raw.values)
+    notes = list(raw.notes)
+    n = values["time"].size
+    if n < 2:
+        raise InputError(path, f"only {n} data row{'s' if n != 1 else ''}; "
+                               f"a measurement needs at least 2")
+
+    def loc(role: str, i: int) -> str:
+        return f"{raw.kind} {raw.names[role]!r}, {raw.where(i)}"
+
+    # Units and sign first, so every check below works in A, V, s, Ah.
+    scale = {"time": TIME_UNITS_S[colmap.time_unit],
+             "current": CURRENT_UNITS_A[colmap.current_unit],
+             "voltage": VOLTAGE_UNITS_V[colmap.voltage_unit],
+             "charge": CHARGE_UNITS_AH[colmap.charge_unit]}
+    for role, factor in scale.items():
+        if role in values and factor != 1.0:
+            values[role] = values[role] * factor
+    if colmap.current_sign == "discharge_positive":
+        values["current"] = -values["current"]
+        if "charge" in values:
+            values["charge"] = -values["charge"]
+        notes.append("current (and charge) negated: file logs discharge positive")
+    for role, unit in (("time", colmap.time_unit), ("current", colmap.current_unit),
+                       ("voltage", colmap.voltage_unit), ("charge", colmap.charge_unit)):
+        if role in values and unit not in ("s", "A", "V", "Ah"):
+            notes.append(f"{role} converted from {unit}")
+
+    for role, arr in values.items():
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            i = int(np.argmax(bad))
+            logged = raw.values[role][i]  # as in the file, before sign/unit conversion
+            what = "NaN" if np.isnan(logged) else ("+inf" if logged > 0 else "-inf")
+            raise InputError(path, f"{loc(role, i)}: {what} (every value must be a finite "
+                                   f"number)")
+
+    time = values["time"]
+    back = np.diff(time) < 0  # equal stamps at switching edges are real; only decreases are bad
+    if back.any():
+        i = int(np.argmax(back)) + 1
+        hint = ""
+        if raw.names["time"].startswith("Step_Time"):
+            hint = " (Step_Time restarts at every step: use Test_Time or map [data.columns])"
+        raise InputError(path, f"{loc('time', i)}: time goes backwards, {time[i]:.6g} s "
+                               f"after {time[i - 1]:.6g} s{hint}")
+
+    _check_voltage(path, values["voltage"], colmap, loc)
+    _check_current(path, values["current"], colmap, capacity_ah, loc)
+    if "charge" in values:
+        _check_charge_sign(path, values, raw.names)
+
+    return TimeSeries(time_s=time, current_a=values["current"], voltage_v=values["voltage"],
+                      temperature_c=values.get("temperature"), charge_ah=values.get("charge"),
+                      source=str(path), notes=tuple(notes))
+
+
+def _check_voltage(path, volts, colmap, loc) -> None:
+    lo, hi = VOLTAGE_RANGE_V
+    out = (volts < lo) | (volts > hi)
+    if not out.any():
+        return
+    i = int(np.argmax(out))
+    typical = float(np.median(np.abs(volts)))
+    if colmap.voltage_unit == "V" and lo <= typical / 1000.0 <= hi:
+        hint = ": mV declared as V? (voltage_unit = \"mV\")"
+    elif colmap.voltage_unit == "mV" and lo <= typical * 1000.0 <= hi:
+        hint = ": V declared as mV? (voltage_unit = \"V\")"
+    else:
+        hint = " (implausible for one cell)"
+    raise InputError(path, f"{loc('voltage', i)}: voltage {volts[i]:.6g} V is outside "
+                           f"{lo:g}..{hi:g} V{hint}")
+
+
+def _check_current(path, amps, colmap, capacity_ah, loc) -> None:
+    i = int(np.argmax(np.abs(amps)))
+    peak = abs(float(amps[i]))
+    limit = MAX_C_RATE * capacity_ah if capacity_ah is not None else MAX_CURRENT_A
+    if peak <= limit:
+        return
+    if capacity_ah is not None:
+        what = (f"current reaches {peak:.6g} A = {peak / capacity_ah:.4g} C for a "
+                f"{capacity_ah:g} Ah cell (limit {MAX_C_RATE:g} C)")
+    else:
+        what = f"current reaches {peak:.6g} A (limit {MAX_CURRENT_A:g} A for one cell)"
+    if colmap.current_unit == "A" and peak / 1000.0 <= limit:
+        hint = ": mA declared as A? (current_unit = \"mA\")"
+    else:
+        hint = ": check the current column and its unit"
+    raise InputError(path, f"{loc('current', i)}: {what}{hint}")
+
+
+def _check_charge_sign(path, values, names) -> None:
+    """The logged charge must move with the current; otherwise its sign (or the column)
+    is wrong and SOC would run backwards."""
+    d_charge = np.diff(values["charge"])
+    mid_current = 0.5 * (values["current"][1:] + values["current"][:-1])
+    moving = (d_charge != 0) & (mid_current != 0)
+    if moving.sum() < 10:
+        return
+    agree = float(np.mean(np.sign(d_charge[moving]) == np.sign(mid_current[moving])))
+    if agree < 0.2:
+        raise InputError(path, f"column {names['charge']!r}: cumulative charge falls while "
+                               f"the current {names['current']!r} charges (agrees on only "
+                               f"{agree:.0%} of samples): opposite sign conventions?")
+
+
+# --------------------------------------------------------------------------- writing
+
+def write_timeseries_csv(series: TimeSeries, path: str | Path) -> Path:
+    """Write the canonical CSV ``time_s,current_a,voltage_v[,temperature_c][,charge_ah]``
+    (current positive on charge), floats as round-trip ``repr``; atomic."""
+    from .model import write_atomic
+
+    present = [(name, getattr(series, name)) for name in CANONICAL_HEADER]
+    header = [name for name, values in present if values is not None]
+    cols = [values for _, values in present if values is not None]
+    as_lists = [np.asarray(c, dtype=np.float64).tolist() for c in cols]  # Python floats
+    lines = [",".join(header)]
+    lines.extend(",".join(map(repr, row)) for row in zip(*as_lists))
+    path = Path(path)
+    write_atomic(path, "\n".join(lines) + "\n")
+    return path
