@@ -17,8 +17,7 @@ held over (t_{k-1}, t_k], the base step of :mod:`ecmgen.simulate` becomes:
    modified ("parameter effects", all factors multiply; order does not matter):
 
    - ``current_dependent_resistance``:  g_k = scale_at_zero * asinh(x_k) / x_k with
-     x_k = |i_k| / i0_a (g_k = scale_at_zero when x_k < 1e-12);
-     r0 *= g_k, r_fast *= g_k.
+     x_k = max(|i_k| / i0_a, 1e-12);  r0 *= g_k, r_fast *= g_k.
    - ``temperature_dependence`` (only when a temperature T_k in degC is supplied;
      otherwise the factor is 1):  f_k = exp(activation_k * (1/(T_k + 273.15)
      - 1/(t_ref_c + 273.15)));  r0 *= f_k, r_fast *= f_k, r_slow *= f_k.
@@ -128,8 +127,8 @@ class CurrentDependentResistance(_Effect):
 
     For sample k, with the (direction, SOC) parameters of the base step::
 
-        x_k = |i_k| / i0_a
-        g_k = scale_at_zero * asinh(x_k) / x_k        (g_k = scale_at_zero if x_k < 1e-12)
+        x_k = max(|i_k| / i0_a, 1e-12)
+        g_k = scale_at_zero * asinh(x_k) / x_k
         r0_k *= g_k;  r_fast_k *= g_k
 
     i.e. the ohmic + charge-transfer voltage r * i becomes r * scale_at_zero * i0_a *
@@ -151,9 +150,8 @@ class CurrentDependentResistance(_Effect):
         _check(self.i0_a > 0, f"i0_a must be positive, got {self.i0_a}")
 
     def factor(self, current_a: np.ndarray) -> np.ndarray:
-        x = np.abs(np.asarray(current_a, dtype=np.float64)) / self.i0_a
-        safe = np.where(x < 1e-12, 1.0, x)
-        return self.scale_at_zero * np.where(x < 1e-12, 1.0, np.arcsinh(safe) / safe)
+        x = np.maximum(np.abs(np.asarray(current_a, dtype=np.float64)) / self.i0_a, 1e-12)
+        return self.scale_at_zero * np.arcsinh(x) / x
 
 
 @dataclass(frozen=True)

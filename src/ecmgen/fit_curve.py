@@ -11,7 +11,9 @@ where x_j is the unit-resistance response (x_k = a x_{k-1} + (1 - a) i_k, a = ex
 Given (tau_fast, tau_slow) the model is linear in the resistances, so they are solved
 by non-negative least squares (variable projection); the two time constants are found
 by a log grid and refined with scipy's least_squares. Pulses of one SOC level and
-direction are fitted jointly.
+direction are fitted jointly. Each window also gets a free initial slow-state voltage,
+since a cell is rarely fully relaxed at the rest sample (exact for a 2RC: an initial
+state decays with the same time constant).
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares, nnls
+from scipy.optimize import least_squares, lsq_linear
 
 from .dcir import Pulse
 from .measure import TimeSeries
@@ -52,19 +54,50 @@ class _Window:
 
 
 def _window(series: TimeSeries, p: Pulse, ocv: OcvTable, capacity_ah: float,
-            relax_s: float) -> _Window:
+            relax_s: float, ref_s: float = 10.0) -> _Window:
     t = series.time_s
     a = p.rest_index
     end = p.next_start
     b = int(np.searchsorted(t, t[a] + relax_s, side="right"))
-    b = max(min(b, end), p.stop)
+    b = max(min(b, end, _first_gap(series, p.stop, b)), p.stop)
     tt = t[a:b] - t[a]
     dt = np.diff(tt, prepend=0.0)
     i = series.current_a[a:b] - series.current_a[a]
     q_ah = np.cumsum(i * dt) / 3600.0
     docv = ocv.ocv_at(p.soc + q_ah / capacity_ah) - ocv.ocv_at(p.soc)
-    target = series.voltage_v[a:b] - series.voltage_v[a] - docv
+    # reference: the mean rested voltage over the last ``ref_s`` before the edge (one
+    # sample's noise would otherwise shift the whole window)
+    pre = np.flatnonzero((t[:a + 1] >= t[a] - ref_s))
+    rested = np.abs(series.current_a[pre] - series.current_a[a]) <= 1e-3 + 0.01 * abs(series.current_a[a])
+    pre = pre[rested & (pre > _last_moving(series, a))]
+    v_ref = float(np.mean(series.voltage_v[pre])) if pre.size else float(series.voltage_v[a])
+    target = series.voltage_v[a:b] - v_ref - docv
     return _Window(dt, i, target, tt, docv)
+
+
+def _last_moving(series: TimeSeries, a: int) -> int:
+    """Index of the last sample before ``a`` whose current differs from the rest at a."""
+    i = series.current_a[:a + 1]
+    moving = np.flatnonzero(np.abs(i - i[-1]) > 1e-3 + 0.01 * abs(i[-1]))
+    return int(moving[-1]) if moving.size else -1
+
+
+def _first_gap(series: TimeSeries, start: int, stop: int) -> int:
+    """First index in [start, stop) that follows an unlogged stretch: a time step far
+    longer than the record's usual rest sampling, or one across which the logged Ah
+    counter moved (current flowed that the file does not show)."""
+    t = series.time_s[start - 1:stop]
+    dt = np.diff(t)
+    if dt.size == 0:
+        return stop
+    gap = dt > max(60.0, 20.0 * float(np.median(dt)))
+    if series.charge_ah is not None:
+        q = series.charge_ah[start - 1:stop]
+        logged = np.diff(q)
+        expected = series.current_a[start:stop] * dt / 3600.0
+        gap |= np.abs(logged - expected) > 1e-3 * max(1.0, float(np.ptp(series.charge_ah)))
+    hits = np.flatnonzero(gap)
+    return int(start + hits[0]) if hits.size else stop
 
 
 def _unit_responses(win: _Window, taus: np.ndarray) -> np.ndarray:
@@ -79,15 +112,25 @@ def _unit_responses(win: _Window, taus: np.ndarray) -> np.ndarray:
     return x
 
 
-def _solve(wins, xf, xs):
-    """NNLS for (r0, r_fast, r_slow) given the unit responses; returns (r, residual)."""
-    A = np.vstack([np.column_stack([w.i, f, s]) for w, f, s in zip(wins, xf, xs)])
+def _solve(wins, xf, xs, tau_slow_s: float):
+    """Least squares for (r0, r_fast, r_slow) >= 0 given the unit responses, plus per
+    window a free initial slow-state voltage u0 (the cell still relaxing from what came
+    before the rest sample: it decays as u0 * (exp(-t/tau_slow) - 1) relative to v_rest).
+    Returns (r, u0 per window, residual)."""
+    n = len(wins)
+    blocks = []
+    for j, (w, f, s) in enumerate(zip(wins, xf, xs)):
+        drift = np.zeros((w.t.size, n))
+        drift[:, j] = np.expm1(-w.t / tau_slow_s)
+        blocks.append(np.column_stack([w.i, f, s, drift]))
+    A = np.vstack(blocks)
     y = np.concatenate([w.target for w in wins])
     scale = np.linalg.norm(A, axis=0)
     scale[scale == 0] = 1.0
-    r, _ = nnls(A / scale, y)
-    r = r / scale
-    return r, A @ r - y
+    lo = np.concatenate([np.zeros(3), np.full(n, -np.inf)])
+    sol = lsq_linear(A / scale, y, bounds=(lo, np.inf), method="bvls")
+    x = sol.x / scale
+    return x[:3], x[3:], A @ x - y
 
 
 def fit_group(wins: list[_Window], *, tau_fast_range=(0.2, 60.0),
@@ -105,7 +148,7 @@ def fit_group(wins: list[_Window], *, tau_fast_range=(0.2, 60.0),
             ts = grid[n]
             if not tau_slow_range[0] <= ts <= tau_slow_range[1] or ts < 2.0 * tf:
                 continue
-            _, res = _solve(wins, [x[:, m] for x in X], [x[:, n] for x in X])
+            _, _, res = _solve(wins, [x[:, m] for x in X], [x[:, n] for x in X], ts)
             cost = float(res @ res)
             if cost < best[0]:
                 best = (cost, (tf, ts))
@@ -116,7 +159,7 @@ def fit_group(wins: list[_Window], *, tau_fast_range=(0.2, 60.0),
         tf, ts = np.exp(z)
         taus = np.array([tf, ts])
         xs = [_unit_responses(w, taus) for w in wins]
-        _, res = _solve(wins, [x[:, 0] for x in xs], [x[:, 1] for x in xs])
+        _, _, res = _solve(wins, [x[:, 0] for x in xs], [x[:, 1] for x in xs], ts)
         return res
 
     lb = np.log([tau_fast_range[0], tau_slow_range[0]])
@@ -129,9 +172,10 @@ def fit_group(wins: list[_Window], *, tau_fast_range=(0.2, 60.0),
         tf, ts = ts, tf
     taus = np.array([tf, ts])
     xs = [_unit_responses(w, taus) for w in wins]
-    r, res = _solve(wins, [x[:, 0] for x in xs], [x[:, 1] for x in xs])
+    r, u0, res = _solve(wins, [x[:, 0] for x in xs], [x[:, 1] for x in xs], ts)
     rms = float(np.sqrt(np.mean(res ** 2)))
-    return r[0], r[1], tf, r[2], ts, rms, bool(sol.success), xs, r
+    drift = [u * np.expm1(-w.t / ts) for u, w in zip(u0, wins)]
+    return r[0], r[1], tf, r[2], ts, rms, bool(sol.success), xs, r, drift
 
 
 def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
@@ -154,8 +198,9 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
     rows = []
     for g_ix, g in enumerate(groups):
         wins = [_window(series, p, ocv, capacity_ah, relax_s) for p in g]
-        r0, rf, tf, rs, ts, rms, ok, xs, r = fit_group(wins, **ranges)
-        fitted = [w.i * r[0] + x[:, 0] * r[1] + x[:, 1] * r[2] for w, x in zip(wins, xs)]
+        r0, rf, tf, rs, ts, rms, ok, xs, r, drift = fit_group(wins, **ranges)
+        fitted = [w.i * r[0] + x[:, 0] * r[1] + x[:, 1] * r[2] + d
+                  for w, x, d in zip(wins, xs, drift)]
         # the SOC of a level: the charge-weighted mean over its pulses
         soc = float(np.mean([p.soc for p in g]))
         rows.append((soc, g[0].direction, r0, rf, tf, rs, ts, rms, ok,

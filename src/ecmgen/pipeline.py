@@ -65,7 +65,9 @@ class BuildResult:
 
 
 def read_series(cfg: BuildConfig, path: Path) -> TimeSeries:
-    columns = ColumnMap.from_table(cfg.columns, cfg.path) if cfg.columns else None
+    # [data.columns] names CSV columns from another cycler; .mat files carry their own names
+    mapped = cfg.columns and path.suffix.lower() != ".mat"
+    columns = ColumnMap.from_table(cfg.columns, cfg.path) if mapped else None
     return read_timeseries(path, columns, capacity_ah=cfg.capacity_ah)
 
 

@@ -1,0 +1,234 @@
+/*
+ * ecmrt_f32.h - ecmgen C runtime, numeric = "float" (IEEE-754 binary32).
+ *
+ * Included once by a generated <prefix>_ecm.c after it defines
+ *     ECMRT_VARIABLE_DT   1: step(state, i, dt), coefficients 1 - exp(-dt/tau) at run time
+ *                         0: step(state, i), coefficients precomputed for the build's dt
+ * All functions are static inline: no external symbols, so several models link together.
+ *
+ * Bit-for-bit reproducibility (host == Cortex-M4F == ecmgen.cref.simulate_f32) rests on:
+ *   - only + - * / on float, each rounded once (compile with -ffp-contract=off, never
+ *     -ffast-math; FLT_EVAL_METHOD must be 0, checked below);
+ *   - no libm: exp is ecmrt_f32_one_minus_exp_neg() below, built from those operations;
+ *   - a fixed order of operations, mirrored line by line in src/ecmgen/cref.py.
+ */
+#ifndef ECMRT_F32_H
+#define ECMRT_F32_H
+
+#include <float.h>
+#include "ecmrt.h"
+
+#if ECMRT_VERSION != 1
+#error "ecmrt_f32.h does not match ecmrt.h"
+#endif
+#ifndef ECMRT_VARIABLE_DT
+#error "define ECMRT_VARIABLE_DT (0 or 1) before including ecmrt_f32.h"
+#endif
+#if !defined(FLT_EVAL_METHOD) || FLT_EVAL_METHOD != 0
+#error "float expressions must be evaluated in float (FLT_EVAL_METHOD == 0), e.g. SSE or an FPv4-SP FPU"
+#endif
+
+/* SOC is saturated to [ECMRT_F32_SOC_MIN, ECMRT_F32_SOC_MAX] (same span as the Q30 fixed-point
+ * variant); dt to [0, ECMRT_F32_DT_MAX] seconds (negative or NaN dt counts as 0). */
+#define ECMRT_F32_SOC_MIN (-2.0f)
+#define ECMRT_F32_SOC_MAX 2.0f
+#define ECMRT_F32_DT_MAX 32767.0f
+
+/* One SOC grid: n breakpoints x (strictly increasing) and inv_dx[k] = 1 / (x[k+1] - x[k]). */
+typedef struct {
+    const float *x;
+    const float *inv_dx;
+    uint8_t n;
+} ecmrt_f32_grid_t;
+
+/* Parameters of one current direction over its grid. k_fast / k_slow hold the time
+ * constants tau in s (ECMRT_VARIABLE_DT = 1) or c = 1 - exp(-dt/tau) (ECMRT_VARIABLE_DT = 0). */
+typedef struct {
+    ecmrt_f32_grid_t g;
+    const float *r0;
+    const float *r_fast;
+    const float *k_fast;
+    const float *r_slow;
+    const float *k_slow;
+} ecmrt_f32_dir_t;
+
+typedef struct {
+    ecmrt_f32_grid_t ocv_g;
+    const float *ocv;
+    ecmrt_f32_dir_t dir[2];   /* [ECMRT_DISCHARGE], [ECMRT_CHARGE] */
+    float deadband_a;         /* |i| <= deadband keeps the last direction */
+    float i_max_a;            /* current is saturated to [-i_max_a, i_max_a] */
+    float k_soc;              /* 1/(3600 Q) per A*s (variable dt) or dt/(3600 Q) per A (fixed dt) */
+} ecmrt_f32_model_t;
+
+/* Segment k (0 <= k <= n-2) holding soc and the weight w in [0, 1] of x[k+1]; SOC outside the
+ * grid gives w = 0 at the first point or w = 1 at the last (clamped interpolation). The search
+ * starts from *hint (the last step's segment) and is exact whatever the hint. */
+static inline float ecmrt_f32_locate(const ecmrt_f32_grid_t *g, float soc, uint8_t *hint)
+{
+    const unsigned last = (unsigned)g->n - 2u;
+    unsigned k = *hint;
+    if (k > last) {
+        k = last;
+    }
+    while (k > 0u && soc < g->x[k]) {
+        k--;
+    }
+    while (k < last && soc >= g->x[k + 1u]) {
+        k++;
+    }
+    *hint = (uint8_t)k;
+    if (soc <= g->x[0]) {
+        return 0.0f;
+    }
+    if (soc >= g->x[last + 1u]) {
+        return 1.0f;
+    }
+    return (soc - g->x[k]) * g->inv_dx[k];
+}
+
+static inline float ecmrt_f32_lerp(const float *y, unsigned k, float w)
+{
+    return y[k] + (y[k + 1u] - y[k]) * w;
+}
+
+#if ECMRT_VARIABLE_DT
+/* c = 1 - exp(-x) for x = dt/tau >= 0, to < 1 ulp, from + - * and exact powers of two.
+ * x <= 0 or NaN gives 0; x >= 87 gives 1. */
+static inline float ecmrt_f32_one_minus_exp_neg(float x)
+{
+    int32_t n;
+    float fn, r, t, q, s;
+    union {
+        uint32_t u;
+        float f;
+    } bits;
+    if (!(x > 0.0f)) {
+        return 0.0f;
+    }
+    if (x >= 87.0f) {
+        return 1.0f;
+    }
+    /* x = n ln2 + r, |r| <= ln2/2 (Cody-Waite: n * LN2_HI is exact for n < 256) */
+    n = (int32_t)(x * 1.44269502f + 0.5f);
+    fn = (float)n;
+    r = (x - fn * 0.693145752f) - fn * 1.42860677e-06f;
+    /* q = exp(-r) - 1, Taylor series to t^7 in Horner form (t = -r, |t| < 0.35) */
+    t = -r;
+    q = 1.98412701e-04f;                    /* 1/5040 */
+    q = 1.38888892e-03f + t * q;            /* 1/720 */
+    q = 8.33333377e-03f + t * q;            /* 1/120 */
+    q = 4.16666679e-02f + t * q;            /* 1/24 */
+    q = 1.66666672e-01f + t * q;            /* 1/6 */
+    q = 0.5f + t * q;
+    q = 1.0f + t * q;
+    q = t * q;
+    if (n == 0) {
+        return -q;
+    }
+    /* exp(-x) = s (1 + q), s = 2^-n (1 <= n <= 126: a normal number, built exactly) */
+    bits.u = (uint32_t)(127 - n) << 23;
+    s = bits.f;
+    return (1.0f - s) - s * q;
+}
+#endif
+
+static inline void ecmrt_f32_init(ecmrt_f32_state_t *s, float soc0)
+{
+    if (soc0 != soc0) {
+        soc0 = 0.0f;                        /* NaN */
+    } else if (soc0 < ECMRT_F32_SOC_MIN) {
+        soc0 = ECMRT_F32_SOC_MIN;
+    } else if (soc0 > ECMRT_F32_SOC_MAX) {
+        soc0 = ECMRT_F32_SOC_MAX;
+    }
+    s->soc = soc0;
+    s->soc_c = 0.0f;
+    s->u_fast = 0.0f;
+    s->u_slow = 0.0f;
+    s->charging = (uint8_t)ECMRT_DISCHARGE;
+    s->k_ocv = 0u;
+    s->k_dir[0] = 0u;
+    s->k_dir[1] = 0u;
+}
+
+/* One step of the discrete 2RC model (src/ecmgen/simulate.py), current i in A (positive =
+ * charge) held over the step; returns the terminal voltage in V. */
+#if ECMRT_VARIABLE_DT
+static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ecmrt_f32_state_t *s,
+                                   float i, float dt)
+#else
+static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ecmrt_f32_state_t *s, float i)
+#endif
+{
+    const ecmrt_f32_dir_t *d;
+    unsigned dir, k;
+    float soc, y, w, r0, rf, rs, cf, cs, uf, us, ocv;
+
+    /* 0. saturate the inputs (NaN current counts as 0 A) */
+    if (i != i) {
+        i = 0.0f;
+    } else if (i > m->i_max_a) {
+        i = m->i_max_a;
+    } else if (i < -m->i_max_a) {
+        i = -m->i_max_a;
+    }
+#if ECMRT_VARIABLE_DT
+    if (!(dt > 0.0f)) {
+        dt = 0.0f;
+    } else if (dt > ECMRT_F32_DT_MAX) {
+        dt = ECMRT_F32_DT_MAX;
+    }
+#endif
+    /* 1. direction, with a deadband that keeps the last one */
+    if (i > m->deadband_a) {
+        s->charging = (uint8_t)ECMRT_CHARGE;
+    } else if (i < -m->deadband_a) {
+        s->charging = (uint8_t)ECMRT_DISCHARGE;
+    }
+    dir = s->charging;
+    /* 2. SOC first (the parameters are looked up at the new SOC); Kahan-compensated sum,
+     *    so a long run of equal small increments does not drift */
+#if ECMRT_VARIABLE_DT
+    y = (i * dt) * m->k_soc - s->soc_c;
+#else
+    y = i * m->k_soc - s->soc_c;
+#endif
+    soc = s->soc + y;
+    s->soc_c = (soc - s->soc) - y;
+    if (soc < ECMRT_F32_SOC_MIN) {
+        soc = ECMRT_F32_SOC_MIN;
+        s->soc_c = 0.0f;
+    } else if (soc > ECMRT_F32_SOC_MAX) {
+        soc = ECMRT_F32_SOC_MAX;
+        s->soc_c = 0.0f;
+    }
+    s->soc = soc;
+    /* 3. parameters of that direction, linear in SOC, clamped at the table ends */
+    d = &m->dir[dir];
+    w = ecmrt_f32_locate(&d->g, soc, &s->k_dir[dir]);
+    k = s->k_dir[dir];
+    r0 = ecmrt_f32_lerp(d->r0, k, w);
+    rf = ecmrt_f32_lerp(d->r_fast, k, w);
+    rs = ecmrt_f32_lerp(d->r_slow, k, w);
+#if ECMRT_VARIABLE_DT
+    cf = ecmrt_f32_one_minus_exp_neg(dt / ecmrt_f32_lerp(d->k_fast, k, w));
+    cs = ecmrt_f32_one_minus_exp_neg(dt / ecmrt_f32_lerp(d->k_slow, k, w));
+#else
+    cf = ecmrt_f32_lerp(d->k_fast, k, w);
+    cs = ecmrt_f32_lerp(d->k_slow, k, w);
+#endif
+    w = ecmrt_f32_locate(&m->ocv_g, soc, &s->k_ocv);
+    ocv = ecmrt_f32_lerp(m->ocv, s->k_ocv, w);
+    /* 4. exact ZOH: u = a u + r (1 - a) i, written u + c (r i - u) with c = 1 - a */
+    uf = s->u_fast;
+    uf = uf + cf * (rf * i - uf);
+    s->u_fast = uf;
+    us = s->u_slow;
+    us = us + cs * (rs * i - us);
+    s->u_slow = us;
+    /* 5. terminal voltage */
+    return ((ocv + r0 * i) + uf) + us;
+}
+
+#endif /* ECMRT_F32_H */

@@ -1,0 +1,498 @@
+"""Compile generated C on the host (cffi) and prove it equal to the Python models.
+
+The generated model and a small test harness are compiled as objects with the project's
+strict flags (``STRICT_CFLAGS``: C99, every warning an error, ``-ffp-contract=off``);
+cffi then links them into an extension module. Modules live in a cache folder
+(``$ECMGEN_CACHE``, else ``$XDG_CACHE_HOME/ecmgen`` or ``~/.cache/ecmgen``) under a name
+derived from the hash of every source byte, the flags and the compiler, so a rebuild
+only happens when something changed, and concurrent builds never see half a file.
+
+:func:`c_equivalence` is what ``ecmgen build --json`` reports under ``"c"``.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import importlib.machinery
+import importlib.util
+import os
+import shlex
+import shutil
+import subprocess
+import sys
+import sysconfig
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import cref
+from .codegen import CSpec, file_names, prepare, render
+
+STRICT_CFLAGS = ("-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Wconversion", "-Wshadow",
+                 "-Wdouble-promotion", "-Werror", "-ffp-contract=off")
+HOST_OPT = ("-O2",)
+SANITIZE_FLAGS = ("-fsanitize=undefined,address,float-cast-overflow",
+                  "-fno-sanitize-recover=all", "-fno-omit-frame-pointer", "-g")
+
+
+class CBuildError(RuntimeError):
+    """The C could not be compiled or run (message carries the compiler output)."""
+
+
+def cache_dir() -> Path:
+    env = os.environ.get("ECMGEN_CACHE")
+    if env:
+        base = Path(env)
+    else:
+        base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "ecmgen"
+    base.mkdir(parents=True, exist_ok=True)
+    return base
+
+
+def host_cc() -> list[str]:
+    """The C compiler: $CC, else the one Python was built with, else cc."""
+    cc = os.environ.get("CC") or sysconfig.get_config_var("CC") or "cc"
+    cmd = shlex.split(cc)
+    if not shutil.which(cmd[0]):
+        cmd = ["cc"]
+    if not shutil.which(cmd[0]):
+        raise CBuildError("no C compiler found (set CC, or install gcc: apt-get install gcc)")
+    return cmd
+
+
+@functools.lru_cache(maxsize=None)
+def _cc_identity(cc: tuple[str, ...]) -> str:
+    try:
+        out = subprocess.run([*cc, "--version"], capture_output=True, text=True, timeout=30).stdout
+    except OSError as exc:
+        raise CBuildError(f"cannot run the C compiler {cc[0]}: {exc}") from None
+    return out.splitlines()[0] if out else cc[0]
+
+
+def run_cc(args: list[str], cwd: Path | None = None) -> None:
+    proc = subprocess.run(args, capture_output=True, text=True, cwd=cwd)
+    if proc.returncode != 0 or proc.stderr.strip():
+        # -Werror makes warnings fail; anything on stderr is reported (linker notes too)
+        if proc.returncode != 0:
+            raise CBuildError(f"compile failed: {' '.join(args)}\n{proc.stderr}")
+
+
+# --------------------------------------------------------------------------------------
+# harness (test helpers compiled with the generated model, strict flags too)
+# --------------------------------------------------------------------------------------
+
+def _types(spec: CSpec) -> tuple[str, str]:
+    return ("int32_t", "ecmrt_q_state_t") if spec.fixed else ("float", "ecmrt_f32_state_t")
+
+
+def harness_source(spec: CSpec) -> str:
+    p = spec.prefix
+    t, _ = _types(spec)
+    vdt = spec.variable_dt
+    call = f"{p}_step(s, i[k], dt[k])" if vdt else f"{p}_step(s, i[k])"
+    dt_arg = f"const {t} *dt, " if vdt else ""
+    if spec.fixed:
+        stress_body = f"""
+        int32_t i = (int32_t)(ecmh_rand(&x) >> 1) - (int32_t)(ecmh_rand(&x) >> 1);
+        if ((ecmh_rand(&x) & 3u) != 0u) {{
+            i = (int32_t)(i >> (ecmh_rand(&x) % 24u));        /* mostly moderate currents */
+        }}
+        {"int32_t dt = (int32_t)(ecmh_rand(&x) % ((uint32_t)dt_max + 1u));" if vdt else ""}
+        const int32_t v = {f"{p}_step(s, i, dt)" if vdt else f"{p}_step(s, i)"};
+        if (v < lo[0]) lo[0] = v;
+        if (v > hi[0]) hi[0] = v;
+        if (s->soc < lo[1]) lo[1] = s->soc;
+        if (s->soc > hi[1]) hi[1] = s->soc;
+"""
+        stress_sig = f"void ecmh_stress({p}_state_t *s, uint32_t seed, size_t n, int32_t dt_max, int32_t *lo, int32_t *hi, uint32_t *bad)"
+    else:
+        stress_body = f"""
+        const float u = (float)(int32_t)ecmh_rand(&x) * 4.65661287e-10f;  /* [-1, 1) */
+        float i = u * i_amp;
+        {"float dt = (float)(ecmh_rand(&x) >> 8) * 5.96046448e-08f * dt_max;" if vdt else ""}
+        float v;
+        if ((ecmh_rand(&x) & 1023u) == 0u) {{
+            i = i * 1.0e30f;                                    /* occasional absurd current */
+        }}
+        v = {f"{p}_step(s, i, dt)" if vdt else f"{p}_step(s, i)"};
+        if (!(v == v) || v > 1.0e6f || v < -1.0e6f || !(s->u_fast == s->u_fast) ||
+            !(s->u_slow == s->u_slow) || !(s->soc >= -2.0f && s->soc <= 2.0f)) {{
+            (*bad)++;
+        }} else {{
+            if (v < lo[0]) lo[0] = v;
+            if (v > hi[0]) hi[0] = v;
+        }}
+        if (s->soc < lo[1]) lo[1] = s->soc;
+        if (s->soc > hi[1]) hi[1] = s->soc;
+"""
+        stress_sig = f"void ecmh_stress({p}_state_t *s, uint32_t seed, size_t n, float i_amp, float dt_max, float *lo, float *hi, uint32_t *bad)"
+    unused = "" if vdt or spec.fixed else "    (void)dt_max;\n"
+    if spec.fixed and not vdt:
+        unused = "    (void)dt_max;\n"
+    return f"""/* test harness for {p}: traces and a pseudo-random stress loop (not shipped) */
+#include "ecmh_harness.h"
+
+size_t ecmh_state_size(void)
+{{
+    return sizeof({p}_state_t);
+}}
+
+void ecmh_trace({p}_state_t *s, const {t} *i, {dt_arg}{t} *v, {t} *soc, {t} *uf, {t} *us,
+                uint8_t *chg, size_t n)
+{{
+    size_t k;
+    for (k = 0u; k < n; k++) {{
+        v[k] = {call};
+        soc[k] = s->soc;
+        uf[k] = s->u_fast;
+        us[k] = s->u_slow;
+        chg[k] = s->charging;
+    }}
+}}
+
+static uint32_t ecmh_rand(uint32_t *x)
+{{
+    uint32_t y = *x;
+    y ^= y << 13;
+    y ^= y >> 17;
+    y ^= y << 5;
+    *x = y;
+    return y;
+}}
+
+{stress_sig}
+{{
+    uint32_t x = seed | 1u;
+    size_t k;
+{unused}    *bad = 0u;
+    for (k = 0u; k < n; k++) {{
+{stress_body}
+    }}
+}}
+"""
+
+
+def harness_header(spec: CSpec) -> str:
+    p = spec.prefix
+    t, _ = _types(spec)
+    dt_arg = f"const {t} *dt, " if spec.variable_dt else ""
+    if spec.fixed:
+        stress = (f"void ecmh_stress({p}_state_t *s, uint32_t seed, size_t n, int32_t dt_max, "
+                  "int32_t *lo, int32_t *hi, uint32_t *bad);")
+    else:
+        stress = (f"void ecmh_stress({p}_state_t *s, uint32_t seed, size_t n, float i_amp, "
+                  "float dt_max, float *lo, float *hi, uint32_t *bad);")
+    return f"""#ifndef ECMH_HARNESS_H
+#define ECMH_HARNESS_H
+#include "{p}_ecm.h"
+void ecmh_trace({p}_state_t *s, const {t} *i, {dt_arg}{t} *v, {t} *soc, {t} *uf, {t} *us,
+                uint8_t *chg, size_t n);
+{stress}
+size_t ecmh_state_size(void);
+#endif
+"""
+
+
+def _cdef(spec: CSpec) -> str:
+    p = spec.prefix
+    t, _ = _types(spec)
+    vdt = spec.variable_dt
+    state = (f"typedef struct {{ {t} soc; {t} u_fast; {t} u_slow; uint8_t charging; "
+             f"uint8_t k_ocv; uint8_t k_dir[2]; }} {p}_state_t;")
+    dt_arg = f"const {t} *dt, " if vdt else ""
+    if spec.fixed:
+        stress = (f"void ecmh_stress({p}_state_t *s, uint32_t seed, size_t n, int32_t dt_max, "
+                  "int32_t *lo, int32_t *hi, uint32_t *bad);")
+    else:
+        stress = (f"void ecmh_stress({p}_state_t *s, uint32_t seed, size_t n, float i_amp, "
+                  "float dt_max, float *lo, float *hi, uint32_t *bad);")
+    return "\n".join([
+        state,
+        f"void {p}_init({p}_state_t *s, {t} soc0);",
+        f"{t} {p}_step({p}_state_t *s, {t} i, {t} dt);" if vdt else f"{t} {p}_step({p}_state_t *s, {t} i);",
+        f"void {p}_run({p}_state_t *s, const {t} *i, {dt_arg}{t} *v, size_t n);",
+        f"void ecmh_trace({p}_state_t *s, const {t} *i, {dt_arg}{t} *v, {t} *soc, {t} *uf, "
+        f"{t} *us, uint8_t *chg, size_t n);",
+        stress,
+        "size_t ecmh_state_size(void);",
+    ])
+
+
+# --------------------------------------------------------------------------------------
+# compile + load
+# --------------------------------------------------------------------------------------
+
+_LOADED: dict[str, object] = {}
+
+
+def _load(name: str, path: Path):
+    if name in _LOADED:
+        return _LOADED[name]
+    loader = importlib.machinery.ExtensionFileLoader(name, str(path))
+    spec = importlib.util.spec_from_file_location(name, str(path), loader=loader)
+    mod = importlib.util.module_from_spec(spec)
+    loader.exec_module(mod)
+    _LOADED[name] = mod
+    return mod
+
+
+def write_sources(spec: CSpec, out_dir: Path, harness: bool = True) -> list[Path]:
+    """Generated files (+ harness.c) into out_dir; returns the .c files."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for name, text in render(spec).items():
+        (out_dir / name).write_text(text)
+    srcs = [out_dir / file_names(spec.prefix, spec.numeric)["source"]]
+    if harness:
+        (out_dir / "ecmh_harness.h").write_text(harness_header(spec))
+        (out_dir / "ecmh_harness.c").write_text(harness_source(spec))
+        srcs.append(out_dir / "ecmh_harness.c")
+    return srcs
+
+
+def compile_spec(spec: CSpec, cache: Path | None = None, opt=HOST_OPT) -> "CModel":
+    """Compile (or fetch from the cache) the C of ``spec`` and return a :class:`CModel`."""
+    import cffi
+
+    cache = Path(cache) if cache is not None else cache_dir()
+    cache.mkdir(parents=True, exist_ok=True)
+    cc = host_cc()
+    files = render(spec)
+    harness = harness_header(spec) + harness_source(spec)
+    cdef = _cdef(spec)
+    flags = [*STRICT_CFLAGS, *opt, "-fPIC"]
+    h = hashlib.sha256()
+    for part in [*(f"{k}\0{v}" for k, v in sorted(files.items())), harness, cdef, " ".join(flags),
+                 _cc_identity(tuple(cc)), cffi.__version__, sys.implementation.cache_tag or ""]:
+        h.update(part.encode())
+        h.update(b"\0")
+    key = h.hexdigest()[:24]
+    name = f"_ecmgen_c_{key}"
+    suffix = importlib.machinery.EXTENSION_SUFFIXES[0]
+    so = cache / f"{name}{suffix}"
+    if not so.exists():
+        build = Path(tempfile.mkdtemp(prefix=f".{name}.", dir=cache))
+        try:
+            objs = []
+            for src in write_sources(spec, build):
+                obj = src.with_suffix(".o")
+                run_cc([*cc, *flags, "-I", str(build), "-c", str(src), "-o", str(obj)])
+                objs.append(str(obj))
+            ffi = cffi.FFI()
+            ffi.cdef(cdef)
+            ffi.set_source(name, '#include "ecmh_harness.h"\n', include_dirs=[str(build)],
+                           extra_objects=objs)
+            try:
+                built = Path(ffi.compile(tmpdir=str(build), verbose=False))
+            except Exception as exc:  # distutils/setuptools errors
+                raise CBuildError(f"cffi could not build the module: {exc}") from None
+            os.replace(built, so)
+        finally:
+            shutil.rmtree(build, ignore_errors=True)
+    mod = _load(name, so)
+    return CModel(spec, mod.ffi, mod.lib, so)
+
+
+@dataclass
+class CModel:
+    """A compiled model. All runs start from a fresh state at ``soc0``."""
+
+    spec: CSpec
+    ffi: object
+    lib: object
+    path: Path
+
+    @property
+    def _t(self):
+        return np.int32 if self.spec.fixed else np.float32
+
+    def new_state(self, soc0):
+        s = self.ffi.new(f"{self.spec.prefix}_state_t *")
+        getattr(self.lib, f"{self.spec.prefix}_init")(s, soc0)
+        return s
+
+    def _buf(self, a):
+        return self.ffi.from_buffer(f"{'int32_t' if self.spec.fixed else 'float'}[]", a)
+
+    def trace_native(self, i, dt=None, soc0=None) -> cref.RefResult:
+        """Run on native inputs (float32 arrays, or int32 raw), recording the state."""
+        t = self._t
+        i = np.ascontiguousarray(i, dtype=t)
+        n = i.size
+        if soc0 is None:
+            soc0 = cref.ONE30 if self.spec.fixed else 1.0
+        s = self.new_state(soc0)
+        v, soc, uf, us = (np.empty(n, dtype=t) for _ in range(4))
+        chg = np.empty(n, dtype=np.uint8)
+        args = [s, self._buf(i)]
+        if self.spec.variable_dt:
+            if dt is None:
+                raise ValueError("variable-dt model: give dt")
+            dt = np.ascontiguousarray(dt, dtype=t)
+            if dt.size != n:
+                raise ValueError("current and dt differ in length")
+            args.append(self._buf(dt))
+        args += [self._buf(a) for a in (v, soc, uf, us)]
+        args += [self.ffi.from_buffer("uint8_t[]", chg), n]
+        self.lib.ecmh_trace(*args)
+        return cref.RefResult(v, soc, uf, us, chg)
+
+    def run_native(self, i, dt=None, soc0=None) -> np.ndarray:
+        """Voltages only, through the generated <prefix>_run loop."""
+        t = self._t
+        i = np.ascontiguousarray(i, dtype=t)
+        if soc0 is None:
+            soc0 = cref.ONE30 if self.spec.fixed else 1.0
+        s = self.new_state(soc0)
+        v = np.empty(i.size, dtype=t)
+        run = getattr(self.lib, f"{self.spec.prefix}_run")
+        if self.spec.variable_dt:
+            dt = np.ascontiguousarray(dt, dtype=t)
+            run(s, self._buf(i), self._buf(dt), self._buf(v), i.size)
+        else:
+            run(s, self._buf(i), self._buf(v), i.size)
+        return v
+
+    def native_inputs(self, current_a, dt_s=None, soc0: float = 1.0):
+        """SI inputs -> what a C caller passes (float32, or raw Q integers)."""
+        if self.spec.fixed:
+            i = cref.current_to_raw(self.spec, current_a).astype(np.int32)
+            dt = None if dt_s is None else cref.dt_to_raw(dt_s).astype(np.int32)
+            return i, dt, cref.soc_to_raw(soc0)
+        i = np.asarray(current_a, dtype=np.float64).astype(np.float32)
+        dt = None if dt_s is None else np.asarray(dt_s, dtype=np.float64).astype(np.float32)
+        return i, dt, float(np.float32(soc0))
+
+    def simulate(self, current_a, dt_s=None, soc0: float = 1.0) -> np.ndarray:
+        """Voltage in V (float64) for SI inputs."""
+        i, dt, s0 = self.native_inputs(current_a, dt_s if self.spec.variable_dt else None, soc0)
+        v = self.run_native(i, dt, s0)
+        return cref.volts(self.spec, v) if self.spec.fixed else v.astype(np.float64)
+
+    def reference(self, current_a, dt_s=None, soc0: float = 1.0) -> cref.RefResult:
+        """The Python reference (float32 or bit-true) on the same SI inputs."""
+        if self.spec.fixed:
+            return cref.simulate_fixed(self.spec, current_a, dt_s if self.spec.variable_dt else None, soc0)[0]
+        return cref.simulate_f32(self.spec, current_a, dt_s if self.spec.variable_dt else None, soc0)
+
+    def stress(self, n: int, seed: int = 1, soc0=None, i_amp: float | None = None,
+               dt_max: float = 10.0) -> dict:
+        """n pseudo-random steps in a C loop; extremes of v and SOC and a count of bad steps
+        (non-finite values, SOC outside its saturation range)."""
+        t = self._t
+        s = self.new_state(soc0 if soc0 is not None else (cref.ONE30 if self.spec.fixed else 1.0))
+        lo = np.array([np.iinfo(t).max if self.spec.fixed else np.inf] * 2, dtype=t)
+        hi = np.array([np.iinfo(t).min if self.spec.fixed else -np.inf] * 2, dtype=t)
+        bad = self.ffi.new("uint32_t *")
+        if self.spec.fixed:
+            self.lib.ecmh_stress(s, seed, n, int(cref.dt_to_raw([dt_max])[0]),
+                                 self._buf(lo), self._buf(hi), bad)
+            conv = [lambda r: float(cref.volts(self.spec, r)), lambda r: float(r) / cref.ONE30]
+        else:
+            amp = 4.0 * self.spec.i_lim_a if i_amp is None else i_amp
+            self.lib.ecmh_stress(s, seed, n, amp, dt_max, self._buf(lo), self._buf(hi), bad)
+            conv = [float, float]
+        return {"v_min": conv[0](lo[0]), "v_max": conv[0](hi[0]), "soc_min": conv[1](lo[1]),
+                "soc_max": conv[1](hi[1]), "bad": int(bad[0]),
+                "final": {"soc": s.soc, "u_fast": s.u_fast, "u_slow": s.u_slow}}
+
+
+def build(model, numeric: str = "float", dt_s: float | None = None, prefix: str = "ecm",
+          i_max_a: float | None = None, cache: Path | None = None) -> CModel:
+    """prepare() + compile_spec() in one call."""
+    return compile_spec(prepare(model, numeric=numeric, dt_s=dt_s, prefix=prefix, i_max_a=i_max_a),
+                        cache=cache)
+
+
+# --------------------------------------------------------------------------------------
+# equivalence report
+# --------------------------------------------------------------------------------------
+
+def _bits_equal(a: np.ndarray, b: np.ndarray) -> bool:
+    a, b = np.asarray(a), np.asarray(b)
+    if a.dtype.kind == "f":
+        return a.shape == b.shape and np.array_equal(a.view(np.uint32), b.astype(a.dtype).view(np.uint32))
+    return a.shape == b.shape and np.array_equal(a.astype(np.int64), b.astype(np.int64))
+
+
+def python_voltage(model, time_s, current_a, soc0: float, dt_s: float | None = None) -> np.ndarray:
+    """The float64 model (simulate.py, without diagnose effects) the C is compared with.
+
+    dt_s None: on the record's own time stamps (dt_0 = 0, as the variable-dt C).
+    dt_s given (fixed-dt C, whose every step lasts dt_s, the first one included): on the
+    uniform time line t_0 + k dt_s, preceded by one rested sample so that Python's step k
+    is the C's step k (simulate.py gives its first sample dt = 0)."""
+    from dataclasses import replace
+
+    from .simulate import simulate
+
+    base = replace(model, effects=()) if getattr(model, "effects", ()) else model
+    current_a = np.asarray(current_a, dtype=np.float64)
+    if dt_s is None:
+        return simulate(base, np.asarray(time_s, dtype=np.float64), current_a, soc0).voltage_v
+    t = dt_s * np.arange(current_a.size + 1, dtype=np.float64)
+    return simulate(base, t, np.concatenate(([0.0], current_a)), soc0).voltage_v[1:]
+
+
+def compare(model, cm: CModel, time_s, current_a, soc0: float, measured_v=None) -> dict:
+    """Drive the compiled model and its reference over (time, current) and compare with the
+    float64 Python model (simulate.py, without diagnose effects) and the measurement."""
+    time_s = np.asarray(time_s, dtype=np.float64)
+    current_a = np.asarray(current_a, dtype=np.float64)
+    dt = cref.dt_from_time(time_s)
+    i_n, dt_n, s0 = cm.native_inputs(current_a, dt if cm.spec.variable_dt else None, soc0)
+    got = cm.trace_native(i_n, dt_n, s0)
+    ref = cm.reference(current_a, dt, soc0)
+    exact = all(_bits_equal(getattr(got, f), getattr(ref, f)) for f in ("v", "soc", "u_fast", "u_slow", "charging"))
+    if cm.spec.fixed:
+        v_c, v_ref = cref.volts(cm.spec, got.v), cref.volts(cm.spec, ref.v)
+    else:
+        v_c, v_ref = got.v.astype(np.float64), ref.v.astype(np.float64)
+    v64 = python_voltage(model, time_s, current_a, soc0, None if cm.spec.variable_dt else cm.spec.dt_s)
+    out = {
+        "steps": int(time_s.size),
+        "dt": "variable" if cm.spec.variable_dt else cm.spec.dt_s,
+        "bit_exact_vs_reference": bool(exact),
+        "max_abs_diff_vs_reference_v": float(np.max(np.abs(v_c - v_ref))) if v_c.size else 0.0,
+        "max_abs_diff_vs_python_v": float(np.max(np.abs(v_c - v64))) if v_c.size else 0.0,
+    }
+    if measured_v is not None:
+        m = np.asarray(measured_v, dtype=np.float64)
+        mae_c = float(np.mean(np.abs(v_c - m)))
+        mae_py = float(np.mean(np.abs(v64 - m)))
+        out.update({"mae_v": mae_c, "python_mae_v": mae_py, "delta_mae_v": abs(mae_c - mae_py)})
+    return out
+
+
+def resample_uniform(time_s, current_a, voltage_v, dt_s: float):
+    """A record on a uniform grid t0 + k dt_s (current: zero-order hold as the model reads it,
+    i.e. the sample whose interval (t_{k-1}, t_k] holds the instant; voltage: linear)."""
+    t = np.asarray(time_s, dtype=np.float64)
+    n = int(np.floor((t[-1] - t[0]) / dt_s)) + 1
+    tu = t[0] + dt_s * np.arange(n)
+    idx = np.clip(np.searchsorted(t, tu, side="left"), 0, t.size - 1)
+    iu = np.asarray(current_a, dtype=np.float64)[idx]
+    vu = None if voltage_v is None else np.interp(tu, t, np.asarray(voltage_v, dtype=np.float64))
+    return tu, iu, vu
+
+
+def c_equivalence(model, series, soc0: float, *, dt_s: float | None = None, prefix: str = "ecm",
+                  i_max_a: float | None = None, cache: Path | None = None) -> dict:
+    """The ``"c"`` block of ``ecmgen build --json``: for numeric float and fixed, the C's MAE
+    against the measured voltage and its largest difference from the float64 Python model,
+    plus bit-exactness against the float32 / bit-true references.
+
+    ``dt_s=None`` (default): variable-dt builds driven by the record's own time stamps.
+    ``dt_s`` given: fixed-dt builds; the record is resampled to the uniform grid of dt_s
+    (see resample_uniform) and the float64 Python model is driven on that same grid."""
+    if dt_s is None:
+        t, i, v = series.time_s, series.current_a, series.voltage_v
+    else:
+        t, i, v = resample_uniform(series.time_s, series.current_a, series.voltage_v, dt_s)
+    out = {}
+    for numeric in ("float", "fixed"):
+        cm = build(model, numeric=numeric, dt_s=dt_s, prefix=prefix, i_max_a=i_max_a, cache=cache)
+        out[numeric] = compare(model, cm, t, i, soc0, v)
+    return out

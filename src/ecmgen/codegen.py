@@ -1,0 +1,559 @@
+"""model.json -> C for BMS microcontrollers: ``<prefix>_ecm.h`` / ``<prefix>_ecm.c``.
+
+The generated C holds only ``static const`` tables and three thin functions; the step
+itself is the hand-written runtime in ``c_runtime/`` (copied beside the generated files).
+Two numerics:
+
+``float``  IEEE binary32 tables, literals with 9 significant digits (they round-trip).
+``fixed``  int32 tables in Q formats chosen here from the model's value ranges; int64
+           intermediates, rounding half up, saturation; no floating point at all.
+
+Two time-step modes:
+
+variable dt (``dt_s=None``)  ``step(state, i, dt)``; the coefficients c = 1 - exp(-dt/tau)
+    are computed at run time from the interpolated tau, exactly as ``simulate.py`` does
+    (float: a deterministic exp built from + - * ; fixed: integer exp). This is the mode
+    that runs the measured, non-uniform drive cycles.
+fixed dt (``dt_s`` given)    ``step(state, i)``; c = 1 - exp(-dt_s/tau) is precomputed per
+    breakpoint and *interpolated* (cheaper: no division, no exp). Between breakpoints this
+    differs from ``simulate.py`` (which interpolates tau), only in the RC time constants.
+
+Every constant the C uses is computed once here (float64 maths, then rounded once to
+float32 or quantised once to an integer) into a :class:`CSpec`; both the renderer and the
+Python references in :mod:`ecmgen.cref` read that spec, so "what the C does" has one
+definition. Same model + options -> byte-identical files.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__
+from .errors import InputError
+from .model import DIRECTIONS, RC_FIELDS, EcmModel, load_model, write_atomic
+
+NUMERICS = ("float", "fixed")
+RUNTIME_FILES = {"float": ("ecmrt.h", "ecmrt_f32.h"), "fixed": ("ecmrt.h", "ecmrt_q.h")}
+MAX_POINTS = 255            # segment hints are uint8_t
+Q30 = 30
+Q_D = 16                    # dt input of the variable-dt fixed-point step
+DT_MAX_S = 32767.0          # dt saturation (float); Q16 int32 range (fixed)
+SOC_LIM = 2.0               # SOC saturates at +-2 (float) / int32 Q30 range (fixed)
+DEFAULT_I_MAX_C = 32.0      # default current range: 32 C, rounded up to a power of two
+INT32_MAX = 2**31 - 1
+
+_PREFIX_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_]{0,31}$")
+_RESERVED = {"ecmrt", "int", "float", "double", "char", "void", "static", "const", "return"}
+
+
+def _find_dir(name: str) -> Path:
+    """templates/ and c_runtime/ live at the repository root (editable install); an
+    installed package may carry them as package data under ecmgen/_data/."""
+    here = Path(__file__).resolve().parent
+    for cand in (here / "_data" / name, here.parents[1] / name):
+        if cand.is_dir():
+            return cand
+    raise FileNotFoundError(f"ecmgen: {name}/ not found beside the package (looked in "
+                            f"{here / '_data'} and {here.parents[1]})")
+
+
+def templates_dir() -> Path:
+    return _find_dir("templates")
+
+
+def runtime_dir() -> Path:
+    return _find_dir("c_runtime")
+
+
+# --------------------------------------------------------------------------------------
+# the spec: every number the C contains
+# --------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class CGrid:
+    """SOC breakpoints and 1/spacing, as emitted (float32 values or int64 raw integers)."""
+
+    x: np.ndarray
+    inv_dx: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return int(self.x.size)
+
+
+@dataclass(frozen=True)
+class CDir:
+    """Tables of one current direction. k_fast/k_slow: tau (variable dt) or c (fixed dt)."""
+
+    grid: CGrid
+    r0: np.ndarray
+    r_fast: np.ndarray
+    k_fast: np.ndarray
+    r_slow: np.ndarray
+    k_slow: np.ndarray
+
+
+@dataclass(frozen=True)
+class CSpec:
+    """Everything the generated C holds, for one (model, numeric, dt) choice.
+
+    numeric "float": arrays are np.float32, scalars np.float32.
+    numeric "fixed": arrays are np.int64 holding int32 raw values; ``q`` the formats."""
+
+    prefix: str
+    numeric: str
+    variable_dt: bool
+    dt_s: float | None
+    ocv_grid: CGrid
+    ocv: np.ndarray
+    dirs: tuple[CDir, CDir]            # (discharge, charge), index = state.charging
+    deadband: object                   # float32 A or int Q_I
+    k_soc: object                      # float32 or int (scaled by the formats in q)
+    i_lim_a: float                     # saturation of the current (power of two)
+    q: dict = field(default_factory=dict)
+    model_sha256: str = ""
+    tool_version: str = __version__
+    capacity_ah: float = 0.0
+    notes: tuple[str, ...] = ()
+
+    @property
+    def fixed(self) -> bool:
+        return self.numeric == "fixed"
+
+
+# --------------------------------------------------------------------------------------
+# validation
+# --------------------------------------------------------------------------------------
+
+def _as_model(model) -> EcmModel:
+    if isinstance(model, EcmModel):
+        return model
+    if isinstance(model, (str, Path)):
+        return load_model(model)
+    raise TypeError(f"expected an EcmModel or a model.json path, got {type(model).__name__}")
+
+
+def check_options(prefix: str, numeric: str, dt_s, i_max_a) -> None:
+    if not isinstance(prefix, str) or not _PREFIX_RE.match(prefix) or prefix.lower() in _RESERVED:
+        raise InputError(None, f"[c] prefix {prefix!r} is not usable: it must be a C identifier "
+                               "of 1-32 letters, digits or '_' starting with a letter")
+    if numeric not in NUMERICS:
+        raise InputError(None, f"[c] numeric must be \"float\" or \"fixed\", got {numeric!r}")
+    if dt_s is not None:
+        if not isinstance(dt_s, (int, float)) or not math.isfinite(dt_s) or not 0 < dt_s <= 3600:
+            raise InputError(None, f"[c] dt_s must be a number of seconds in (0, 3600], got {dt_s!r}")
+    if i_max_a is not None:
+        if not isinstance(i_max_a, (int, float)) or not math.isfinite(i_max_a) or not 0 < i_max_a <= 1e5:
+            raise InputError(None, f"[c] i_max_a must be a current in (0, 1e5] A, got {i_max_a!r}")
+
+
+def validate_for_c(model: EcmModel, path=None) -> None:
+    """Refuse, with one clear line, a model the C cannot represent. (load_model already
+    refuses bad schema versions, missing tables and non-finite values in model.json; this
+    repeats the checks for models built in memory and adds the C limits.)"""
+    def arr(a, name):
+        a = np.asarray(a, dtype=np.float64)
+        if a.ndim != 1 or a.size == 0:
+            raise InputError(path, f"{name} must be a non-empty 1-D table")
+        if not np.all(np.isfinite(a)):
+            raise InputError(path, f"{name} has non-finite values (NaN or inf)")
+        return a
+
+    cap = float(model.capacity_ah)
+    if not math.isfinite(cap) or cap <= 0:
+        raise InputError(path, f"capacity_ah must be a positive number, got {model.capacity_ah!r}")
+    db = float(model.direction_deadband_a)
+    if not math.isfinite(db) or db < 0:
+        raise InputError(path, f"direction_deadband_a must be >= 0, got {model.direction_deadband_a!r}")
+    grids = {"ocv": arr(model.ocv.soc, "ocv.soc")}
+    ocv = arr(model.ocv.ocv_v, "ocv.ocv_v")
+    if ocv.size != grids["ocv"].size:
+        raise InputError(path, "ocv.soc and ocv.ocv_v differ in length")
+    if np.any(ocv <= 0) or np.any(ocv > 100):
+        raise InputError(path, "ocv.ocv_v must lie in (0, 100] V")
+    for d in DIRECTIONS:
+        t = model.table(d)
+        grids[d] = arr(t.soc, f"rc.{d}.soc")
+        for k in RC_FIELDS:
+            a = arr(getattr(t, k), f"rc.{d}.{k}")
+            if a.size != grids[d].size:
+                raise InputError(path, f"rc.{d}.{k} has {a.size} values, soc has {grids[d].size}")
+            if k.startswith("tau"):
+                if np.any(a <= 0) or np.any(a > 1e6):
+                    raise InputError(path, f"rc.{d}.{k} must lie in (0, 1e6] s")
+                if np.any(a < 1e-3):
+                    raise InputError(path, f"rc.{d}.{k} has time constants below 1 ms")
+            elif np.any(a < 0) or np.any(a > 100):
+                raise InputError(path, f"rc.{d}.{k} must lie in [0, 100] ohm")
+    for name, x in grids.items():
+        where = "ocv.soc" if name == "ocv" else f"rc.{name}.soc"
+        if x.size > MAX_POINTS:
+            raise InputError(path, f"{where} has {x.size} points; the C supports at most {MAX_POINTS}")
+        if x[0] < 0 or x[-1] > 1:
+            raise InputError(path, f"{where} must lie within [0, 1]")
+        if x.size > 1 and np.min(np.diff(x)) < 1e-6:
+            raise InputError(path, f"{where} breakpoints must be strictly increasing, at least 1e-6 apart")
+
+
+# --------------------------------------------------------------------------------------
+# spec preparation
+# --------------------------------------------------------------------------------------
+
+def _q_fit(vmax: float, bits: int = 31, cap: int = 62) -> int:
+    """Largest Q (<= cap) with round(vmax * 2^Q) <= 2^bits - 1."""
+    limit = 2**bits - 1
+    if vmax <= 0:
+        return cap
+    q = min(cap, math.floor(math.log2(limit / vmax)))
+    while math.floor(math.ldexp(vmax, q) + 0.5) > limit:
+        q -= 1
+    return q
+
+
+def quantize(values, q: int) -> np.ndarray:
+    """round(v * 2^q) half up, saturated to int32, as int64 (the one quantiser of ecmgen)."""
+    v = np.ldexp(np.asarray(values, dtype=np.float64), q)
+    v = np.floor(v + 0.5)
+    return np.clip(v, -2**31, INT32_MAX).astype(np.int64)
+
+
+def _f32(values, name: str) -> np.ndarray:
+    a = np.asarray(values, dtype=np.float64).astype(np.float32)
+    if not np.all(np.isfinite(a)):
+        raise InputError(None, f"{name} does not fit float32")
+    return a
+
+
+def _expand(soc: np.ndarray, cols: list[np.ndarray]):
+    """A one-point table is constant: give it the grid [0, 1] (same as np.interp)."""
+    if soc.size >= 2:
+        return soc, cols
+    return np.array([0.0, 1.0]), [np.repeat(c, 2) for c in cols]
+
+
+def _coef(dt_s: float, tau: np.ndarray) -> np.ndarray:
+    """c = 1 - exp(-dt/tau), computed without cancellation."""
+    return -np.expm1(-dt_s / tau)
+
+
+def prepare(model, numeric: str = "float", dt_s: float | None = None, prefix: str = "ecm",
+            i_max_a: float | None = None) -> CSpec:
+    """The tables and constants the C will hold (see :class:`CSpec`). Raises InputError
+    for a model or an option the C cannot represent."""
+    model = _as_model(model)
+    check_options(prefix, numeric, dt_s, i_max_a)
+    validate_for_c(model)
+    dt_s = None if dt_s is None else float(dt_s)
+    variable_dt = dt_s is None
+    cap = float(model.capacity_ah)
+    if i_max_a is None:
+        i_max_a = DEFAULT_I_MAX_C * cap
+    q_i = int(min(30, max(0, 31 - math.ceil(math.log2(i_max_a)))))
+    i_lim = math.ldexp(1.0, 31 - q_i)
+    notes = []
+    if model.effects:
+        notes.append(f"the model's {len(model.effects)} diagnose effect(s) are not in the C "
+                     "(the C is the plain 2RC model)")
+
+    ocv_soc, (ocv_v,) = _expand(np.asarray(model.ocv.soc, float), [np.asarray(model.ocv.ocv_v, float)])
+    raw_dirs = []
+    for d in ("discharge", "charge"):
+        t = model.table(d)
+        soc, cols = _expand(np.asarray(t.soc, float), [np.asarray(getattr(t, k), float) for k in RC_FIELDS])
+        raw_dirs.append((soc, dict(zip(RC_FIELDS, cols))))
+
+    def k_tables(cols):
+        if variable_dt:
+            return cols["tau_fast_s"], cols["tau_slow_s"]
+        return _coef(dt_s, cols["tau_fast_s"]), _coef(dt_s, cols["tau_slow_s"])
+
+    common = dict(prefix=prefix, numeric=numeric, variable_dt=variable_dt, dt_s=dt_s,
+                  i_lim_a=i_lim, model_sha256=model.sha256(), capacity_ah=cap)
+    k_soc64 = 1.0 / (3600.0 * cap) if variable_dt else dt_s / (3600.0 * cap)
+
+    if numeric == "float":
+        def fgrid(x, name):
+            x32 = _f32(x, name)
+            dx = np.diff(x32.astype(np.float64))
+            if np.any(dx <= 0):
+                raise InputError(None, f"{name} breakpoints collapse in float32")
+            return CGrid(x32, _f32(1.0 / dx, name + " spacing"))
+
+        dirs = []
+        for (soc, cols), name in zip(raw_dirs, ("discharge", "charge")):
+            kf, ks = k_tables(cols)
+            kf32, ks32 = _f32(kf, name), _f32(ks, name)
+            if variable_dt and (np.any(kf32 <= 0) or np.any(ks32 <= 0)):
+                raise InputError(None, f"rc.{name} time constants underflow float32")
+            dirs.append(CDir(fgrid(soc, f"rc.{name}.soc"), _f32(cols["r0_ohm"], name),
+                             _f32(cols["r_fast_ohm"], name), kf32,
+                             _f32(cols["r_slow_ohm"], name), ks32))
+        return CSpec(ocv_grid=fgrid(ocv_soc, "ocv.soc"), ocv=_f32(ocv_v, "ocv_v"), dirs=tuple(dirs),
+                     deadband=np.float32(model.direction_deadband_a), k_soc=np.float32(k_soc64),
+                     q={}, notes=tuple(notes), **common)
+
+    # ---- fixed point: formats from the value ranges --------------------------------
+    def vmax(key):
+        return max(float(np.max(c[key])) for _, c in raw_dirs)
+
+    q = {"Q_I": q_i}
+    v_bound = float(np.max(ocv_v)) + i_lim * (vmax("r0_ohm") + vmax("r_fast_ohm") + vmax("r_slow_ohm"))
+    q["Q_V"] = min(30, _q_fit(v_bound * 1.001))
+    for key, name in (("r0_ohm", "Q_R0"), ("r_fast_ohm", "Q_RF"), ("r_slow_ohm", "Q_RS")):
+        q[name] = min(_q_fit(vmax(key)), 62 - q_i + q["Q_V"], 40 if vmax(key) == 0 else 62)
+        sh = q[name] + q_i - q["Q_V"]
+        if not 1 <= sh <= 62:
+            raise InputError(None, f"cannot choose a fixed-point format for {key} (shift {sh})")
+
+    xs = [quantize(ocv_soc, Q30)] + [quantize(soc, Q30) for soc, _ in raw_dirs]
+    dx_min = min(int(np.min(np.diff(x))) for x in xs)
+    if dx_min < 2:
+        raise InputError(None, "SOC breakpoints too close for Q30")
+    g = math.floor(math.log2(INT32_MAX * dx_min)) - 30
+    while math.floor(math.ldexp(1.0, 30 + g) / dx_min + 0.5) > INT32_MAX:
+        g -= 1
+    q["Q_G"] = g
+
+    def qgrid(xq):
+        dx = np.diff(xq).astype(np.float64)
+        return CGrid(xq, np.floor(np.ldexp(1.0, 30 + g) / dx + 0.5).astype(np.int64))
+
+    if variable_dt:
+        tau_max = max(vmax("tau_fast_s"), vmax("tau_slow_s"))
+        q["Q_T"] = min(21, _q_fit(tau_max))
+        if q["Q_T"] < -10:
+            raise InputError(None, "time constants too large for the fixed-point format")
+        tau_min = min(float(np.min(c[k])) for _, c in raw_dirs for k in ("tau_fast_s", "tau_slow_s"))
+        if math.ldexp(tau_min, q["Q_T"]) < 1024:
+            notes.append(f"the smallest time constant {tau_min:.3g} s has under 10 bits in Q{q['Q_T']}")
+        q["Q_K"] = _q_fit(k_soc64)
+        q["Q_RATE"] = _q_fit(i_lim * k_soc64 * 1.001)
+        q["SH_RATE"] = q_i + q["Q_K"] - q["Q_RATE"]
+        q["SH_DSOC"] = q["Q_RATE"] + Q_D - Q30
+        k_soc = int(quantize([k_soc64], q["Q_K"])[0])
+    else:
+        q["Q_K"] = _q_fit(k_soc64)
+        q["SH_DSOC"] = q_i + q["Q_K"] - Q30
+        k_soc = int(quantize([k_soc64], q["Q_K"])[0])
+        for key, name in (("tau_fast_s", "Q_CF"), ("tau_slow_s", "Q_CS")):
+            cmax = max(float(np.max(_coef(dt_s, c[key]))) for _, c in raw_dirs)
+            q[name] = _q_fit(cmax, bits=30)
+    for name in ("SH_RATE", "SH_DSOC"):
+        if name in q and not 1 <= q[name] <= 62:
+            raise InputError(None, f"capacity {cap} Ah with current range {i_lim} A does not fit "
+                                   f"the fixed-point SOC update ({name} = {q[name]})")
+
+    dirs = []
+    for (soc, cols), xq in zip(raw_dirs, xs[1:]):
+        kf, ks = k_tables(cols)
+        if variable_dt:
+            kfq, ksq = quantize(kf, q["Q_T"]), quantize(ks, q["Q_T"])
+            if np.any(kfq <= 0) or np.any(ksq <= 0):
+                raise InputError(None, "time constants too small for the fixed-point format")
+        else:
+            kfq, ksq = quantize(kf, q["Q_CF"]), quantize(ks, q["Q_CS"])
+        dirs.append(CDir(qgrid(xq), quantize(cols["r0_ohm"], q["Q_R0"]),
+                         quantize(cols["r_fast_ohm"], q["Q_RF"]), kfq,
+                         quantize(cols["r_slow_ohm"], q["Q_RS"]), ksq))
+    db = int(quantize([model.direction_deadband_a], q_i)[0])
+    return CSpec(ocv_grid=qgrid(xs[0]), ocv=quantize(ocv_v, q["Q_V"]), dirs=tuple(dirs),
+                 deadband=db, k_soc=k_soc, q=q, notes=tuple(notes), **common)
+
+
+# --------------------------------------------------------------------------------------
+# rendering
+# --------------------------------------------------------------------------------------
+
+def c_float(v) -> str:
+    """A float32 as a C literal that reads back to the same bits: 9 significant digits + f."""
+    f = np.float32(v)
+    if not np.isfinite(f):
+        raise ValueError(f"non-finite float {v!r}")
+    s = f"{float(f):.9g}"
+    if not any(ch in s for ch in ".e"):
+        s += ".0"
+    assert np.float32(float(s)) == f
+    return s + "f"
+
+
+def _body(values, fmt, per_line: int) -> str:
+    items = [fmt(v) for v in values]
+    lines = [", ".join(items[i:i + per_line]) for i in range(0, len(items), per_line)]
+    return ",\n    ".join(lines)
+
+
+@dataclass
+class _Arrays:
+    """Emitted arrays, deduplicated by content (identical tables are emitted once)."""
+
+    ctype: str
+    fmt: object
+    per_line: int
+    items: list = field(default_factory=list)
+    by_content: dict = field(default_factory=dict)
+
+    def add(self, name: str, values, comment: str) -> str:
+        key = tuple(np.asarray(values).tolist())
+        if key in self.by_content:
+            return self.by_content[key]
+        self.by_content[key] = name
+        self.items.append({"name": name, "n": len(key), "comment": comment,
+                           "body": _body(key, self.fmt, self.per_line)})
+        return name
+
+    @property
+    def nbytes(self) -> int:
+        return 4 * sum(a["n"] for a in self.items)
+
+
+def _ranges(spec: CSpec) -> list[dict]:
+    """Rows of the fixed-point format table in the header."""
+    q = spec.q
+
+    def row(name, qf, what, rng):
+        return {"name": name, "q": qf, "lsb": f"{math.ldexp(1.0, -qf):.3g}", "what": what, "range": rng}
+
+    i_lim = spec.i_lim_a
+    v_lim = math.ldexp(1.0, 31 - q["Q_V"])
+    rows = [row("current i", q["Q_I"], "A, positive = charge (input)", f"+-{i_lim:g} A (int32 range)"),
+            row("voltage", q["Q_V"], "V: OCV table, u_fast, u_slow, output",
+                f"+-{v_lim:g} V, saturated"),
+            row("SOC", Q30, "state of charge, breakpoints", "[-2, 2), saturated"),
+            row("weight w", Q30, "interpolation weight", "[0, 1]"),
+            row("inv_dx", q["Q_G"], "1 / breakpoint spacing (per unit SOC)", "raw < 2^31")]
+    for key, what in (("Q_R0", "r0"), ("Q_RF", "r_fast"), ("Q_RS", "r_slow")):
+        rows.append(row(what, q[key], "ohm", f"[0, {math.ldexp(INT32_MAX, -q[key]):.4g}]"))
+    if spec.variable_dt:
+        rows.append(row("dt", Q_D, "s (input; negative -> 0)", "[0, 32768) s"))
+        rows.append(row("tau_fast, tau_slow", q["Q_T"], "s", f"(0, {math.ldexp(INT32_MAX, -q['Q_T']):.4g}]"))
+        rows.append(row("c (run time)", Q30, "1 - exp(-dt/tau)", "[0, 1]"))
+        rows.append(row("k_soc", q["Q_K"], "1/(3600 Q) per A s", "-"))
+    else:
+        rows.append(row("c_fast", q["Q_CF"], "1 - exp(-dt/tau_fast)", "[0, 1)"))
+        rows.append(row("c_slow", q["Q_CS"], "1 - exp(-dt/tau_slow)", "[0, 1)"))
+        rows.append(row("k_soc", q["Q_K"], "dt/(3600 Q) per A", "-"))
+    return rows
+
+
+def _context(spec: CSpec) -> dict:
+    p = spec.prefix
+    fixed = spec.fixed
+    if fixed:
+        arrays = _Arrays("int32_t", lambda v: str(int(v)), 6)
+    else:
+        arrays = _Arrays("float", c_float, 5)
+    kname = ("tau_fast_s", "tau_slow_s") if spec.variable_dt else ("c_fast", "c_slow")
+
+    def grid(g: CGrid, tag: str) -> dict:
+        return {"x": arrays.add(f"{tag}_soc", g.x, f"{tag}: SOC breakpoints"),
+                "inv_dx": arrays.add(f"{tag}_inv_dx", g.inv_dx, f"{tag}: 1 / breakpoint spacing"),
+                "n": g.n}
+
+    ocv_grid = grid(spec.ocv_grid, "ocv")
+    ocv = arrays.add("ocv_v", spec.ocv, "open-circuit voltage")
+    dirs = []
+    for d, tag in zip(spec.dirs, ("dis", "chg")):
+        dirs.append({
+            "g": grid(d.grid, tag),
+            "r0": arrays.add(f"{tag}_r0", d.r0, f"{tag}: r0, ohm"),
+            "r_fast": arrays.add(f"{tag}_r_fast", d.r_fast, f"{tag}: r_fast, ohm"),
+            "k_fast": arrays.add(f"{tag}_{kname[0]}", d.k_fast, f"{tag}: {kname[0]}"),
+            "r_slow": arrays.add(f"{tag}_r_slow", d.r_slow, f"{tag}: r_slow, ohm"),
+            "k_slow": arrays.add(f"{tag}_{kname[1]}", d.k_slow, f"{tag}: {kname[1]}"),
+        })
+    if fixed:
+        scalars = {"deadband": str(int(spec.deadband)), "k_soc": str(int(spec.k_soc))}
+    else:
+        scalars = {"deadband": c_float(spec.deadband), "i_max": c_float(spec.i_lim_a),
+                   "k_soc": c_float(spec.k_soc)}
+    return {
+        "p": p, "P": p.upper(), "fixed": fixed, "variable_dt": spec.variable_dt,
+        "dt_s": spec.dt_s, "dt_s_c": None if spec.dt_s is None or fixed else c_float(spec.dt_s),
+        "dt_q16": None if spec.dt_s is None else int(quantize([spec.dt_s], Q_D)[0]),
+        "version": spec.tool_version, "sha": spec.model_sha256, "capacity_ah": spec.capacity_ah,
+        "arrays": arrays.items, "table_bytes": arrays.nbytes, "ocv_grid": ocv_grid, "ocv": ocv,
+        "dirs": dirs, "scalars": scalars, "q": spec.q, "ranges": _ranges(spec) if fixed else [],
+        "i_lim": f"{spec.i_lim_a:g}", "n_ocv": spec.ocv_grid.n,
+        "n_dis": spec.dirs[0].grid.n, "n_chg": spec.dirs[1].grid.n,
+        "runtime": RUNTIME_FILES[spec.numeric][1], "notes": spec.notes,
+        "rt": "ecmrt_q" if fixed else "ecmrt_f32",
+        "vt": "int32_t" if fixed else "float",
+    }
+
+
+def _env():
+    import jinja2
+
+    return jinja2.Environment(loader=jinja2.FileSystemLoader(str(templates_dir())),
+                              undefined=jinja2.StrictUndefined, keep_trailing_newline=True,
+                              trim_blocks=True, lstrip_blocks=True, autoescape=False)
+
+
+def file_names(prefix: str, numeric: str) -> dict[str, str]:
+    return {"header": f"{prefix}_ecm.h", "source": f"{prefix}_ecm.c",
+            "filelist": f"{prefix}_ecm_files.mk", "report": f"{prefix}_ecm_report.md",
+            "runtime": list(RUNTIME_FILES[numeric])}
+
+
+def render(spec: CSpec) -> dict[str, str]:
+    """File name -> text of every file generate_c writes (runtime headers included)."""
+    env = _env()
+    ctx = _context(spec)
+    names = file_names(spec.prefix, spec.numeric)
+    ctx["files"] = names
+    out = {names["header"]: env.get_template("ecm.h.j2").render(ctx),
+           names["source"]: env.get_template("ecm.c.j2").render(ctx)}
+    rdir = runtime_dir()
+    for name in names["runtime"]:
+        out[name] = (rdir / name).read_text()
+    out[names["filelist"]] = env.get_template("files.mk.j2").render(ctx)
+    out[names["report"]] = env.get_template("report.md.j2").render(ctx)
+    return out
+
+
+def describe(spec: CSpec) -> dict:
+    """A short JSON-able summary (for `ecmgen build --json` and the report)."""
+    ctx = _context(spec)
+    d = {"prefix": spec.prefix, "numeric": spec.numeric,
+         "dt": "variable" if spec.variable_dt else spec.dt_s,
+         "points": {"ocv": ctx["n_ocv"], "discharge": ctx["n_dis"], "charge": ctx["n_chg"]},
+         "table_bytes": ctx["table_bytes"], "current_limit_a": spec.i_lim_a,
+         "model_sha256": spec.model_sha256, "notes": list(spec.notes)}
+    if spec.fixed:
+        d["q"] = dict(spec.q)
+    return d
+
+
+def generate_c(model, out_dir, prefix: str = "ecm", numeric: str = "float",
+               dt_s: float | None = None, i_max_a: float | None = None) -> list[Path]:
+    """Write ``<prefix>_ecm.h``, ``<prefix>_ecm.c``, the runtime headers, a make include
+    listing them and a short report into ``out_dir``; return the paths written.
+
+    ``model`` is an EcmModel or a model.json path. Everything is checked and rendered in
+    memory first: a bad model or option raises InputError before any file is written."""
+    spec = prepare(model, numeric=numeric, dt_s=dt_s, prefix=prefix, i_max_a=i_max_a)
+    files = render(spec)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, text in files.items():
+        path = out_dir / name
+        if not (path.exists() and path.read_text() == text):
+            write_atomic(path, text)
+        written.append(path)
+    return written
+
+
+def copy_runtime(out_dir: Path, numeric: str) -> list[Path]:
+    """Copy the runtime headers alone (for harnesses that build their own sources)."""
+    out = []
+    for name in RUNTIME_FILES[numeric]:
+        shutil.copyfile(runtime_dir() / name, Path(out_dir) / name)
+        out.append(Path(out_dir) / name)
+    return out

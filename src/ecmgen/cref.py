@@ -1,0 +1,317 @@
+"""Python references of exactly what the generated C computes.
+
+``simulate_f32``    float32, operation for operation as ``c_runtime/ecmrt_f32.h``
+                    (numpy float32 arithmetic is IEEE binary32 with one rounding per
+                    operation, as is the C built with -ffp-contract=off);
+``simulate_fixed``  bit-true integers (numpy int64 / Python int) as ``c_runtime/ecmrt_q.h``,
+                    with the same rounding (half up) and saturation.
+
+Both read a :class:`ecmgen.codegen.CSpec` - the very numbers written into the C - so a
+difference between C and reference is a bug in one of them, never in the constants.
+Vectorised where the C has no recurrence (inputs, direction, lookups, coefficients); the
+SOC and RC recurrences run sequentially (SOC vectorised when no saturation occurs).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .codegen import DT_MAX_S, Q30, Q_D, SOC_LIM, CSpec, quantize
+
+F32 = np.float32
+
+# --- constants of ecmrt_f32.h (same decimal text, hence the same float32) -------------
+F_INVLN2 = F32("1.44269502")
+F_LN2_HI = F32("0.693145752")
+F_LN2_LO = F32("1.42860677e-06")
+F_TAYLOR = tuple(F32(s) for s in ("1.98412701e-04", "1.38888892e-03", "8.33333377e-03",
+                                  "4.16666679e-02", "1.66666672e-01", "0.5", "1.0"))
+F_XMAX = F32(87.0)
+
+# --- constants of ecmrt_q.h --------------------------------------------------------------
+ONE30 = 1 << 30
+INT32_MIN, INT32_MAX = -2**31, 2**31 - 1
+Q_LOG2E = 1549082005
+Q_LN2 = 744261118
+Q_XMAX26 = 1442840576
+Q_EXP2_TAB = (1073741824, 984625594, 902905651, 827968132, 759250125, 696235434, 638450708,
+              585461881)
+Q_POLY = (1073741824, -1073741824, 536870912, -178956971, 44739243, -8947849, 1491308)
+
+
+@dataclass(frozen=True)
+class RefResult:
+    """Per-step outputs of a reference run (float32 values, or int64 raw integers)."""
+
+    v: np.ndarray
+    soc: np.ndarray
+    u_fast: np.ndarray
+    u_slow: np.ndarray
+    charging: np.ndarray
+
+
+def dt_from_time(time_s) -> np.ndarray:
+    """dt_k = t_k - t_{k-1}, dt_0 = 0 (as simulate.py)."""
+    t = np.asarray(time_s, dtype=np.float64)
+    return np.diff(t, prepend=t[:1])
+
+
+def _direction(i, deadband) -> np.ndarray:
+    """1 = charge, 0 = discharge; the deadband keeps the previous one; starts discharge."""
+    code = np.where(i > deadband, 1, np.where(i < -deadband, 0, -1)).astype(np.int8)
+    idx = np.where(code >= 0, np.arange(code.size), -1)
+    np.maximum.accumulate(idx, out=idx)
+    return np.where(idx >= 0, code[np.maximum(idx, 0)], 0).astype(np.uint8)
+
+
+def _segments(x: np.ndarray, soc: np.ndarray) -> np.ndarray:
+    return np.clip(np.searchsorted(x, soc, side="right") - 1, 0, x.size - 2)
+
+
+# =====================================================================================
+# float32
+# =====================================================================================
+
+def one_minus_exp_neg_f32(x) -> np.ndarray:
+    """ecmrt_f32_one_minus_exp_neg: 1 - exp(-x) for float32 x >= 0."""
+    x = np.asarray(x, dtype=F32)
+    with np.errstate(all="ignore"):
+        n = (x * F_INVLN2 + F32(0.5)).astype(np.int32)
+        n = np.where((x > 0) & (x < F_XMAX), n, 0)
+        fn = n.astype(F32)
+        r = (x - fn * F_LN2_HI) - fn * F_LN2_LO
+        t = -r
+        q = np.full_like(t, F_TAYLOR[0])
+        for c in F_TAYLOR[1:]:
+            q = c + t * q
+        q = t * q
+        s = np.ldexp(F32(1.0), -n).astype(F32)
+        big = (F32(1.0) - s) - s * q
+    out = np.where(n == 0, -q, big)
+    out = np.where(x >= F_XMAX, F32(1.0), out)
+    return np.where(x > 0, out, F32(0.0)).astype(F32)
+
+
+def _lerp_f32(y, k, w):
+    return y[k] + (y[k + 1] - y[k]) * w
+
+
+def _weight_f32(grid, soc):
+    k = _segments(grid.x, soc)
+    with np.errstate(all="ignore"):
+        w = (soc - grid.x[k]) * grid.inv_dx[k]
+    w = np.where(soc <= grid.x[0], F32(0.0), np.where(soc >= grid.x[-1], F32(1.0), w))
+    return k, w.astype(F32)
+
+
+def _soc_f32(soc0: np.float32, d: np.ndarray) -> np.ndarray:
+    lo, hi = F32(-SOC_LIM), F32(SOC_LIM)
+    acc = np.add.accumulate(np.concatenate(([soc0], d)).astype(F32), dtype=F32)[1:]
+    if acc.size == 0 or (np.all(acc >= lo) and np.all(acc <= hi)):
+        return acc
+    out = np.empty_like(d)
+    s = soc0
+    for k, dk in enumerate(d):
+        s = s + dk
+        s = lo if s < lo else (hi if s > hi else s)
+        out[k] = s
+    return out
+
+
+def _rc_f32(c: np.ndarray, t: np.ndarray) -> np.ndarray:
+    out = np.empty_like(t)
+    u = F32(0.0)
+    for k, (ck, tk) in enumerate(zip(c, t)):      # numpy float32 scalars: f32 arithmetic
+        u = u + ck * (tk - u)
+        out[k] = u
+    return out
+
+
+def simulate_f32(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0) -> RefResult:
+    """Float32 reference of a numeric="float" spec. ``dt_s``: per-step dt array (variable-dt
+    spec; e.g. dt_from_time(t)) or None (fixed-dt spec)."""
+    if spec.fixed:
+        raise ValueError("simulate_f32 needs a numeric='float' spec")
+    i = np.asarray(current_a, dtype=np.float64).astype(F32)
+    imax = F32(spec.i_lim_a)
+    i = np.where(np.isnan(i), F32(0.0), np.clip(i, -imax, imax)).astype(F32)
+    if spec.variable_dt:
+        if dt_s is None:
+            raise ValueError("this spec has a variable dt: give dt_s per step")
+        dt = np.asarray(dt_s, dtype=np.float64).astype(F32)
+        if dt.shape != i.shape:
+            raise ValueError("current and dt differ in length")
+        dt = np.where(dt > 0, np.minimum(dt, F32(DT_MAX_S)), F32(0.0)).astype(F32)
+        dsoc = (i * dt) * spec.k_soc
+    else:
+        dt = None
+        dsoc = i * spec.k_soc
+    chg = _direction(i, spec.deadband)
+    s0 = F32(soc0)
+    s0 = F32(0.0) if np.isnan(s0) else np.clip(s0, F32(-SOC_LIM), F32(SOC_LIM))
+    soc = _soc_f32(F32(s0), dsoc.astype(F32))
+
+    per_dir = []
+    for d in spec.dirs:
+        k, w = _weight_f32(d.grid, soc)
+        p = {name: _lerp_f32(getattr(d, name), k, w) for name in ("r0", "r_fast", "r_slow", "k_fast", "k_slow")}
+        per_dir.append(p)
+    p = {name: np.where(chg == 1, per_dir[1][name], per_dir[0][name]).astype(F32) for name in per_dir[0]}
+    if spec.variable_dt:
+        with np.errstate(all="ignore"):
+            cf = one_minus_exp_neg_f32(dt / p["k_fast"])
+            cs = one_minus_exp_neg_f32(dt / p["k_slow"])
+    else:
+        cf, cs = p["k_fast"], p["k_slow"]
+    k, w = _weight_f32(spec.ocv_grid, soc)
+    ocv = _lerp_f32(spec.ocv, k, w)
+    uf = _rc_f32(cf, p["r_fast"] * i)
+    us = _rc_f32(cs, p["r_slow"] * i)
+    v = ((ocv + p["r0"] * i) + uf) + us
+    return RefResult(v.astype(F32), soc, uf, us, chg)
+
+
+# =====================================================================================
+# fixed point (bit-true)
+# =====================================================================================
+
+def _rshr(x, n: int):
+    """(x + 2^(n-1)) >> n on int64 arrays (arithmetic shift: floor)."""
+    return (x + (np.int64(1) << np.int64(n - 1))) >> np.int64(n)
+
+
+def _sat32(x):
+    return np.clip(x, INT32_MIN, INT32_MAX)
+
+
+def one_minus_exp_neg_q(dt_raw, tau_raw, q_t: int) -> np.ndarray:
+    """ecmrt_q_one_minus_exp_neg: 1 - exp(-dt/tau) in Q30; dt in Q16, tau in Q_T."""
+    dt = np.asarray(dt_raw, dtype=np.int64)
+    tau = np.asarray(tau_raw, dtype=np.int64)
+    dt, tau = np.broadcast_arrays(dt, tau)
+    num = dt * (np.int64(1) << np.int64(26 + q_t - Q_D))
+    big = num >= tau * Q_XMAX26
+    zero = (dt <= 0) | (tau <= 0)
+    safe_tau = np.where(zero | big, 1, tau)
+    x = np.where(zero | big, 0, (num + (safe_tau >> 1)) // safe_tau)
+    y = _rshr(x * Q_LOG2E, 30)
+    n = y >> 26
+    j = (y >> 23) & 7
+    f = y & 0x7FFFFF
+    r = _rshr(f * Q_LN2, 26)
+    p = np.full_like(r, Q_POLY[6])
+    for c in Q_POLY[5::-1]:
+        p = c + _rshr(r * p, 30)
+    e = _rshr(np.asarray(Q_EXP2_TAB, dtype=np.int64)[j] * p, 30)
+    e = np.where(n > 0, (e + (np.int64(1) << np.maximum(n - 1, 0))) >> n, e)
+    c = ONE30 - e
+    return np.where(zero, 0, np.where(big, ONE30, c)).astype(np.int64)
+
+
+def _weight_q(grid, soc, g: int):
+    k = _segments(grid.x, soc)
+    w = _rshr((soc - grid.x[k]) * grid.inv_dx[k], g)
+    w = np.minimum(w, ONE30)
+    w = np.where(soc <= grid.x[0], 0, np.where(soc >= grid.x[-1], ONE30, w))
+    return k, w.astype(np.int64)
+
+
+def _lerp_q(y, k, w):
+    return y[k] + _rshr((y[k + 1] - y[k]) * w, 30)
+
+
+def _soc_q(soc0: int, dsoc: np.ndarray) -> np.ndarray:
+    if dsoc.size and np.max(np.abs(dsoc)) < 2**62 // max(dsoc.size, 1):
+        acc = soc0 + np.cumsum(dsoc)
+        if np.all(acc >= INT32_MIN) and np.all(acc <= INT32_MAX):
+            return acc
+    out = np.empty_like(dsoc)
+    s = int(soc0)
+    for k, dk in enumerate(dsoc.tolist()):
+        s = min(INT32_MAX, max(INT32_MIN, s + dk))
+        out[k] = s
+    return out
+
+
+def _rc_q(c: np.ndarray, t: np.ndarray, qc: int) -> np.ndarray:
+    out = np.empty_like(t)
+    u = 0
+    half = 1 << (qc - 1)
+    for k, (ck, tk) in enumerate(zip(c.tolist(), t.tolist())):
+        u = min(INT32_MAX, max(INT32_MIN, u + (((tk - u) * ck + half) >> qc)))
+        out[k] = u
+    return out
+
+
+def simulate_fixed_raw(spec: CSpec, i_raw, dt_raw=None, soc0_raw: int = ONE30) -> RefResult:
+    """Bit-true reference of a numeric="fixed" spec on raw integers: i in Q_I, dt in Q16
+    (variable dt), soc0 in Q30. Returns raw int64 arrays (v in Q_V)."""
+    if not spec.fixed:
+        raise ValueError("simulate_fixed_raw needs a numeric='fixed' spec")
+    q = spec.q
+    i = _sat32(np.asarray(i_raw, dtype=np.int64))
+    if spec.variable_dt:
+        if dt_raw is None:
+            raise ValueError("this spec has a variable dt: give dt per step")
+        dt = np.maximum(_sat32(np.asarray(dt_raw, dtype=np.int64)), 0)
+        if dt.shape != i.shape:
+            raise ValueError("current and dt differ in length")
+        rate = _sat32(_rshr(i * spec.k_soc, q["SH_RATE"]))
+        dsoc = _rshr(rate * dt, q["SH_DSOC"])
+    else:
+        dt = None
+        dsoc = _rshr(i * spec.k_soc, q["SH_DSOC"])
+    chg = _direction(i, spec.deadband)
+    soc = _soc_q(int(np.clip(soc0_raw, INT32_MIN, INT32_MAX)), dsoc)
+
+    per_dir = []
+    for d in spec.dirs:
+        k, w = _weight_q(d.grid, soc, q["Q_G"])
+        per_dir.append({name: _lerp_q(getattr(d, name), k, w)
+                        for name in ("r0", "r_fast", "r_slow", "k_fast", "k_slow")})
+    p = {name: np.where(chg == 1, per_dir[1][name], per_dir[0][name]) for name in per_dir[0]}
+    if spec.variable_dt:
+        cf = one_minus_exp_neg_q(dt, p["k_fast"], q["Q_T"])
+        cs = one_minus_exp_neg_q(dt, p["k_slow"], q["Q_T"])
+        qcf = qcs = Q30
+    else:
+        cf, cs, qcf, qcs = p["k_fast"], p["k_slow"], q["Q_CF"], q["Q_CS"]
+    q_i, q_v = q["Q_I"], q["Q_V"]
+    uf = _rc_q(cf, _rshr(p["r_fast"] * i, q["Q_RF"] + q_i - q_v), qcf)
+    us = _rc_q(cs, _rshr(p["r_slow"] * i, q["Q_RS"] + q_i - q_v), qcs)
+    r0i = _rshr(p["r0"] * i, q["Q_R0"] + q_i - q_v)
+    k, w = _weight_q(spec.ocv_grid, soc, q["Q_G"])
+    ocv = _lerp_q(spec.ocv, k, w)
+    v = _sat32(((ocv + r0i) + uf) + us)
+    return RefResult(v.astype(np.int64), soc, uf, us, chg)
+
+
+# --- conversions between SI values and the fixed-point API ----------------------------
+
+def current_to_raw(spec: CSpec, current_a) -> np.ndarray:
+    i = np.nan_to_num(np.asarray(current_a, dtype=np.float64), nan=0.0)
+    return quantize(i, spec.q["Q_I"])
+
+
+def dt_to_raw(dt_s) -> np.ndarray:
+    dt = np.nan_to_num(np.asarray(dt_s, dtype=np.float64), nan=0.0)
+    return quantize(dt, Q_D)
+
+
+def soc_to_raw(soc) -> int:
+    return int(quantize([soc], Q30)[0])
+
+
+def volts(spec: CSpec, v_raw) -> np.ndarray:
+    return np.ldexp(np.asarray(v_raw, dtype=np.float64), -spec.q["Q_V"])
+
+
+def simulate_fixed(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0):
+    """Quantise SI inputs as the C caller would, run the bit-true reference.
+    Returns (RefResult of raw integers, voltage in V as float64)."""
+    i_raw = current_to_raw(spec, current_a)
+    dt_raw = dt_to_raw(dt_s) if spec.variable_dt else None
+    ref = simulate_fixed_raw(spec, i_raw, dt_raw, soc_to_raw(soc0))
+    return ref, volts(spec, ref.v)

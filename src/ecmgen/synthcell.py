@@ -1,0 +1,359 @@
+"""Synthetic cells with a hidden effect, for testing ``diagnose``.
+
+A :class:`SyntheticCell` holds a hidden "true" model (a 2RC base plus at most one
+effect from :mod:`ecmgen.effects`), a first-order thermal model and a noise model. It
+produces the three records a cell test gives -- a pulse test, a low-rate OCV test and a
+drive cycle with rests -- by simulating the hidden model (with
+:func:`ecmgen.simulate.simulate`) and adding measurement noise. :meth:`base_model`
+then builds the model the usual method would get from those records: OCV from the mean
+of the low-rate branches, 2RC parameters per SOC level from 10 s pulses (plus a short
+relaxation), and the nominal capacity. What the base model misses is the hidden effect.
+
+    cell = random_cell(seed=3, effect="extra_rc")
+    base = cell.base_model()
+    cycle = cell.drive_cycle()
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from . import effects as fx
+from .measure import TimeSeries
+from .model import EcmModel, OcvTable, RcTable
+from .simulate import rc_recurrence, simulate
+
+EFFECTS = fx.EFFECT_NAMES
+SOC_GRID = np.linspace(0.0, 1.0, 101)
+
+
+def nca_like_ocv(soc: np.ndarray, shift: float = 0.0) -> np.ndarray:
+    """A smooth NCA-like OCV curve (3.0 .. 4.2 V), strictly increasing."""
+    s = np.asarray(soc, dtype=np.float64)
+    return (3.25 + shift + 0.85 * s + 0.12 * (1 - np.exp(-12 * s)) - 0.05 * np.sin(math.pi * s)
+            + 0.06 * s ** 6)
+
+
+@dataclass(frozen=True)
+class SyntheticCell:
+    """A hidden cell model plus how it is measured.
+
+    hidden        the true model, incl. its hidden effect (if any)
+    effect        name of the hidden effect, or None
+    ambient_c     chamber temperature, degC
+    r_th_k_per_w, c_th_j_per_k   first-order thermal model (heat = i^2 * r_total)
+    noise_v, noise_a, noise_c    Gaussian measurement noise (std)
+    lsb_v         voltage quantisation, V
+    seed          seed of the noise and of the drive profile
+    """
+
+    hidden: EcmModel
+    effect: str | None
+    ambient_c: float = 25.0
+    r_th_k_per_w: float = 8.0
+    c_th_j_per_k: float = 120.0
+    noise_v: float = 1.0e-3
+    noise_a: float = 5.0e-3
+    noise_c: float = 0.05
+    lsb_v: float = 1.0e-4
+    seed: int = 0
+
+    # -- helpers ---------------------------------------------------------------------------
+    @property
+    def capacity_ah(self) -> float:
+        """Nominal capacity (what the base model is given)."""
+        return self.hidden.capacity_ah
+
+    @property
+    def true_capacity_ah(self) -> float:
+        return self.hidden.capacity_ah * fx.capacity_factor(self.hidden.effects)
+
+    def _temperature(self, t: np.ndarray, i: np.ndarray, t0: float | None = None) -> np.ndarray:
+        """Cell temperature from the first-order thermal model, exact ZOH per step."""
+        dt = np.diff(t, prepend=t[0])
+        tab = self.hidden.discharge
+        r = float(np.mean(tab.r0_ohm + tab.r_fast_ohm + tab.r_slow_ohm))
+        tau = self.r_th_k_per_w * self.c_th_j_per_k
+        a = np.exp(-dt / tau)
+        rise = rc_recurrence(a, (1 - a) * self.r_th_k_per_w * r * i * i,
+                             0.0 if t0 is None else t0 - self.ambient_c)
+        return self.ambient_c + rise
+
+    def _measure(self, t, i, soc0, rng, name: str, with_temperature=True) -> TimeSeries:
+        t = np.asarray(t, dtype=np.float64)
+        i = np.asarray(i, dtype=np.float64)
+        temp = self._temperature(t, i)
+        sim = simulate(self.hidden, t, i, soc0, temp)
+        v = sim.voltage_v + rng.normal(0.0, self.noise_v, t.size)
+        v = np.round(v / self.lsb_v) * self.lsb_v
+        i_meas = i + rng.normal(0.0, self.noise_a, t.size) * (np.abs(i) > 0)
+        temp_meas = np.round((temp + rng.normal(0.0, self.noise_c, t.size)) * 10) / 10
+        return TimeSeries(t, i_meas, v, temp_meas if with_temperature else None, None,
+                          f"synthetic:{name}")
+
+    # -- records -----------------------------------------------------------------------------
+    def pulse_test(self, levels=(0.95, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2, 0.1),
+                   c_rates_discharge=(0.5, 1.0, 2.0, 4.0), c_rates_charge=(0.5, 1.0, 2.0),
+                   pulse_s: float = 10.0, rest_s: float = 600.0, seed: int | None = None
+                   ) -> TimeSeries:
+        """Discharge and charge pulses at each SOC level (true SOC), starting full and
+        rested; the SOC moves between levels by C/2 discharges followed by 30 min rests.
+        0.1 s sampling in pulses and the first 30 s after them, 2 s in rests."""
+        rng = np.random.default_rng(self.seed + 11 if seed is None else seed)
+        q = self.true_capacity_ah
+        qn = self.capacity_ah
+        ts: list[np.ndarray] = [np.array([0.0])]
+        cur: list[np.ndarray] = [np.array([0.0])]
+        now = [0.0]
+
+        def seg(duration, amps, dt):
+            n = max(1, int(round(duration / dt)))
+            ts.append(now[0] + dt * np.arange(1, n + 1))
+            cur.append(np.full(n, float(amps)))
+            now[0] += n * dt
+
+        seg(1800.0, 0.0, 10.0)
+        soc = 1.0
+        for level in levels:
+            move = soc - level
+            if move > 0:
+                seg(move * q * 3600.0 / (0.5 * qn), -0.5 * qn, 5.0)
+                seg(1800.0, 0.0, 10.0)
+                soc = level
+            for sign, rates in ((-1.0, c_rates_discharge), (1.0, c_rates_charge)):
+                for c in rates:
+                    seg(pulse_s, sign * c * qn, 0.1)
+                    seg(30.0, 0.0, 0.1)
+                    seg(rest_s - 30.0, 0.0, 2.0)
+                    soc += sign * c * qn * pulse_s / 3600.0 / q
+        t = np.concatenate(ts)
+        i = np.concatenate(cur)
+        return self._measure(t, i, 1.0, rng, "pulses")
+
+    def ocv_test(self, c_rate: float = 0.05, dt: float = 10.0, seed: int | None = None
+                 ) -> TimeSeries:
+        """C/20 discharge from full to empty (true SOC), 1 h rest, C/20 charge to full."""
+        rng = np.random.default_rng(self.seed + 13 if seed is None else seed)
+        q = self.true_capacity_ah
+        amps = c_rate * self.capacity_ah
+        n = int(math.ceil(q * 3600.0 / amps / dt))
+        last = q * 3600.0 / amps - (n - 1) * dt     # the last step ends exactly at SOC 0
+        d = np.concatenate([np.full(n - 1, dt), [last]])
+        t = np.concatenate([[0.0, 1800.0], 1800.0 + np.cumsum(d)])
+        i = np.concatenate([[0.0, 0.0], np.full(n, -amps)])
+        rest = t[-1] + dt * np.arange(1, 61)
+        t = np.concatenate([t, rest, rest[-1] + np.cumsum(d)])
+        i = np.concatenate([i, np.zeros(60), np.full(n, amps)])
+        return self._measure(t, i, 1.0, rng, "ocv")
+
+    def drive_cycle(self, soc_start: float = 0.95, soc_end: float = 0.12, seed: int | None = None,
+                    dt: float = 1.0, with_temperature: bool = True) -> TimeSeries:
+        """A drive cycle with rests: 10 min rest, then until the SOC reaches ``soc_end``:
+        drive segments of 8-20 min (random, mean about -0.8 C, peaks -4 C .. +1.5 C of
+        regeneration), rests of 4-12 min, and every third segment a 0.5 C charge of
+        6-12 min. Starts rested at ``soc_start`` (true SOC) after a charge."""
+        rng = np.random.default_rng(self.seed + 17 if seed is None else seed)
+        qn = self.capacity_ah
+        q = self.true_capacity_ah
+        cur = [np.zeros(int(600 / dt))]
+        soc = soc_start
+        k = 0
+        while soc > soc_end + 0.03:
+            k += 1
+            n = int(rng.uniform(480, 1200) / dt)
+            x = np.zeros(n)
+            e = rng.normal(0, 1, n)
+            phi = math.exp(-dt / 15.0)
+            for j in range(1, n):
+                x[j] = phi * x[j - 1] + math.sqrt(1 - phi * phi) * e[j]
+            amps = qn * np.clip(-0.8 + 1.1 * x, -4.0, 1.5)
+            # hold each value 1..4 s like a speed trace at 1 Hz with gear changes
+            hold = rng.integers(1, 5, n)
+            idx = np.minimum(np.cumsum(hold) - hold, n - 1)
+            amps = np.repeat(amps[idx], hold)[:n]
+            # limit the segment to the SOC left
+            used = -np.cumsum(amps) * dt / 3600.0 / q
+            stop = int(np.searchsorted(used, soc - soc_end)) if used[-1] > soc - soc_end else n
+            amps = amps[:max(stop, 1)]
+            soc -= float(-np.sum(amps) * dt / 3600.0 / q)
+            cur.append(amps)
+            cur.append(np.zeros(int(rng.uniform(240, 720) / dt)))
+            if k % 3 == 2 and soc < soc_start - 0.2:
+                m = int(rng.uniform(360, 720) / dt)
+                cur.append(np.full(m, 0.5 * qn))
+                soc += 0.5 * qn * m * dt / 3600.0 / q
+                cur.append(np.zeros(int(rng.uniform(240, 720) / dt)))
+        cur.append(np.zeros(int(900 / dt)))
+        i = np.concatenate(cur)
+        t = dt * np.arange(i.size, dtype=np.float64)
+        return self._measure(t, i, soc_start, rng, "drive", with_temperature)
+
+    # -- the base model the 10 s-pulse method would fit ------------------------------------
+    def base_model(self, pulses: TimeSeries | None = None, ocv: TimeSeries | None = None,
+                   relax_s: float = 30.0) -> EcmModel:
+        pulses = self.pulse_test() if pulses is None else pulses
+        ocv = self.ocv_test() if ocv is None else ocv
+        table = ocv_from_branches(ocv)
+        ch, dis = fit_pulses(pulses, table, self.capacity_ah, relax_s=relax_s)
+        return EcmModel(capacity_ah=self.capacity_ah, ocv=table, charge=ch, discharge=dis,
+                        method="synthetic-pulses", seed=self.seed,
+                        direction_deadband_a=0.01 * self.capacity_ah)
+
+
+def ocv_from_branches(series: TimeSeries) -> OcvTable:
+    """OCV = mean of the low-rate discharge and charge branches, SOC from the Ah of the
+    discharge (its own capacity), on a 101-point grid."""
+    t, i, v = series.time_s, series.current_a, series.voltage_v
+    dt = np.diff(t, prepend=t[0])
+    q = np.cumsum(i * dt) / 3600.0
+    dis, chg = i < -1e-3, i > 1e-3
+    cap = -q[dis].min()
+    soc = 1.0 + q / cap
+    sd, vd_raw = soc[dis][::-1], v[dis][::-1]
+    sc = soc[chg] - soc[chg][0] + soc[dis][-1]
+    vd = _smooth_on_grid(sd, vd_raw)
+    vc = _smooth_on_grid(sc, v[chg])
+    ocv = 0.5 * (vd + vc)
+    for k in range(1, ocv.size):              # strictly increasing (noise at the ends)
+        ocv[k] = max(ocv[k], ocv[k - 1] + 1e-6)
+    return OcvTable(SOC_GRID.copy(), ocv)
+
+
+def _smooth_on_grid(soc: np.ndarray, v: np.ndarray, half_width: float = 0.01) -> np.ndarray:
+    """Local linear fit of v(soc) within +-half_width around each grid point."""
+    out = np.empty(SOC_GRID.size)
+    for k, g in enumerate(SOC_GRID):
+        w = np.abs(soc - g) <= half_width
+        if w.sum() >= 3:
+            c = np.polyfit(soc[w] - g, v[w], 1)
+            out[k] = c[1]
+        else:
+            out[k] = np.interp(g, soc, v)
+    return out
+
+
+def fit_pulses(series: TimeSeries, ocv: OcvTable, capacity_ah: float, relax_s: float = 30.0,
+               min_a: float | None = None) -> tuple[RcTable, RcTable]:
+    """2RC per SOC level and direction from the pulses (and ``relax_s`` of relaxation):
+    all pulses of a level and direction share one parameter set."""
+    from scipy.optimize import least_squares
+
+    t, i, v = series.time_s, series.current_a, series.voltage_v
+    min_a = 0.1 * capacity_ah if min_a is None else min_a
+    on = np.abs(i) > min_a
+    edges = np.flatnonzero(on[1:] & ~on[:-1]) + 1
+    dt_all = np.diff(t, prepend=t[0])
+    q = np.cumsum(i * dt_all) / 3600.0
+    soc_all = 1.0 + q / capacity_ah
+    windows: dict[tuple[str, int], list] = {}
+    for e in edges:
+        end = e
+        while end < i.size and on[end]:
+            end += 1
+        stop = int(np.searchsorted(t, t[end - 1] + relax_s, side="right"))
+        a = e - 1
+        w_t = t[a:stop] - t[a]
+        w_dt = np.diff(w_t, prepend=0.0)
+        w_i = np.where(np.abs(i[a:stop]) > min_a, i[a:stop], 0.0)
+        soc = soc_all[a] + np.cumsum(w_i * w_dt) / 3600.0 / capacity_ah
+        target = v[a:stop] - v[a] - (ocv.ocv_at(soc) - ocv.ocv_at(soc_all[a]))
+        direction = "charge" if i[e] > 0 else "discharge"
+        level = int(round(soc_all[a] * 40))           # groups within 2.5 % SOC
+        windows.setdefault((direction, level), []).append((w_dt, w_i, target, soc_all[a]))
+
+    def model(x, w):
+        r0, rf, tf, rs, ts = np.exp(x)
+        out = []
+        for w_dt, w_i, _, _ in w:
+            af, as_ = np.exp(-w_dt / tf), np.exp(-w_dt / ts)
+            uf = rc_recurrence(af, rf * (1 - af) * w_i)
+            us = rc_recurrence(as_, rs * (1 - as_) * w_i)
+            out.append(r0 * w_i + uf + us)
+        return out
+
+    rows = {"charge": [], "discharge": []}
+    for (direction, _), w in sorted(windows.items()):
+        target = np.concatenate([x[2] for x in w])
+
+        def res(x):
+            return np.concatenate(model(x, w)) - target
+
+        lo = np.log([1e-4, 1e-5, 0.05, 1e-5, 2.0])
+        hi = np.log([1.0, 1.0, 5.0, 1.0, 200.0])
+        best = None
+        for tf0, ts0 in ((0.5, 10.0), (2.0, 30.0)):
+            x0 = np.log([0.02, 0.01, tf0, 0.01, ts0])
+            sol = least_squares(res, x0, bounds=(lo, hi), method="trf", x_scale=1.0)
+            if best is None or sol.cost < best.cost:
+                best = sol
+        soc = float(np.mean([x[3] for x in w]))
+        rows[direction].append((soc, *np.exp(best.x), math.sqrt(2 * best.cost / target.size),
+                                bool(best.success)))
+    tables = {}
+    for d, r in rows.items():
+        r.sort()
+        a = np.array([x[:7] for x in r], dtype=np.float64)
+        soc = np.clip(a[:, 0], 0.0, 1.0)
+        keep = np.concatenate([[True], np.diff(soc) > 1e-6])
+        a = a[keep]
+        tables[d] = RcTable(soc=np.clip(a[:, 0], 0, 1), r0_ohm=a[:, 1], r_fast_ohm=a[:, 2],
+                            tau_fast_s=a[:, 3], r_slow_ohm=a[:, 4], tau_slow_s=a[:, 5],
+                            fit_error=a[:, 6], converged=np.array([x[7] for x in r])[keep])
+    return tables["charge"], tables["discharge"]
+
+
+def random_base(rng: np.random.Generator, capacity_ah: float | None = None) -> EcmModel:
+    """A random, plausible NCA-like 2RC model (no effects)."""
+    q = float(rng.uniform(2.4, 3.4)) if capacity_ah is None else capacity_ah
+    soc = np.linspace(0.0, 1.0, 11)
+    ocv = OcvTable(SOC_GRID.copy(), nca_like_ocv(SOC_GRID, float(rng.uniform(-0.05, 0.05))))
+    scale = 2.9 / q
+    r0 = scale * rng.uniform(0.015, 0.025) * (1 + 0.6 * (1 - soc) ** 3)
+    rf = scale * rng.uniform(0.006, 0.012) * (1 + 0.5 * (1 - soc) ** 2)
+    tf = np.full(soc.size, rng.uniform(0.6, 2.0))
+    rs = scale * rng.uniform(0.006, 0.012) * (1 + 0.8 * (1 - soc) ** 2)
+    ts = np.full(soc.size, rng.uniform(8.0, 20.0))
+
+    def table(k):
+        return RcTable(soc=soc, r0_ohm=k * r0, r_fast_ohm=k * rf, tau_fast_s=tf,
+                       r_slow_ohm=k * rs, tau_slow_s=ts, fit_error=np.zeros(soc.size),
+                       converged=np.ones(soc.size, bool))
+
+    return EcmModel(capacity_ah=q, ocv=ocv, charge=table(0.92), discharge=table(1.0),
+                    method="hidden", seed=None, direction_deadband_a=0.01 * q)
+
+
+def random_effect(name: str, base: EcmModel, rng: np.random.Generator, ambient_c: float = 25.0):
+    """A hidden effect of a clearly visible (but realistic) size."""
+    q = base.capacity_ah
+    r_tot = float(np.mean(base.discharge.r0_ohm + base.discharge.r_fast_ohm
+                          + base.discharge.r_slow_ohm))
+    if name == fx.Hysteresis.name:
+        return fx.Hysteresis(m_v=float(rng.uniform(0.012, 0.025)),
+                             decay_ah=float(rng.uniform(0.03, 0.08)) * q,
+                             m0_v=float(rng.uniform(0.0, 0.004)), ocv_table_state=0.0,
+                             initial_state=1.0)
+    if name == fx.CurrentDependentResistance.name:
+        return fx.CurrentDependentResistance(scale_at_zero=float(rng.uniform(1.1, 1.3)),
+                                             i0_a=float(rng.uniform(0.6, 1.2)) * q)
+    if name == fx.ExtraRc.name:
+        return fx.ExtraRc(r_ohm=float(rng.uniform(0.5, 1.0)) * r_tot,
+                          tau_s=float(rng.uniform(300.0, 1200.0)))
+    if name == fx.CapacityError.name:
+        sign = 1.0 if rng.uniform() < 0.5 else -1.0
+        return fx.CapacityError(capacity_scale=1.0 + sign * float(rng.uniform(0.05, 0.09)))
+    if name == fx.TemperatureDependence.name:
+        return fx.TemperatureDependence(activation_k=float(rng.uniform(3500.0, 5500.0)),
+                                        t_ref_c=ambient_c)
+    raise ValueError(f"unknown effect {name!r}")
+
+
+def random_cell(seed: int, effect: str | None = None, **kw) -> SyntheticCell:
+    """A random cell with at most one hidden effect (``effect`` = its name or None)."""
+    rng = np.random.default_rng(seed)
+    base = random_base(rng)
+    effects = () if effect is None else (random_effect(effect, base, rng),)
+    return SyntheticCell(hidden=base.with_effects(effects), effect=effect, seed=seed, **kw)

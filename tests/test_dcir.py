@@ -1,0 +1,89 @@
+"""Pulse finding and DC-IR extraction: synthetic known truth and the real Panasonic HPPC."""
+
+import numpy as np
+import pytest
+
+from conftest import PANASONIC, REPO, flat, make_pulse_test, need, synthetic_nca_model
+from ecmgen.dcir import extract_dcir, find_pulses, read_dcir_csv
+from ecmgen.errors import InputError
+from ecmgen.measure import TimeSeries, read_timeseries
+
+
+def test_synthetic_pulses_give_the_analytic_resistance():
+    m = flat(synthetic_nca_model())
+    series, soc0 = make_pulse_test(m, soc_levels=(0.8, 0.4), c_rates=(1.0, 4.0))
+    pulses = find_pulses(series, m.capacity_ah, soc0=soc0)
+    assert len(pulses) == 4
+    assert not any(p.cut_short for p in pulses)
+    assert [p.c_rate for p in pulses] == [1.0, 4.0, 1.0, 4.0]
+    assert pulses[0].soc == pytest.approx(0.8, abs=1e-9)
+    table = extract_dcir(series, pulses)
+    for k, p in enumerate(pulses):
+        # R(t) of the 2RC plus the OCV's fall with the charge drawn
+        par = m.discharge.at(p.soc)
+        t = table.t_s
+        expected = (par["r0_ohm"] + par["r_fast_ohm"] * (1 - np.exp(-t / par["tau_fast_s"]))
+                    + par["r_slow_ohm"] * (1 - np.exp(-t / par["tau_slow_s"])))
+        ocv_drift = (m.ocv.ocv_at(p.soc) - m.ocv.ocv_at(p.soc - p.c_rate * t / 3600)) / (p.c_rate * 2.9)
+        assert np.allclose(table.r_ohm[k], expected + ocv_drift, rtol=0, atol=1e-9)
+
+
+def test_cut_short_pulse_is_flagged_and_left_out():
+    m = synthetic_nca_model()
+    series, soc0 = make_pulse_test(m, soc_levels=(0.8, 0.5), c_rates=(1.0,))
+    # a voltage limit ends the second pulse after 2 s: current drops to zero early
+    on = np.flatnonzero(series.current_a < 0)
+    second = on[on > on[0] + 200]
+    i = series.current_a.copy()
+    i[second[20:]] = 0.0
+    cut = TimeSeries(series.time_s, i, series.voltage_v, None, series.charge_ah, "cut.csv")
+    pulses = find_pulses(cut, 2.9, soc0=soc0)
+    assert [p.cut_short for p in pulses] == [False, True]
+    table = extract_dcir(cut, pulses)
+    assert len(table) == 1
+    assert any("cut short" in n for n in table.notes)
+
+
+def test_a_record_without_pulses_is_refused():
+    t = np.arange(0, 3600.0)
+    series = TimeSeries(t, np.full(t.size, -1.0), 3.7 - 1e-5 * t, source="cc.csv")
+    with pytest.raises(InputError, match="cc.csv: no pulses found"):
+        find_pulses(series, 2.9, soc0=1.0)
+
+
+def test_panasonic_hppc_table():
+    series = read_timeseries(need(PANASONIC / "hppc.mat"), capacity_ah=2.9)
+    pulses = find_pulses(series, 2.9, soc0=1.0)
+    assert len(pulses) == 67
+    assert sorted({p.c_rate for p in pulses}) == [0.5, 1.0, 2.0, 4.0, 6.0]
+    assert all(p.direction == "discharge" for p in pulses)
+    # the voltage limit ends three pulses near empty
+    assert sum(p.cut_short for p in pulses) == 3
+    # SOC from the Ah column: the pulse sets sit at 100, 95, 90, 80 ... %
+    first_of_set = [p.soc for p in pulses if p.c_rate == 0.5]
+    assert first_of_set[:4] == pytest.approx([1.0, 0.95, 0.90, 0.80], abs=0.002)
+    table = extract_dcir(series, pulses)
+    assert len(table) == 64
+    r01 = table.r_ohm[:, 0]
+    assert np.all((r01 > 0.015) & (r01 < 0.045))
+    # R(t) grows with time into every pulse
+    assert np.all(np.diff(table.r_ohm, axis=1) > 0)
+
+
+def test_dcir_csv_round_trip(tmp_path):
+    table = read_dcir_csv(REPO / "tests" / "data" / "paper-table1.csv")
+    assert table.t_s.tolist() == [0.1, 1, 3, 6, 10]
+    assert table.r_ohm[0].tolist() == [0.0002, 0.0012, 0.0021, 0.0023, 0.0025]
+    p = table.write_csv(tmp_path / "t.csv")
+    again = read_dcir_csv(p)
+    assert np.array_equal(again.r_ohm, table.r_ohm)
+
+
+def test_dcir_csv_errors(tmp_path):
+    p = tmp_path / "bad.csv"
+    p.write_text("soc,direction,t_s\n0.5,charge,1\n")
+    with pytest.raises(InputError, match="bad.csv: missing column 'r_ohm'"):
+        read_dcir_csv(p)
+    p.write_text("soc,direction,t_s,r_ohm\n0.5,sideways,1,0.01\n")
+    with pytest.raises(InputError, match="direction"):
+        read_dcir_csv(p)

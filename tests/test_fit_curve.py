@@ -1,0 +1,38 @@
+"""Whole-curve fit: known truth from a synthetic pulse test with 1 mV noise."""
+
+import numpy as np
+import pytest
+
+from conftest import make_pulse_test, synthetic_nca_model
+from ecmgen.dcir import find_pulses
+from ecmgen.fit_curve import fit_pulse_curves
+
+
+@pytest.mark.parametrize("tau_slow_s", [60.0, 150.0])
+def test_recovers_every_parameter_within_5_percent(tau_slow_s):
+    truth = synthetic_nca_model(tau_fast_s=2.0, tau_slow_s=tau_slow_s)
+    # HPPC-like: 2C and 6C pulses of 10 s, 20 min rests, 1 mV noise
+    series, soc0 = make_pulse_test(truth, soc_levels=(0.9, 0.6, 0.3), c_rates=(2.0, 6.0),
+                                   noise_v=0.001, seed=3)
+    pulses = find_pulses(series, truth.capacity_ah, soc0=soc0)
+    fit = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, relax_s=1200.0)
+    assert len(fit.soc) == 3 and fit.converged.all()
+    for k, soc in enumerate(fit.soc):
+        p = truth.discharge.at(soc)
+        for name in ("r0_ohm", "r_fast_ohm", "tau_fast_s", "r_slow_ohm", "tau_slow_s"):
+            got = getattr(fit, name)[k]
+            assert got == pytest.approx(float(p[name]), rel=0.05), (soc, name)
+        assert fit.rms_error_v[k] < 0.0012   # the 1 mV noise, nothing more
+
+
+def test_five_point_curves_cannot_see_minutes_but_the_relaxation_can():
+    """The reason for the whole-curve method: with tau_slow = 300 s the first 10 s of a
+    pulse hold almost nothing of the slow pole, the 20-minute rest holds all of it."""
+    truth = synthetic_nca_model(tau_fast_s=2.0, tau_slow_s=300.0)
+    series, soc0 = make_pulse_test(truth, soc_levels=(0.6,), c_rates=(2.0,))
+    pulses = find_pulses(series, truth.capacity_ah, soc0=soc0)
+    short = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, relax_s=1.0)
+    full = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, relax_s=1200.0)
+    r_slow = float(truth.discharge.at(0.6)["r_slow_ohm"])
+    assert full.r_slow_ohm[0] == pytest.approx(r_slow, rel=0.01)
+    assert abs(short.r_slow_ohm[0] - r_slow) > 0.05 * r_slow
