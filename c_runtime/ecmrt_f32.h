@@ -3,7 +3,8 @@
  *
  * Included once by a generated <prefix>_ecm.c after it defines
  *     ECMRT_VARIABLE_DT   1: step(state, i, dt), coefficients 1 - exp(-dt/tau) at run time
- *                         0: step(state, i), coefficients precomputed for the build's dt
+ *                         0: step(state, i), D = 1/(1 - exp(-dt/tau)) precomputed for the
+ *                            build's dt and interpolated; the step divides by D
  * All functions are static inline: no external symbols, so several models link together.
  *
  * Bit-for-bit reproducibility (host == Cortex-M4F == ecmgen.cref.simulate_f32) rests on:
@@ -42,7 +43,7 @@ typedef struct {
 } ecmrt_f32_grid_t;
 
 /* Parameters of one current direction over its grid. k_fast / k_slow hold the time
- * constants tau in s (ECMRT_VARIABLE_DT = 1) or c = 1 - exp(-dt/tau) (ECMRT_VARIABLE_DT = 0). */
+ * constants tau in s (ECMRT_VARIABLE_DT = 1) or D = 1/(1 - exp(-dt/tau)) (ECMRT_VARIABLE_DT = 0). */
 typedef struct {
     ecmrt_f32_grid_t g;
     const float *r0;
@@ -163,7 +164,12 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ecmrt_f32_state_t
 {
     const ecmrt_f32_dir_t *d;
     unsigned dir, k;
-    float soc, y, w, r0, rf, rs, cf, cs, uf, us, ocv;
+    float soc, y, w, r0, rf, rs, uf, us, ocv;
+#if ECMRT_VARIABLE_DT
+    float cf, cs;
+#else
+    float df, ds;
+#endif
 
     /* 0. saturate the inputs (NaN current counts as 0 A) */
     if (i != i) {
@@ -215,17 +221,22 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ecmrt_f32_state_t
     cf = ecmrt_f32_one_minus_exp_neg(dt / ecmrt_f32_lerp(d->k_fast, k, w));
     cs = ecmrt_f32_one_minus_exp_neg(dt / ecmrt_f32_lerp(d->k_slow, k, w));
 #else
-    cf = ecmrt_f32_lerp(d->k_fast, k, w);
-    cs = ecmrt_f32_lerp(d->k_slow, k, w);
+    df = ecmrt_f32_lerp(d->k_fast, k, w);
+    ds = ecmrt_f32_lerp(d->k_slow, k, w);
 #endif
     w = ecmrt_f32_locate(&m->ocv_g, soc, &s->k_ocv);
     ocv = ecmrt_f32_lerp(m->ocv, s->k_ocv, w);
-    /* 4. exact ZOH: u = a u + r (1 - a) i, written u + c (r i - u) with c = 1 - a */
+    /* 4. exact ZOH: u = a u + r (1 - a) i, written u + c (r i - u) with c = 1 - a = 1/D */
     uf = s->u_fast;
-    uf = uf + cf * (rf * i - uf);
-    s->u_fast = uf;
     us = s->u_slow;
+#if ECMRT_VARIABLE_DT
+    uf = uf + cf * (rf * i - uf);
     us = us + cs * (rs * i - us);
+#else
+    uf = uf + (rf * i - uf) / df;
+    us = us + (rs * i - us) / ds;
+#endif
+    s->u_fast = uf;
     s->u_slow = us;
     /* 5. terminal voltage */
     return ((ocv + r0 * i) + uf) + us;

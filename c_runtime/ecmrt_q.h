@@ -4,14 +4,16 @@
  *
  * Included once by a generated <prefix>_ecm.c after it defines (value = raw / 2^Q):
  *     ECMRT_VARIABLE_DT   1: step(state, i, dt) with dt in Q16 s, 1 - exp(-dt/tau) computed
- *                            in integers at run time; 0: step(state, i), c tables precomputed
+ *                            in integers at run time; 0: step(state, i), D = 1/(1 - exp(-dt/tau))
+ *                            tables precomputed, c = 1/D by one integer division
  *     ECMRT_Q_I           current, A
  *     ECMRT_Q_V           voltages: OCV table, RC voltages, output
  *     ECMRT_Q_G           inverse breakpoint spacings inv_dx (w = (soc - x[k]) * inv_dx >> Q_G)
  *     ECMRT_Q_R0, ECMRT_Q_RF, ECMRT_Q_RS   resistance tables, ohm
  *     ECMRT_Q_T           time-constant tables, s                (variable dt)
  *     ECMRT_SH_RATE       shift of i * k_soc to the SOC rate      (variable dt)
- *     ECMRT_Q_CF, ECMRT_Q_CS   c = 1 - exp(-dt/tau) tables        (fixed dt)
+ *     ECMRT_Q_DF, ECMRT_Q_DS   D = 1/(1 - exp(-dt/tau)) tables    (fixed dt)
+ *     ECMRT_Q_CF, ECMRT_Q_CS   c = 1/D formed at run time           (fixed dt)
  *     ECMRT_SH_DSOC       scale of the SOC increment: 2^SH_DSOC units = 1 LSB of Q30
  * Fixed by the runtime: SOC, breakpoints and interpolation weights Q30; dt Q16 (variable dt);
  * run-time c Q30.
@@ -52,7 +54,7 @@ typedef struct {
     uint8_t n;
 } ecmrt_q_grid_t;
 
-/* k_fast / k_slow: tau in Q_T s (variable dt) or c = 1 - exp(-dt/tau) in Q_CF / Q_CS (fixed dt) */
+/* k_fast / k_slow: tau in Q_T s (variable dt) or D = 1/(1 - exp(-dt/tau)) in Q_DF / Q_DS (fixed dt) */
 typedef struct {
     ecmrt_q_grid_t g;
     const int32_t *r0;
@@ -170,6 +172,17 @@ static inline int32_t ecmrt_q_one_minus_exp_neg(int32_t dt, int32_t tau)
 }
 #endif
 
+#if !ECMRT_VARIABLE_DT
+#if !defined(ECMRT_Q_DF) || !defined(ECMRT_Q_DS) || !defined(ECMRT_Q_CF) || !defined(ECMRT_Q_CS)
+#error "fixed-dt fixed point needs ECMRT_Q_DF, ECMRT_Q_DS, ECMRT_Q_CF and ECMRT_Q_CS"
+#endif
+/* c = one / D rounded, D > 0 (the tables hold D >= 1 scaled so that c < 2^30) */
+static inline int32_t ecmrt_q_recip(int32_t dd, int64_t one)
+{
+    return (int32_t)((one + (int64_t)(dd >> 1)) / dd);
+}
+#endif
+
 /* soc0 in Q30 (1.0 = 1 << 30) */
 static inline void ecmrt_q_init(ecmrt_q_state_t *s, int32_t soc0)
 {
@@ -236,8 +249,8 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ecmrt_q_state_t *s,
 #define ECMRT_QC_F ECMRT_Q30
 #define ECMRT_QC_S ECMRT_Q30
 #else
-    cf = ecmrt_q_lerp(d->k_fast, k, w);
-    cs = ecmrt_q_lerp(d->k_slow, k, w);
+    cf = ecmrt_q_recip(ecmrt_q_lerp(d->k_fast, k, w), (int64_t)1 << (ECMRT_Q_CF + ECMRT_Q_DF));
+    cs = ecmrt_q_recip(ecmrt_q_lerp(d->k_slow, k, w), (int64_t)1 << (ECMRT_Q_CS + ECMRT_Q_DS));
 #define ECMRT_QC_F ECMRT_Q_CF
 #define ECMRT_QC_S ECMRT_Q_CS
 #endif

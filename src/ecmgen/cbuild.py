@@ -200,7 +200,8 @@ def _cdef(spec: CSpec) -> str:
     p = spec.prefix
     t, _ = _types(spec)
     vdt = spec.variable_dt
-    state = (f"typedef struct {{ {t} soc; {t} u_fast; {t} u_slow; uint8_t charging; "
+    head = "int64_t soc_rem; int32_t soc;" if spec.fixed else "float soc; float soc_c;"
+    state = (f"typedef struct {{ {head} {t} u_fast; {t} u_slow; uint8_t charging; "
              f"uint8_t k_ocv; uint8_t k_dir[2]; }} {p}_state_t;")
     dt_arg = f"const {t} *dt, " if vdt else ""
     if spec.fixed:

@@ -14,9 +14,11 @@ variable dt (``dt_s=None``)  ``step(state, i, dt)``; the coefficients c = 1 - ex
     are computed at run time from the interpolated tau, exactly as ``simulate.py`` does
     (float: a deterministic exp built from + - * ; fixed: integer exp). This is the mode
     that runs the measured, non-uniform drive cycles.
-fixed dt (``dt_s`` given)    ``step(state, i)``; c = 1 - exp(-dt_s/tau) is precomputed per
-    breakpoint and *interpolated* (cheaper: no division, no exp). Between breakpoints this
-    differs from ``simulate.py`` (which interpolates tau), only in the RC time constants.
+fixed dt (``dt_s`` given)    ``step(state, i)``; D = 1 / (1 - exp(-dt_s/tau)) is precomputed
+    per breakpoint, interpolated in SOC, and the step divides by it (no exp). D = tau/dt +
+    1/2 + dt/(12 tau) + ... is nearly linear in tau, so this matches ``simulate.py`` (which
+    interpolates tau) exactly at the breakpoints and to second order in dt/tau between them;
+    interpolating c itself would not (c ~ dt/tau is convex in tau).
 
 Every constant the C uses is computed once here (float64 maths, then rounded once to
 float32 or quantised once to an integer) into a :class:`CSpec`; both the renderer and the
@@ -89,7 +91,8 @@ class CGrid:
 
 @dataclass(frozen=True)
 class CDir:
-    """Tables of one current direction. k_fast/k_slow: tau (variable dt) or c (fixed dt)."""
+    """Tables of one current direction. k_fast/k_slow: tau (variable dt) or
+    D = 1/(1 - exp(-dt/tau)) (fixed dt)."""
 
     grid: CGrid
     r0: np.ndarray
@@ -242,6 +245,11 @@ def _coef(dt_s: float, tau: np.ndarray) -> np.ndarray:
     return -np.expm1(-dt_s / tau)
 
 
+def _inv_coef(dt_s: float, tau: np.ndarray) -> np.ndarray:
+    """D = 1 / (1 - exp(-dt/tau)) >= 1: the fixed-dt tables."""
+    return 1.0 / _coef(dt_s, tau)
+
+
 def prepare(model, numeric: str = "float", dt_s: float | None = None, prefix: str = "ecm",
             i_max_a: float | None = None) -> CSpec:
     """The tables and constants the C will hold (see :class:`CSpec`). Raises InputError
@@ -271,7 +279,7 @@ def prepare(model, numeric: str = "float", dt_s: float | None = None, prefix: st
     def k_tables(cols):
         if variable_dt:
             return cols["tau_fast_s"], cols["tau_slow_s"]
-        return _coef(dt_s, cols["tau_fast_s"]), _coef(dt_s, cols["tau_slow_s"])
+        return _inv_coef(dt_s, cols["tau_fast_s"]), _inv_coef(dt_s, cols["tau_slow_s"])
 
     common = dict(prefix=prefix, numeric=numeric, variable_dt=variable_dt, dt_s=dt_s,
                   i_lim_a=i_lim, model_sha256=model.sha256(), capacity_ah=cap)
@@ -341,11 +349,15 @@ def prepare(model, numeric: str = "float", dt_s: float | None = None, prefix: st
         q["Q_K"] = _q_fit(k_soc64)
         q["SH_DSOC"] = q_i + q["Q_K"] - Q30
         k_soc = int(quantize([k_soc64], q["Q_K"])[0])
-        for key, name in (("tau_fast_s", "Q_CF"), ("tau_slow_s", "Q_CS")):
-            cmax = max(float(np.max(_coef(dt_s, c[key]))) for _, c in raw_dirs)
-            q[name] = _q_fit(cmax, bits=30)
+        for key, qd, qc in (("tau_fast_s", "Q_DF", "Q_CF"), ("tau_slow_s", "Q_DS", "Q_CS")):
+            dmax = max(float(np.max(_inv_coef(dt_s, c[key]))) for _, c in raw_dirs)
+            dmin = min(float(np.min(_inv_coef(dt_s, c[key]))) for _, c in raw_dirs)
+            q[qd] = _q_fit(dmax)
+            q[qc] = min(_q_fit(1.0 / dmin, bits=30), 62 - q[qd])
+            if q[qd] < 0 or q[qc] < 2:
+                raise InputError(None, f"dt_s = {dt_s} s is too small for the time constants in fixed point")
     for name in ("SH_RATE", "SH_DSOC"):
-        if name in q and not 1 <= q[name] <= 62:
+        if name in q and not 1 <= q[name] <= (62 if name == "SH_RATE" else 61):
             raise InputError(None, f"capacity {cap} Ah with current range {i_lim} A does not fit "
                                    f"the fixed-point SOC update ({name} = {q[name]})")
 
@@ -357,7 +369,7 @@ def prepare(model, numeric: str = "float", dt_s: float | None = None, prefix: st
             if np.any(kfq <= 0) or np.any(ksq <= 0):
                 raise InputError(None, "time constants too small for the fixed-point format")
         else:
-            kfq, ksq = quantize(kf, q["Q_CF"]), quantize(ks, q["Q_CS"])
+            kfq, ksq = quantize(kf, q["Q_DF"]), quantize(ks, q["Q_DS"])
         dirs.append(CDir(qgrid(xq), quantize(cols["r0_ohm"], q["Q_R0"]),
                          quantize(cols["r_fast_ohm"], q["Q_RF"]), kfq,
                          quantize(cols["r_slow_ohm"], q["Q_RS"]), ksq))
@@ -435,8 +447,10 @@ def _ranges(spec: CSpec) -> list[dict]:
         rows.append(row("c (run time)", Q30, "1 - exp(-dt/tau)", "[0, 1]"))
         rows.append(row("k_soc", q["Q_K"], "1/(3600 Q) per A s", "-"))
     else:
-        rows.append(row("c_fast", q["Q_CF"], "1 - exp(-dt/tau_fast)", "[0, 1)"))
-        rows.append(row("c_slow", q["Q_CS"], "1 - exp(-dt/tau_slow)", "[0, 1)"))
+        rows.append(row("inv_c_fast", q["Q_DF"], "D = 1/(1 - exp(-dt/tau_fast))", ">= 1"))
+        rows.append(row("inv_c_slow", q["Q_DS"], "D = 1/(1 - exp(-dt/tau_slow))", ">= 1"))
+        rows.append(row("c_fast (run time)", q["Q_CF"], "1/D_fast", "(0, 1]"))
+        rows.append(row("c_slow (run time)", q["Q_CS"], "1/D_slow", "(0, 1]"))
         rows.append(row("k_soc", q["Q_K"], "dt/(3600 Q) per A", "-"))
     return rows
 
@@ -448,7 +462,7 @@ def _context(spec: CSpec) -> dict:
         arrays = _Arrays("int32_t", lambda v: str(int(v)), 6)
     else:
         arrays = _Arrays("float", c_float, 5)
-    kname = ("tau_fast_s", "tau_slow_s") if spec.variable_dt else ("c_fast", "c_slow")
+    kname = ("tau_fast_s", "tau_slow_s") if spec.variable_dt else ("inv_c_fast", "inv_c_slow")
 
     def grid(g: CGrid, tag: str) -> dict:
         return {"x": arrays.add(f"{tag}_soc", g.x, f"{tag}: SOC breakpoints"),

@@ -107,25 +107,35 @@ def _weight_f32(grid, soc):
 
 
 def _soc_f32(soc0: np.float32, d: np.ndarray) -> np.ndarray:
-    lo, hi = F32(-SOC_LIM), F32(SOC_LIM)
-    acc = np.add.accumulate(np.concatenate(([soc0], d)).astype(F32), dtype=F32)[1:]
-    if acc.size == 0 or (np.all(acc >= lo) and np.all(acc <= hi)):
-        return acc
+    """Kahan-compensated, saturated SOC sum, as ecmrt_f32_step step 2."""
+    lo, hi, zero = F32(-SOC_LIM), F32(SOC_LIM), F32(0.0)
     out = np.empty_like(d)
-    s = soc0
-    for k, dk in enumerate(d):
-        s = s + dk
-        s = lo if s < lo else (hi if s > hi else s)
+    s, c = F32(soc0), zero
+    for k, dk in enumerate(d):          # numpy float32 scalars: f32 arithmetic
+        y = dk - c
+        t = s + y
+        c = (t - s) - y
+        if t < lo:
+            t, c = lo, zero
+        elif t > hi:
+            t, c = hi, zero
+        s = t
         out[k] = s
     return out
 
 
-def _rc_f32(c: np.ndarray, t: np.ndarray) -> np.ndarray:
+def _rc_f32(c: np.ndarray, t: np.ndarray, divide: bool = False) -> np.ndarray:
+    """u += c (t - u), or u += (t - u) / D with divide=True (fixed-dt tables hold D)."""
     out = np.empty_like(t)
     u = F32(0.0)
-    for k, (ck, tk) in enumerate(zip(c, t)):      # numpy float32 scalars: f32 arithmetic
-        u = u + ck * (tk - u)
-        out[k] = u
+    if divide:
+        for k, (dk, tk) in enumerate(zip(c, t)):  # numpy float32 scalars: f32 arithmetic
+            u = u + (tk - u) / dk
+            out[k] = u
+    else:
+        for k, (ck, tk) in enumerate(zip(c, t)):
+            u = u + ck * (tk - u)
+            out[k] = u
     return out
 
 
@@ -163,12 +173,13 @@ def simulate_f32(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0) -> RefRes
         with np.errstate(all="ignore"):
             cf = one_minus_exp_neg_f32(dt / p["k_fast"])
             cs = one_minus_exp_neg_f32(dt / p["k_slow"])
+        uf = _rc_f32(cf, p["r_fast"] * i)
+        us = _rc_f32(cs, p["r_slow"] * i)
     else:
-        cf, cs = p["k_fast"], p["k_slow"]
+        uf = _rc_f32(p["k_fast"], p["r_fast"] * i, divide=True)
+        us = _rc_f32(p["k_slow"], p["r_slow"] * i, divide=True)
     k, w = _weight_f32(spec.ocv_grid, soc)
     ocv = _lerp_f32(spec.ocv, k, w)
-    uf = _rc_f32(cf, p["r_fast"] * i)
-    us = _rc_f32(cs, p["r_slow"] * i)
     v = ((ocv + p["r0"] * i) + uf) + us
     return RefResult(v.astype(F32), soc, uf, us, chg)
 
@@ -222,15 +233,21 @@ def _lerp_q(y, k, w):
     return y[k] + _rshr((y[k + 1] - y[k]) * w, 30)
 
 
-def _soc_q(soc0: int, dsoc: np.ndarray) -> np.ndarray:
-    if dsoc.size and np.max(np.abs(dsoc)) < 2**62 // max(dsoc.size, 1):
-        acc = soc0 + np.cumsum(dsoc)
-        if np.all(acc >= INT32_MIN) and np.all(acc <= INT32_MAX):
-            return acc
-    out = np.empty_like(dsoc)
-    s = int(soc0)
-    for k, dk in enumerate(dsoc.tolist()):
-        s = min(INT32_MAX, max(INT32_MIN, s + dk))
+def _soc_q(soc0: int, inc: np.ndarray, sh: int) -> np.ndarray:
+    """SOC with the sub-LSB remainder carried (ecmrt_q_step step 2): without saturation
+    soc_k = soc0 + floor(sum(inc[:k+1]) / 2^sh) exactly."""
+    n = inc.size
+    if n and int(np.max(np.abs(inc))) < 2**62 // n:
+        cum = np.cumsum(inc)
+        soc = soc0 + (cum >> sh)
+        if np.all(soc >= INT32_MIN) and np.all(soc <= INT32_MAX):
+            return soc
+    out = np.empty(n, dtype=np.int64)
+    s, rem = int(soc0), 0
+    for k, d in enumerate(inc.tolist()):
+        acc = rem + d
+        rem = acc & ((1 << sh) - 1)
+        s = min(INT32_MAX, max(INT32_MIN, s + (acc >> sh)))
         out[k] = s
     return out
 
@@ -259,12 +276,12 @@ def simulate_fixed_raw(spec: CSpec, i_raw, dt_raw=None, soc0_raw: int = ONE30) -
         if dt.shape != i.shape:
             raise ValueError("current and dt differ in length")
         rate = _sat32(_rshr(i * spec.k_soc, q["SH_RATE"]))
-        dsoc = _rshr(rate * dt, q["SH_DSOC"])
+        inc = rate * dt
     else:
         dt = None
-        dsoc = _rshr(i * spec.k_soc, q["SH_DSOC"])
+        inc = i * spec.k_soc
     chg = _direction(i, spec.deadband)
-    soc = _soc_q(int(np.clip(soc0_raw, INT32_MIN, INT32_MAX)), dsoc)
+    soc = _soc_q(int(np.clip(soc0_raw, INT32_MIN, INT32_MAX)), inc, q["SH_DSOC"])
 
     per_dir = []
     for d in spec.dirs:
@@ -277,7 +294,9 @@ def simulate_fixed_raw(spec: CSpec, i_raw, dt_raw=None, soc0_raw: int = ONE30) -
         cs = one_minus_exp_neg_q(dt, p["k_slow"], q["Q_T"])
         qcf = qcs = Q30
     else:
-        cf, cs, qcf, qcs = p["k_fast"], p["k_slow"], q["Q_CF"], q["Q_CS"]
+        qcf, qcs = q["Q_CF"], q["Q_CS"]
+        cf = ((1 << (qcf + q["Q_DF"])) + (p["k_fast"] >> 1)) // p["k_fast"]
+        cs = ((1 << (qcs + q["Q_DS"])) + (p["k_slow"] >> 1)) // p["k_slow"]
     q_i, q_v = q["Q_I"], q["Q_V"]
     uf = _rc_q(cf, _rshr(p["r_fast"] * i, q["Q_RF"] + q_i - q_v), qcf)
     us = _rc_q(cs, _rshr(p["r_slow"] * i, q["Q_RS"] + q_i - q_v), qcs)

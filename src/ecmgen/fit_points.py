@@ -250,24 +250,39 @@ def _bounds_for(data: _Data, bounds: Bounds | None) -> Bounds:
 # --------------------------------------------------------------------------------------
 # genetic algorithm
 # --------------------------------------------------------------------------------------
+_GA = dict(eta_c=10.0, p_sbx=0.5, line_ext=0.25, p_mut=0.25, sigma0=0.2, sigma_half=100.0,
+           decades=5.0)
+
+
 def fit_ga(t_s, r_ohm, *, bounds: Bounds | None = None, seed: int = 0, population: int = 48,
            max_generations: int = 2000, stall_generations: int = 50,
            function_tolerance: float = 1e-6, progress: Progress | None = None) -> PointFit:
     """Real-coded GA on Eq. 5, every cell of the table at once.
 
     Genes live in the unit cube [0, 1]^4 over (log tau_fast, log tau_slow, R_fast,
-    R_slow) mapped onto ``bounds``. Each generation: binary tournament selection,
-    simulated binary crossover (SBX), Gaussian mutation whose width shrinks with the
-    generation count, a repair step (clip to the box, order the taus by swapping the
-    branches, scale R_fast/R_slow down where R0 would go negative), and the paper's
-    "BestFit(P, P_new)" survivor selection: the best ``population`` of parents plus
-    offspring (elitist). Stopping rule per cell (MATLAB ``ga`` FunctionTolerance in
-    spirit): the best fitness improved by less than ``function_tolerance`` times
-    max(best fitness, 1e-3 x the zero-model fitness) over the last
-    ``stall_generations`` generations. Cells stop independently; a cell that hits
-    ``max_generations`` is reported not converged. Same ``seed`` => bit-identical
-    result (the random stream is shared by the table's cells, so a cell's result
-    depends on the whole table, not only on its own data).
+    R_slow) mapped onto ``bounds``. Each generation, for every cell at once:
+
+    * selection: binary tournaments;
+    * crossover: per pair of parents either simulated binary crossover (SBX, per
+      gene) or extended line recombination (one random factor for all genes, which
+      lets the offspring move along the curved tau-R valleys of this problem);
+    * mutation: per gene, a Gaussian-signed step whose size is log-uniform over
+      ``decades`` decades below sigma_g, sigma_g = sigma0 / (1 + g / sigma_half)
+      shrinking over the generations (multi-scale steps keep both exploration and
+      the fine precision the stall rule asks for);
+    * repair: clip to the box, order the taus by swapping the branches, and scale
+      R_fast/R_slow down where R0 would go negative (the curve stays pinned to the
+      first point); what repair cannot fix is penalised;
+    * survivors: the paper's BestFit(P, P_new): the best ``population`` of parents
+      plus offspring (elitist).
+
+    Stopping rule per cell (MATLAB ``ga`` FunctionTolerance in spirit): the best
+    fitness improved by at most ``function_tolerance`` x max(best fitness, 1e-3 x
+    the fitness of the zero model) over the last ``stall_generations`` generations.
+    Cells stop independently; a cell that reaches ``max_generations`` is reported not
+    converged. Same ``seed`` => bit-identical result. The random stream is shared by
+    the table's cells, so a cell's result depends on the whole table (not only on its
+    own data) through the draws.
     """
     data = _prepare(t_s, r_ohm)
     b = _bounds_for(data, bounds)
@@ -275,95 +290,85 @@ def fit_ga(t_s, r_ohm, *, bounds: Bounds | None = None, seed: int = 0, populatio
     if pop < 4:
         raise ValueError("population must be at least 4")
     pop += pop % 2
+    half = pop // 2
+    stall = max(int(stall_generations), 1)
     n_c = data.r.shape[0]
     rng = np.random.default_rng(seed)
+    o = _GA
 
     lo = np.array([np.log(b.tau_fast_s[0]), np.log(b.tau_slow_s[0]),
                    b.r_fast_ohm[0], b.r_slow_ohm[0]])
-    width = np.array([np.log(b.tau_fast_s[1]), np.log(b.tau_slow_s[1]),
-                      b.r_fast_ohm[1], b.r_slow_ohm[1]]) - lo
+    hi = np.array([np.log(b.tau_fast_s[1]), np.log(b.tau_slow_s[1]),
+                   b.r_fast_ohm[1], b.r_slow_ohm[1]])
+    width = hi - lo
 
-    out_g = np.full((n_c, 4), np.nan)          # best genes (decoded later)
-    out_params = np.full((n_c, 4), np.nan)
+    best_u = np.full((n_c, 4), np.nan)
     out_conv = np.zeros(n_c, bool)
     out_iter = np.zeros(n_c, np.int64)
-
     act = np.flatnonzero(data.ok)              # cells still evolving
-    if act.size == 0:
-        return _result(data, *out_params.T, out_conv, out_iter, "ga")
 
     def cell_arrays(ix):
-        return (data.tm[ix][:, None, :], data.t0[ix][:, None, None], data.d[ix][:, None, :],
+        return (data.tm[ix][:, None, :], data.t0[ix][:, None], data.d[ix][:, None, :],
                 data.mask[ix][:, None, :], data.ra[ix][:, None], data.scale[ix][:, None])
-
-    def decode(u):
-        x = lo + u * width
-        return np.exp(x[..., 0]), np.exp(x[..., 1]), x[..., 2], x[..., 3]
 
     def repair_and_score(u, arrs):
         """Repaired genes and their fitness (Eq. 5 plus constraint penalties)."""
         tm, t0, d, mask, ra, scale = arrs
-        u = np.clip(u, 0.0, 1.0)
-        x = lo + u * width
+        x = lo + np.clip(u, 0.0, 1.0) * width
         lf, ls, rf, rs = x[..., 0], x[..., 1], x[..., 2], x[..., 3]
-        # order: swap the branches where tau_fast > tau_slow and the swap fits the box
-        swap = (lf > ls) & (ls >= lo[0]) & (ls <= lo[0] + width[0]) & \
-            (lf >= lo[1]) & (lf <= lo[1] + width[1]) & \
-            (rs >= lo[2]) & (rs <= lo[2] + width[2]) & (rf >= lo[3]) & (rf <= lo[3] + width[3])
+        # tau_fast > tau_slow: swap the two branches (same curve) where the box allows
+        swap = (lf > ls) & (ls <= hi[0]) & (lf >= lo[1]) & \
+            (rs >= lo[2]) & (rs <= hi[2]) & (rf >= lo[3]) & (rf <= hi[3])
         lf, ls, rf, rs = (np.where(swap, ls, lf), np.where(swap, lf, ls),
                           np.where(swap, rs, rf), np.where(swap, rf, rs))
         tf, ts = np.exp(lf), np.exp(ls)
-        gf, gs = -np.expm1(-t0[..., 0] / tf), -np.expm1(-t0[..., 0] / ts)
-        # R0 >= 0: shrink both branches towards zero (keeps the pinned first point)
-        load = rf * gf + rs * gs
+        ef, es = np.expm1(-t0 / tf), np.expm1(-t0 / ts)     # -(1 - exp(-t0/tau))
+        # R0 = ra + rf ef + rs es >= 0: shrink both branches towards zero
+        load = -(rf * ef + rs * es)
         over = load > ra
         k = np.where(over, np.maximum(ra, 0.0) / np.where(over, load, 1.0), 1.0)
         rf = np.maximum(rf * k, lo[2])
         rs = np.maximum(rs * k, lo[3])
-        u = np.stack([(lf - lo[0]) / width[0], (ls - lo[1]) / width[1],
-                      (rf - lo[2]) / width[2], (rs - lo[3]) / width[3]], axis=-1)
-        u = np.clip(u, 0.0, 1.0)
-        fitted = rf[..., None] * _phi(tm, t0, tf[..., None]) + \
-            rs[..., None] * _phi(tm, t0, ts[..., None])
+        u = np.clip(np.stack([lf, ls, rf, rs], axis=-1) - lo, 0.0, width) / width
+        fitted = rf[..., None] * _phi(tm, t0[..., None], tf[..., None]) + \
+            rs[..., None] * _phi(tm, t0[..., None], ts[..., None])
         fit = np.sum(np.where(mask, np.abs(d - fitted), 0.0), axis=-1)
-        r0 = ra + rf * np.expm1(-t0[..., 0] / tf) + rs * np.expm1(-t0[..., 0] / ts)
+        r0 = ra + rf * ef + rs * es
         viol = np.maximum(-r0, 0.0) + np.maximum(lf - ls + _LOG_GAP, 0.0) * scale
         return u, fit + _PENALTY * viol
 
     arrs = cell_arrays(act)
-    u = rng.random((act.size, pop, 4))
-    u, fit = repair_and_score(u, arrs)
-    # stall reference: fitness of the zero model (R_fast = R_slow = 0) per cell
-    fzero = np.sum(np.abs(data.d), axis=1)
-    hist = np.full((act.size, stall_generations + 1), np.inf)
+    u, fit = repair_and_score(rng.random((act.size, pop, 4)), arrs)
+    fzero = np.sum(np.abs(data.d), axis=1)     # Eq. 5 of the zero model, per cell
+    hist = np.full((act.size, stall + 1), np.inf)
     hist[:, 0] = fit.min(axis=1)
-    eta_c = 10.0            # SBX distribution index
-    sigma0, sigma_min, half_life = 0.15, 1e-4, 60.0
-    half = pop // 2
     rows = np.arange(act.size)[:, None]
+    expo = 1.0 / (o["eta_c"] + 1.0)
 
     g = 0
     while act.size and g < max_generations:
         g += 1
         n = act.size
-        # -- selection: two binary tournaments per pair of offspring --------------------
+        # -- selection: binary tournaments ---------------------------------------------
         cand = rng.integers(0, pop, size=(n, pop, 2))
         fc = np.take_along_axis(fit, cand.reshape(n, -1), axis=1).reshape(n, pop, 2)
         win = np.where(fc[..., 0] <= fc[..., 1], cand[..., 0], cand[..., 1])
         pa, pb = u[rows, win[:, :half]], u[rows, win[:, half:]]
-        # -- SBX crossover (per gene, prob. 0.5 per gene, prob. 0.9 per pair) -----------
+        # -- crossover: SBX or extended line recombination, per pair -------------------
         w = rng.random((n, half, 4))
-        beta = np.where(w <= 0.5, (2 * w) ** (1 / (eta_c + 1)),
-                        (0.5 / (1 - w)) ** (1 / (eta_c + 1)))
-        do = (rng.random((n, half, 4)) < 0.5) & (rng.random((n, half, 1)) < 0.9)
-        beta = np.where(do, beta, 1.0)
-        c1 = 0.5 * ((1 + beta) * pa + (1 - beta) * pb)
-        c2 = 0.5 * ((1 - beta) * pa + (1 + beta) * pb)
+        beta = np.where(w <= 0.5, (2.0 * w) ** expo, (0.5 / (1.0 - w)) ** expo)
+        beta = np.where(rng.random((n, half, 4)) < 0.5, beta, 1.0)
+        ext = o["line_ext"]
+        alpha = rng.uniform(-ext, 1.0 + ext, size=(n, half, 1))
+        sbx = rng.random((n, half, 1)) < o["p_sbx"]
+        c1 = np.where(sbx, 0.5 * ((1 + beta) * pa + (1 - beta) * pb), pa + alpha * (pb - pa))
+        c2 = np.where(sbx, 0.5 * ((1 - beta) * pa + (1 + beta) * pb), pb + alpha * (pa - pb))
         kids = np.concatenate([c1, c2], axis=1)
-        # -- Gaussian mutation, shrinking over the generations -------------------------
-        sigma = sigma_min + sigma0 * 0.5 ** (g / half_life)
-        mut = rng.random((n, pop, 4)) < 0.25
-        kids = kids + np.where(mut, sigma * rng.standard_normal((n, pop, 4)), 0.0)
+        # -- mutation: multi-scale steps, shrinking over the generations ---------------
+        sigma = o["sigma0"] / (1.0 + g / o["sigma_half"])
+        step = sigma * 10.0 ** (-o["decades"] * rng.random((n, pop, 4))) \
+            * rng.standard_normal((n, pop, 4))
+        kids = kids + np.where(rng.random((n, pop, 4)) < o["p_mut"], step, 0.0)
         kids, kfit = repair_and_score(kids, arrs)
         # -- survivors: best of parents + offspring ------------------------------------
         allu = np.concatenate([u, kids], axis=1)
@@ -373,26 +378,27 @@ def fit_ga(t_s, r_ohm, *, bounds: Bounds | None = None, seed: int = 0, populatio
         fit = np.take_along_axis(allf, keep, axis=1)
         # -- stall rule ----------------------------------------------------------------
         best = fit[:, 0]
-        hist = np.roll(hist, -1, axis=1) if g > stall_generations else hist
-        hist[:, min(g, stall_generations)] = best
+        if g > stall:
+            hist[:, :-1] = hist[:, 1:]
+        hist[:, min(g, stall)] = best
         ref = np.maximum(best, 1e-3 * fzero[act])
-        stalled = (g >= stall_generations) & \
-            (hist[:, 0] - best <= function_tolerance * ref)
+        stalled = (g >= stall) & (hist[:, 0] - best <= function_tolerance * ref)
         done = stalled | (g >= max_generations)
         if done.any():
             ix = act[done]
-            out_g[ix] = u[done, 0]
+            best_u[ix] = u[done, 0]
             out_conv[ix] = stalled[done]
             out_iter[ix] = g
-            keep_c = ~done
-            act, u, fit, hist = act[keep_c], u[keep_c], fit[keep_c], hist[keep_c]
+            left = ~done
+            act, u, fit, hist = act[left], u[left], fit[left], hist[left]
             arrs = cell_arrays(act)
             rows = np.arange(act.size)[:, None]
         if progress is not None:
             progress(g, max_generations)
 
-    tf, ts, rf, rs = decode(out_g)
-    return _result(data, tf, ts, rf, rs, out_conv, out_iter, "ga")
+    x = lo + best_u * width
+    return _result(data, np.exp(x[:, 0]), np.exp(x[:, 1]), x[:, 2], x[:, 3],
+                   out_conv, out_iter, "ga")
 
 
 # --------------------------------------------------------------------------------------

@@ -237,72 +237,69 @@ def _smooth_on_grid(soc: np.ndarray, v: np.ndarray, half_width: float = 0.01) ->
 
 def fit_pulses(series: TimeSeries, ocv: OcvTable, capacity_ah: float, relax_s: float = 30.0,
                min_a: float | None = None) -> tuple[RcTable, RcTable]:
-    """2RC per SOC level and direction from the pulses (and ``relax_s`` of relaxation):
-    all pulses of a level and direction share one parameter set."""
-    from scipy.optimize import least_squares
-
+    """2RC tables from a pulse test, the common DC-IR practice: each pulse (with
+    ``relax_s`` of relaxation) is fitted on its own, and the parameters of the pulses of
+    one SOC level and direction are averaged over their C-rates."""
     t, i, v = series.time_s, series.current_a, series.voltage_v
     min_a = 0.1 * capacity_ah if min_a is None else min_a
     on = np.abs(i) > min_a
     edges = np.flatnonzero(on[1:] & ~on[:-1]) + 1
     dt_all = np.diff(t, prepend=t[0])
-    q = np.cumsum(i * dt_all) / 3600.0
-    soc_all = 1.0 + q / capacity_ah
-    windows: dict[tuple[str, int], list] = {}
+    soc_all = 1.0 + np.cumsum(i * dt_all) / 3600.0 / capacity_ah
+    fits: dict[tuple[str, int], list] = {}
     for e in edges:
         end = e
         while end < i.size and on[end]:
             end += 1
+        if t[end - 1] - t[e] > 60.0:            # an SOC move, not a pulse
+            continue
         stop = int(np.searchsorted(t, t[end - 1] + relax_s, side="right"))
         a = e - 1
-        w_t = t[a:stop] - t[a]
-        w_dt = np.diff(w_t, prepend=0.0)
+        w_dt = np.diff(t[a:stop] - t[a], prepend=0.0)
         w_i = np.where(np.abs(i[a:stop]) > min_a, i[a:stop], 0.0)
         soc = soc_all[a] + np.cumsum(w_i * w_dt) / 3600.0 / capacity_ah
         target = v[a:stop] - v[a] - (ocv.ocv_at(soc) - ocv.ocv_at(soc_all[a]))
         direction = "charge" if i[e] > 0 else "discharge"
-        level = int(round(soc_all[a] * 40))           # groups within 2.5 % SOC
-        windows.setdefault((direction, level), []).append((w_dt, w_i, target, soc_all[a]))
-
-    def model(x, w):
-        r0, rf, tf, rs, ts = np.exp(x)
-        out = []
-        for w_dt, w_i, _, _ in w:
-            af, as_ = np.exp(-w_dt / tf), np.exp(-w_dt / ts)
-            uf = rc_recurrence(af, rf * (1 - af) * w_i)
-            us = rc_recurrence(as_, rs * (1 - as_) * w_i)
-            out.append(r0 * w_i + uf + us)
-        return out
-
-    rows = {"charge": [], "discharge": []}
-    for (direction, _), w in sorted(windows.items()):
-        target = np.concatenate([x[2] for x in w])
-
-        def res(x):
-            return np.concatenate(model(x, w)) - target
-
-        lo = np.log([1e-4, 1e-5, 0.05, 1e-5, 2.0])
-        hi = np.log([1.0, 1.0, 5.0, 1.0, 200.0])
-        best = None
-        for tf0, ts0 in ((0.5, 10.0), (2.0, 30.0)):
-            x0 = np.log([0.02, 0.01, tf0, 0.01, ts0])
-            sol = least_squares(res, x0, bounds=(lo, hi), method="trf", x_scale=1.0)
-            if best is None or sol.cost < best.cost:
-                best = sol
-        soc = float(np.mean([x[3] for x in w]))
-        rows[direction].append((soc, *np.exp(best.x), math.sqrt(2 * best.cost / target.size),
-                                bool(best.success)))
+        level = int(round(soc_all[a] * 40))           # one level within 2.5 % SOC
+        fits.setdefault((direction, level), []).append(
+            (soc_all[a],) + _fit_pulse(w_dt, w_i, target))
+    rows: dict[str, list] = {"charge": [], "discharge": []}
+    for (direction, _), f in sorted(fits.items()):
+        x = np.array([r[1] for r in f])
+        rows[direction].append((float(np.mean([r[0] for r in f])), *np.mean(x, axis=0),
+                                float(np.mean([r[2] for r in f])), all(r[3] for r in f)))
     tables = {}
     for d, r in rows.items():
         r.sort()
         a = np.array([x[:7] for x in r], dtype=np.float64)
-        soc = np.clip(a[:, 0], 0.0, 1.0)
-        keep = np.concatenate([[True], np.diff(soc) > 1e-6])
+        keep = np.concatenate([[True], np.diff(a[:, 0]) > 1e-6])
         a = a[keep]
         tables[d] = RcTable(soc=np.clip(a[:, 0], 0, 1), r0_ohm=a[:, 1], r_fast_ohm=a[:, 2],
                             tau_fast_s=a[:, 3], r_slow_ohm=a[:, 4], tau_slow_s=a[:, 5],
                             fit_error=a[:, 6], converged=np.array([x[7] for x in r])[keep])
     return tables["charge"], tables["discharge"]
+
+
+def _fit_pulse(dt: np.ndarray, i: np.ndarray, target: np.ndarray):
+    """(r0, r_fast, tau_fast, r_slow, tau_slow), rms error, success for one pulse window
+    (least squares in log parameters, two starts)."""
+    from scipy.optimize import least_squares
+
+    def res(x):
+        r0, rf, tf, rs, ts = np.exp(x)
+        af, as_ = np.exp(-dt / tf), np.exp(-dt / ts)
+        return (r0 * i + rc_recurrence(af, rf * (1 - af) * i)
+                + rc_recurrence(as_, rs * (1 - as_) * i) - target)
+
+    lo = np.log([1e-4, 1e-5, 0.05, 1e-5, 2.0])
+    hi = np.log([1.0, 1.0, 5.0, 1.0, 200.0])
+    best = None
+    for tf0, ts0 in ((0.5, 10.0), (2.0, 30.0)):
+        sol = least_squares(res, np.log([0.02, 0.01, tf0, 0.01, ts0]), bounds=(lo, hi),
+                            method="trf")
+        if best is None or sol.cost < best.cost:
+            best = sol
+    return np.exp(best.x), math.sqrt(2 * best.cost / target.size), bool(best.success)
 
 
 def random_base(rng: np.random.Generator, capacity_ah: float | None = None) -> EcmModel:
