@@ -42,15 +42,20 @@ typedef struct {
     uint8_t n;
 } ecmrt_f32_grid_t;
 
-/* Parameters of one current direction over its grid. k_fast / k_slow hold the time
- * constants tau in s (ECMRT_VARIABLE_DT = 1) or D = 1/(1 - exp(-dt/tau)) (ECMRT_VARIABLE_DT = 0). */
+/* Parameters of one current direction: ECMRT_NPAR values per breakpoint, row after row,
+ * rows[ECMRT_NPAR * k + ECMRT_P_*], so that one base pointer serves every interpolation.
+ * ECMRT_P_KF / ECMRT_P_KS hold the time constants tau in s (ECMRT_VARIABLE_DT = 1) or
+ * D = 1/(1 - exp(-dt/tau)) (ECMRT_VARIABLE_DT = 0). */
+#define ECMRT_NPAR 5u
+#define ECMRT_P_R0 0u
+#define ECMRT_P_RF 1u
+#define ECMRT_P_KF 2u
+#define ECMRT_P_RS 3u
+#define ECMRT_P_KS 4u
+
 typedef struct {
     ecmrt_f32_grid_t g;
-    const float *r0;
-    const float *r_fast;
-    const float *k_fast;
-    const float *r_slow;
-    const float *k_slow;
+    const float *rows;
 } ecmrt_f32_dir_t;
 
 typedef struct {
@@ -62,35 +67,41 @@ typedef struct {
     float k_soc;              /* 1/(3600 Q) per A*s (variable dt) or dt/(3600 Q) per A (fixed dt) */
 } ecmrt_f32_model_t;
 
-/* Segment k (0 <= k <= n-2) holding soc and the weight w in [0, 1] of x[k+1]; SOC outside the
- * grid gives w = 0 at the first point or w = 1 at the last (clamped interpolation). The search
- * starts from *hint (the last step's segment) and is exact whatever the hint. */
+/* Segment k (0 <= k <= n-2) holding soc, returned in *hint, and the weight w in [0, 1] of
+ * x[k+1]; SOC outside the grid gives w = 0 at the first point or w = 1 at the last (clamped
+ * interpolation). The search walks from *hint (the last step's segment): exact whatever the
+ * hint, and O(1) when SOC moves little. */
 static inline float ecmrt_f32_locate(const ecmrt_f32_grid_t *g, float soc, uint8_t *hint)
 {
+    const float *x = g->x;
     const unsigned last = (unsigned)g->n - 2u;
-    unsigned k = *hint;
-    if (k > last) {
-        k = last;
+    unsigned k;
+    if (soc <= x[0]) {
+        *hint = 0u;
+        return 0.0f;
     }
-    while (k > 0u && soc < g->x[k]) {
+    if (soc >= x[last + 1u]) {
+        *hint = (uint8_t)last;
+        return 1.0f;
+    }
+    k = *hint;
+    if (k > last) {
+        k = last;                           /* a corrupted hint costs a longer walk only */
+    }
+    while (soc < x[k]) {                    /* stops at k = 0 at the latest: soc > x[0] */
         k--;
     }
-    while (k < last && soc >= g->x[k + 1u]) {
+    while (soc >= x[k + 1u]) {              /* stops at k = last at the latest: soc < x[n-1] */
         k++;
     }
     *hint = (uint8_t)k;
-    if (soc <= g->x[0]) {
-        return 0.0f;
-    }
-    if (soc >= g->x[last + 1u]) {
-        return 1.0f;
-    }
-    return (soc - g->x[k]) * g->inv_dx[k];
+    return (soc - x[k]) * g->inv_dx[k];
 }
 
-static inline float ecmrt_f32_lerp(const float *y, unsigned k, float w)
+/* y[k] + (y[k+1] - y[k]) w for a table with `stride` values per breakpoint (y = &table[k]) */
+static inline float ecmrt_f32_lerp(const float *y, unsigned stride, float w)
 {
-    return y[k] + (y[k + 1u] - y[k]) * w;
+    return y[0] + (y[stride] - y[0]) * w;
 }
 
 #if ECMRT_VARIABLE_DT
@@ -110,10 +121,15 @@ static inline float ecmrt_f32_one_minus_exp_neg(float x)
     if (x >= 87.0f) {
         return 1.0f;
     }
-    /* x = n ln2 + r, |r| <= ln2/2 (Cody-Waite: n * LN2_HI is exact for n < 256) */
-    n = (int32_t)(x * 1.44269502f + 0.5f);
-    fn = (float)n;
-    r = (x - fn * 0.693145752f) - fn * 1.42860677e-06f;
+    if (x < 0.346573591f) {                 /* ln2/2: no reduction needed (n = 0, r = x) */
+        n = 0;
+        r = x;
+    } else {
+        /* x = n ln2 + r, |r| <= ln2/2 (Cody-Waite: n * LN2_HI is exact for n < 256) */
+        n = (int32_t)(x * 1.44269502f + 0.5f);
+        fn = (float)n;
+        r = (x - fn * 0.693145752f) - fn * 1.42860677e-06f;
+    }
     /* q = exp(-r) - 1, Taylor series to t^7 in Horner form (t = -r, |t| < 0.35) */
     t = -r;
     q = 1.98412701e-04f;                    /* 1/5040 */
@@ -163,7 +179,8 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ecmrt_f32_state_t
 #endif
 {
     const ecmrt_f32_dir_t *d;
-    unsigned dir, k;
+    const float *row;
+    unsigned dir;
     float soc, y, w, r0, rf, rs, uf, us, ocv;
 #if ECMRT_VARIABLE_DT
     float cf, cs;
@@ -213,19 +230,19 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ecmrt_f32_state_t
     /* 3. parameters of that direction, linear in SOC, clamped at the table ends */
     d = &m->dir[dir];
     w = ecmrt_f32_locate(&d->g, soc, &s->k_dir[dir]);
-    k = s->k_dir[dir];
-    r0 = ecmrt_f32_lerp(d->r0, k, w);
-    rf = ecmrt_f32_lerp(d->r_fast, k, w);
-    rs = ecmrt_f32_lerp(d->r_slow, k, w);
+    row = d->rows + ECMRT_NPAR * (unsigned)s->k_dir[dir];
+    r0 = ecmrt_f32_lerp(row + ECMRT_P_R0, ECMRT_NPAR, w);
+    rf = ecmrt_f32_lerp(row + ECMRT_P_RF, ECMRT_NPAR, w);
+    rs = ecmrt_f32_lerp(row + ECMRT_P_RS, ECMRT_NPAR, w);
 #if ECMRT_VARIABLE_DT
-    cf = ecmrt_f32_one_minus_exp_neg(dt / ecmrt_f32_lerp(d->k_fast, k, w));
-    cs = ecmrt_f32_one_minus_exp_neg(dt / ecmrt_f32_lerp(d->k_slow, k, w));
+    cf = ecmrt_f32_one_minus_exp_neg(dt / ecmrt_f32_lerp(row + ECMRT_P_KF, ECMRT_NPAR, w));
+    cs = ecmrt_f32_one_minus_exp_neg(dt / ecmrt_f32_lerp(row + ECMRT_P_KS, ECMRT_NPAR, w));
 #else
-    df = ecmrt_f32_lerp(d->k_fast, k, w);
-    ds = ecmrt_f32_lerp(d->k_slow, k, w);
+    df = ecmrt_f32_lerp(row + ECMRT_P_KF, ECMRT_NPAR, w);
+    ds = ecmrt_f32_lerp(row + ECMRT_P_KS, ECMRT_NPAR, w);
 #endif
     w = ecmrt_f32_locate(&m->ocv_g, soc, &s->k_ocv);
-    ocv = ecmrt_f32_lerp(m->ocv, s->k_ocv, w);
+    ocv = ecmrt_f32_lerp(m->ocv + s->k_ocv, 1u, w);
     /* 4. exact ZOH: u = a u + r (1 - a) i, written u + c (r i - u) with c = 1 - a = 1/D */
     uf = s->u_fast;
     us = s->u_slow;

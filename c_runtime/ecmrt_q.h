@@ -54,14 +54,19 @@ typedef struct {
     uint8_t n;
 } ecmrt_q_grid_t;
 
-/* k_fast / k_slow: tau in Q_T s (variable dt) or D = 1/(1 - exp(-dt/tau)) in Q_DF / Q_DS (fixed dt) */
+/* Parameters of one direction, ECMRT_NPAR values per breakpoint row after row (as in
+ * ecmrt_f32.h): r0 (Q_R0), r_fast (Q_RF), k_fast, r_slow (Q_RS), k_slow, where k is tau in
+ * Q_T s (variable dt) or D = 1/(1 - exp(-dt/tau)) in Q_DF / Q_DS (fixed dt). */
+#define ECMRT_NPAR 5u
+#define ECMRT_P_R0 0u
+#define ECMRT_P_RF 1u
+#define ECMRT_P_KF 2u
+#define ECMRT_P_RS 3u
+#define ECMRT_P_KS 4u
+
 typedef struct {
     ecmrt_q_grid_t g;
-    const int32_t *r0;
-    const int32_t *r_fast;
-    const int32_t *k_fast;
-    const int32_t *r_slow;
-    const int32_t *k_slow;
+    const int32_t *rows;
 } ecmrt_q_dir_t;
 
 typedef struct {
@@ -86,34 +91,39 @@ static inline int32_t ecmrt_q_sat32(int64_t x)
 /* As ecmrt_f32_locate: segment in *hint, returns the weight w in Q30, 0 <= w <= 2^30. */
 static inline int32_t ecmrt_q_locate(const ecmrt_q_grid_t *g, int32_t soc, uint8_t *hint)
 {
+    const int32_t *x = g->x;
     const unsigned last = (unsigned)g->n - 2u;
-    unsigned k = *hint;
+    unsigned k;
     int64_t w;
+    if (soc <= x[0]) {
+        *hint = 0u;
+        return 0;
+    }
+    if (soc >= x[last + 1u]) {
+        *hint = (uint8_t)last;
+        return ECMRT_ONE30;
+    }
+    k = *hint;
     if (k > last) {
         k = last;
     }
-    while (k > 0u && soc < g->x[k]) {
+    while (soc < x[k]) {
         k--;
     }
-    while (k < last && soc >= g->x[k + 1u]) {
+    while (soc >= x[k + 1u]) {
         k++;
     }
     *hint = (uint8_t)k;
-    if (soc <= g->x[0]) {
-        return 0;
-    }
-    if (soc >= g->x[last + 1u]) {
-        return ECMRT_ONE30;
-    }
     /* here x[k] <= soc < x[k+1] <= 2^30: the difference is in [0, 2^30) */
-    w = ECMRT_RSHR((int64_t)(soc - g->x[k]) * g->inv_dx[k], ECMRT_Q_G);
+    w = ECMRT_RSHR((int64_t)(soc - x[k]) * g->inv_dx[k], ECMRT_Q_G);
     return w > (int64_t)ECMRT_ONE30 ? ECMRT_ONE30 : (int32_t)w;
 }
 
-/* y[k] + (y[k+1] - y[k]) w; table values are >= 0, so the difference fits int32 */
-static inline int32_t ecmrt_q_lerp(const int32_t *y, unsigned k, int32_t w)
+/* y[0] + (y[stride] - y[0]) w (y = &table[k]); table values are >= 0, so the difference
+ * fits int32 */
+static inline int32_t ecmrt_q_lerp(const int32_t *y, unsigned stride, int32_t w)
 {
-    return y[k] + (int32_t)ECMRT_RSHR((int64_t)(y[k + 1u] - y[k]) * w, ECMRT_Q30);
+    return y[0] + (int32_t)ECMRT_RSHR((int64_t)(y[stride] - y[0]) * w, ECMRT_Q30);
 }
 
 #if ECMRT_VARIABLE_DT
@@ -208,7 +218,8 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ecmrt_q_state_t *s,
 #endif
 {
     const ecmrt_q_dir_t *d;
-    unsigned dir, k;
+    const int32_t *row;
+    unsigned dir;
     int32_t soc, w, cf, cs, uf, us, ocv;
     int64_t acc, dsoc, v;
 
@@ -242,33 +253,35 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ecmrt_q_state_t *s,
     /* 3. parameters at the new SOC */
     d = &m->dir[dir];
     w = ecmrt_q_locate(&d->g, soc, &s->k_dir[dir]);
-    k = s->k_dir[dir];
+    row = d->rows + ECMRT_NPAR * (unsigned)s->k_dir[dir];
 #if ECMRT_VARIABLE_DT
-    cf = ecmrt_q_one_minus_exp_neg(dt, ecmrt_q_lerp(d->k_fast, k, w));
-    cs = ecmrt_q_one_minus_exp_neg(dt, ecmrt_q_lerp(d->k_slow, k, w));
+    cf = ecmrt_q_one_minus_exp_neg(dt, ecmrt_q_lerp(row + ECMRT_P_KF, ECMRT_NPAR, w));
+    cs = ecmrt_q_one_minus_exp_neg(dt, ecmrt_q_lerp(row + ECMRT_P_KS, ECMRT_NPAR, w));
 #define ECMRT_QC_F ECMRT_Q30
 #define ECMRT_QC_S ECMRT_Q30
 #else
-    cf = ecmrt_q_recip(ecmrt_q_lerp(d->k_fast, k, w), (int64_t)1 << (ECMRT_Q_CF + ECMRT_Q_DF));
-    cs = ecmrt_q_recip(ecmrt_q_lerp(d->k_slow, k, w), (int64_t)1 << (ECMRT_Q_CS + ECMRT_Q_DS));
+    cf = ecmrt_q_recip(ecmrt_q_lerp(row + ECMRT_P_KF, ECMRT_NPAR, w),
+                       (int64_t)1 << (ECMRT_Q_CF + ECMRT_Q_DF));
+    cs = ecmrt_q_recip(ecmrt_q_lerp(row + ECMRT_P_KS, ECMRT_NPAR, w),
+                       (int64_t)1 << (ECMRT_Q_CS + ECMRT_Q_DS));
 #define ECMRT_QC_F ECMRT_Q_CF
 #define ECMRT_QC_S ECMRT_Q_CS
 #endif
     /* 4. u += c (r i - u) */
     uf = ECMRT_Q_RC(s->u_fast, cf,
-                    ECMRT_RSHR((int64_t)ecmrt_q_lerp(d->r_fast, k, w) * i,
+                    ECMRT_RSHR((int64_t)ecmrt_q_lerp(row + ECMRT_P_RF, ECMRT_NPAR, w) * i,
                                ECMRT_Q_RF + ECMRT_Q_I - ECMRT_Q_V), ECMRT_QC_F);
     s->u_fast = uf;
     us = ECMRT_Q_RC(s->u_slow, cs,
-                    ECMRT_RSHR((int64_t)ecmrt_q_lerp(d->r_slow, k, w) * i,
+                    ECMRT_RSHR((int64_t)ecmrt_q_lerp(row + ECMRT_P_RS, ECMRT_NPAR, w) * i,
                                ECMRT_Q_RS + ECMRT_Q_I - ECMRT_Q_V), ECMRT_QC_S);
     s->u_slow = us;
 #undef ECMRT_QC_F
 #undef ECMRT_QC_S
     /* 5. v = ocv + r0 i + u_fast + u_slow */
-    v = ECMRT_RSHR((int64_t)ecmrt_q_lerp(d->r0, k, w) * i, ECMRT_Q_R0 + ECMRT_Q_I - ECMRT_Q_V);
+    v = ECMRT_RSHR((int64_t)ecmrt_q_lerp(row + ECMRT_P_R0, ECMRT_NPAR, w) * i, ECMRT_Q_R0 + ECMRT_Q_I - ECMRT_Q_V);
     w = ecmrt_q_locate(&m->ocv_g, soc, &s->k_ocv);
-    ocv = ecmrt_q_lerp(m->ocv, s->k_ocv, w);
+    ocv = ecmrt_q_lerp(m->ocv + s->k_ocv, 1u, w);
     v = (((int64_t)ocv + v) + uf) + us;
     return ecmrt_q_sat32(v);
 }

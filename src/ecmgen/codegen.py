@@ -459,7 +459,7 @@ def _context(spec: CSpec) -> dict:
     p = spec.prefix
     fixed = spec.fixed
     if fixed:
-        arrays = _Arrays("int32_t", lambda v: str(int(v)), 6)
+        arrays = _Arrays("int32_t", lambda v: str(int(v)), 5)
     else:
         arrays = _Arrays("float", c_float, 5)
     kname = ("tau_fast_s", "tau_slow_s") if spec.variable_dt else ("inv_c_fast", "inv_c_slow")
@@ -473,13 +473,11 @@ def _context(spec: CSpec) -> dict:
     ocv = arrays.add("ocv_v", spec.ocv, "open-circuit voltage")
     dirs = []
     for d, tag in zip(spec.dirs, ("dis", "chg")):
+        rows = np.stack([d.r0, d.r_fast, d.k_fast, d.r_slow, d.k_slow], axis=1).reshape(-1)
         dirs.append({
             "g": grid(d.grid, tag),
-            "r0": arrays.add(f"{tag}_r0", d.r0, f"{tag}: r0, ohm"),
-            "r_fast": arrays.add(f"{tag}_r_fast", d.r_fast, f"{tag}: r_fast, ohm"),
-            "k_fast": arrays.add(f"{tag}_{kname[0]}", d.k_fast, f"{tag}: {kname[0]}"),
-            "r_slow": arrays.add(f"{tag}_r_slow", d.r_slow, f"{tag}: r_slow, ohm"),
-            "k_slow": arrays.add(f"{tag}_{kname[1]}", d.k_slow, f"{tag}: {kname[1]}"),
+            "rows": arrays.add(f"{tag}_rows", rows,
+                               f"{tag}: per breakpoint r0, r_fast, {kname[0]}, r_slow, {kname[1]}"),
         })
     if fixed:
         scalars = {"deadband": str(int(spec.deadband)), "k_soc": str(int(spec.k_soc))}

@@ -29,6 +29,7 @@ F_LN2_LO = F32("1.42860677e-06")
 F_TAYLOR = tuple(F32(s) for s in ("1.98412701e-04", "1.38888892e-03", "8.33333377e-03",
                                   "4.16666679e-02", "1.66666672e-01", "0.5", "1.0"))
 F_XMAX = F32(87.0)
+F_HALF_LN2 = F32("0.346573591")
 
 # --- constants of ecmrt_q.h --------------------------------------------------------------
 ONE30 = 1 << 30
@@ -79,9 +80,10 @@ def one_minus_exp_neg_f32(x) -> np.ndarray:
     x = np.asarray(x, dtype=F32)
     with np.errstate(all="ignore"):
         n = (x * F_INVLN2 + F32(0.5)).astype(np.int32)
-        n = np.where((x > 0) & (x < F_XMAX), n, 0)
+        fast = x < F_HALF_LN2                      # no range reduction: n = 0, r = x
+        n = np.where((x > 0) & (x < F_XMAX) & ~fast, n, 0)
         fn = n.astype(F32)
-        r = (x - fn * F_LN2_HI) - fn * F_LN2_LO
+        r = np.where(fast, x, (x - fn * F_LN2_HI) - fn * F_LN2_LO)
         t = -r
         q = np.full_like(t, F_TAYLOR[0])
         for c in F_TAYLOR[1:]:

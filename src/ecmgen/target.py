@@ -1,0 +1,400 @@
+"""The generated C on Cortex-M: cross-compile, measure, and run it under QEMU.
+
+* :func:`cross_compile` builds a generated model for a CPU profile (``CPUS``) with the
+  project's strict flags; :func:`sizes` reads flash/RAM from ``arm-none-eabi-size -A``
+  (code = ``.text*``, tables = ``.rodata*``, RAM = ``.data*`` + ``.bss*``; the caller's
+  state struct and the stack come on top, see :func:`stack_usage`).
+* :func:`float_instructions` / :func:`float_helpers` prove a fixed-point object free of
+  floating point (no FPU instruction, no soft-float helper call).
+* :func:`qemu_equivalence` links several generated models (distinct prefixes) into one
+  bare-metal image for ``qemu-system-arm -M mps2-an386`` (Cortex-M4F) or ``mps2-an385``
+  (Cortex-M3, soft float), runs them over a stretch of a real record with semihosting, and
+  compares every output and SOC with the host build bit for bit.
+
+Tools: Debian/Ubuntu ``apt-get install gcc-arm-none-eabi libnewlib-arm-none-eabi
+qemu-system-arm`` (``INSTALL_HINT``); :func:`missing_tools` tells what is absent.
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .cbuild import STRICT_CFLAGS, CBuildError, compile_spec
+from .codegen import CSpec, file_names, prepare, render
+
+INSTALL_HINT = "sudo apt-get install gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm"
+GCC, SIZE, NM, OBJDUMP, QEMU = ("arm-none-eabi-gcc", "arm-none-eabi-size", "arm-none-eabi-nm",
+                                "arm-none-eabi-objdump", "qemu-system-arm")
+
+CPUS = {
+    "m4f": {"flags": ("-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-sp-d16"),
+            "machine": "mps2-an386", "name": "Cortex-M4F (hard float)"},
+    "m3": {"flags": ("-mcpu=cortex-m3", "-mthumb", "-mfloat-abi=soft"),
+           "machine": "mps2-an385", "name": "Cortex-M3 (soft float)"},
+    "m0": {"flags": ("-mcpu=cortex-m0", "-mthumb", "-mfloat-abi=soft"),
+           "machine": None, "name": "Cortex-M0 (soft float)"},
+}
+SECTION_FLAGS = ("-ffunction-sections", "-fdata-sections", "-fstack-usage")
+
+
+def missing_tools(qemu: bool = True) -> list[str]:
+    tools = [GCC, SIZE, NM, OBJDUMP] + ([QEMU] if qemu else [])
+    return [t for t in tools if shutil.which(t) is None]
+
+
+def skip_reason(qemu: bool = True) -> str | None:
+    """None when the cross tools are there, else a message naming them and the install."""
+    miss = missing_tools(qemu)
+    if not miss:
+        return None
+    return f"{', '.join(miss)} not found; install with: {INSTALL_HINT}"
+
+
+def _run(args, cwd=None, timeout=120) -> subprocess.CompletedProcess:
+    try:
+        proc = subprocess.run([str(a) for a in args], capture_output=True, text=True, cwd=cwd,
+                              timeout=timeout)
+    except FileNotFoundError:
+        raise CBuildError(f"{args[0]} not found; install with: {INSTALL_HINT}") from None
+    if proc.returncode != 0:
+        raise CBuildError(f"{' '.join(map(str, args))} failed ({proc.returncode}):\n"
+                          f"{proc.stdout}{proc.stderr}")
+    return proc
+
+
+# --------------------------------------------------------------------------------------
+# compile + measure
+# --------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class CrossObject:
+    obj: Path
+    cpu: str
+    opt: str
+    warnings: str        # compiler stderr (empty: no warnings; -Werror makes them fatal anyway)
+
+
+def cross_compile(spec: CSpec, out_dir, cpu: str = "m4f", opt: str = "-Os",
+                  extra=()) -> CrossObject:
+    """Generated <prefix>_ecm.c of ``spec`` -> object for ``cpu`` with STRICT_CFLAGS."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for name, text in render(spec).items():
+        (out_dir / name).write_text(text)
+    src = out_dir / file_names(spec.prefix, spec.numeric)["source"]
+    obj = out_dir / f"{spec.prefix}_ecm.{cpu}.o"
+    proc = _run([GCC, *CPUS[cpu]["flags"], *STRICT_CFLAGS, opt, *SECTION_FLAGS, *extra,
+                 "-I", out_dir, "-c", src, "-o", obj], cwd=out_dir)
+    return CrossObject(obj, cpu, opt, proc.stderr.strip())
+
+
+def sizes(obj) -> dict:
+    """Bytes by kind from ``arm-none-eabi-size -A``: code (.text*), tables (.rodata*),
+    data (.data*), bss (.bss*); flash = code + tables + data, ram = data + bss."""
+    out = _run([SIZE, "-A", obj]).stdout
+    res = {"code": 0, "tables": 0, "data": 0, "bss": 0, "sections": {}}
+    for line in out.splitlines():
+        parts = line.split()
+        if len(parts) < 2 or not parts[1].isdigit() or not parts[0].startswith("."):
+            continue
+        name, size = parts[0], int(parts[1])
+        if size == 0:
+            continue
+        res["sections"][name] = size
+        if name.startswith(".text"):
+            res["code"] += size
+        elif name.startswith(".rodata") or name.startswith(".data.rel.ro"):
+            res["tables"] += size
+        elif name.startswith(".data"):
+            res["data"] += size
+        elif name.startswith(".bss"):
+            res["bss"] += size
+    res["flash"] = res["code"] + res["tables"] + res["data"]
+    res["ram"] = res["data"] + res["bss"]
+    return res
+
+
+def stack_usage(obj) -> dict[str, int]:
+    """Frame bytes per function from the -fstack-usage file next to the object."""
+    su = Path(obj).with_suffix(".su")
+    out = {}
+    if su.exists():
+        for line in su.read_text().splitlines():
+            parts = line.split("\t")
+            if len(parts) >= 2 and parts[1].isdigit():
+                out[parts[0].rsplit(":", 1)[-1]] = int(parts[1])
+    return out
+
+
+def undefined_symbols(obj) -> list[str]:
+    out = _run([NM, "-u", obj]).stdout
+    return sorted(line.split()[-1] for line in out.splitlines() if line.strip())
+
+
+_SOFT_FLOAT = re.compile(r"^__(aeabi_(f|d|[iu]i?2[fd]|[fd]2|l2[fd]|ul2[fd]|cf|cd)|"
+                         r"(add|sub|mul|div|neg)[sdt]f3|float|fix|extend|trunc)")
+_VFP = re.compile(r"\s(v[a-z]+(\.[a-z0-9]+)*)\s")
+
+
+def float_helpers(obj) -> list[str]:
+    """Soft-float library routines the object calls (must be empty for numeric=fixed)."""
+    return [s for s in undefined_symbols(obj) if _SOFT_FLOAT.match(s)]
+
+
+def float_instructions(obj) -> list[str]:
+    """FPU (VFP) instructions in the object's code (must be empty for numeric=fixed)."""
+    out = _run([OBJDUMP, "-d", obj]).stdout
+    return [line.strip() for line in out.splitlines() if _VFP.search(line + " ")]
+
+
+# --------------------------------------------------------------------------------------
+# bare-metal image for QEMU
+# --------------------------------------------------------------------------------------
+
+LINKER_SCRIPT = """/* MPS2 AN385/AN386: code in SSRAM1 at 0, data in SSRAM2/3; QEMU loads every section */
+MEMORY { FLASH (rx) : ORIGIN = 0x00000000, LENGTH = 4M
+         RAM (rwx)  : ORIGIN = 0x20000000, LENGTH = 4M }
+ENTRY(Reset_Handler)
+SECTIONS {
+  .text : { KEEP(*(.vectors)) *(.text*) *(.rodata*) } > FLASH
+  .ARM.exidx : { *(.ARM.exidx*) } > FLASH
+  .data : { *(.data*) } > RAM
+  .bss (NOLOAD) : { __bss_start__ = .; *(.bss*) *(COMMON); __bss_end__ = .; } > RAM
+  __stack_top__ = ORIGIN(RAM) + LENGTH(RAM);
+}
+"""
+
+STARTUP = r"""/* minimal Cortex-M startup + ARM semihosting (SYS_OPEN/WRITE/CLOSE/EXIT_EXTENDED) */
+#include <stdint.h>
+int main(void);
+extern uint32_t __bss_start__, __bss_end__, __stack_top__;
+
+int ecmh_semihost(int op, void *arg)
+{
+    register int r0 __asm__("r0") = op;
+    register void *r1 __asm__("r1") = arg;
+    __asm__ volatile("bkpt 0xAB" : "+r"(r0) : "r"(r1) : "memory");
+    return r0;
+}
+
+static void ecmh_exit(uint32_t code)
+{
+    uint32_t blk[2] = {0x20026u, code};      /* ADP_Stopped_ApplicationExit, status */
+    ecmh_semihost(0x20, blk);
+    for (;;) {
+    }
+}
+
+void Reset_Handler(void)
+{
+    uint32_t *p;
+    for (p = &__bss_start__; p < &__bss_end__; p++) {
+        *p = 0u;
+    }
+#if defined(__ARM_FP)
+    *(volatile uint32_t *)0xE000ED88u |= (0xFu << 20);   /* CPACR: enable CP10/CP11 */
+    __asm__ volatile("dsb\n\tisb");
+#endif
+    ecmh_exit((uint32_t)main());
+}
+
+void Fault_Handler(void)
+{
+    ecmh_exit(99u);
+}
+
+__attribute__((section(".vectors"), used)) const void *const ecmh_vectors[16] = {
+    &__stack_top__, (const void *)Reset_Handler, (const void *)Fault_Handler,
+    (const void *)Fault_Handler, (const void *)Fault_Handler, (const void *)Fault_Handler,
+    (const void *)Fault_Handler,
+};
+"""
+
+OUT_NAME = "ecmh_out.bin"
+
+
+@dataclass(frozen=True)
+class TargetRun:
+    """One model to run on the target: its spec and the native inputs (float32 or raw int32)."""
+
+    spec: CSpec
+    i: np.ndarray
+    dt: np.ndarray | None
+    soc0: float | int
+
+
+def _array(name: str, a: np.ndarray, fixed: bool) -> str:
+    if fixed:
+        vals = [str(int(x)) for x in np.asarray(a, dtype=np.int32)]
+        ctype, wrap = "int32_t", "{}"
+    else:
+        vals = [f"0x{int(x):08x}u" for x in np.asarray(a, dtype=np.float32).view(np.uint32)]
+        ctype, wrap = "ecmh_f32_t", "{{{}}}"
+    body = ",\n".join(", ".join(wrap.format(v) for v in vals[k:k + 8]) for k in range(0, len(vals), 8))
+    return f"static const {ctype} {name}[{len(vals)}] = {{\n{body}\n}};\n"
+
+
+def firmware_main(runs: list[TargetRun]) -> str:
+    parts = ["#include <stdint.h>\n#include <stddef.h>\n",
+             "typedef union { uint32_t u; float f; } ecmh_f32_t;\n",
+             "int ecmh_semihost(int op, void *arg);\n"]
+    calls = []
+    for r in runs:
+        p, fixed = r.spec.prefix, r.spec.fixed
+        n = int(r.i.size)
+        t = "int32_t" if fixed else "float"
+        get = (lambda a: f"{a}[k]") if fixed else (lambda a: f"{a}[k].f")
+        parts.append(f'#include "{p}_ecm.h"\n')
+        parts.append(_array(f"{p}_in_i", r.i, fixed))
+        if r.spec.variable_dt:
+            parts.append(_array(f"{p}_in_dt", r.dt, fixed))
+        soc0 = str(int(r.soc0)) if fixed else f"{float(np.float32(r.soc0)).hex()}f"
+        dt_arg = f", {get(p + '_in_dt')}" if r.spec.variable_dt else ""
+        parts.append(f"""static {t} {p}_out[2 * {n}];
+static void run_{p}(void)
+{{
+    {p}_state_t s;
+    size_t k;
+    {p}_init(&s, {soc0});
+    for (k = 0; k < {n}u; k++) {{
+        {p}_out[k] = {p}_step(&s, {get(p + '_in_i')}{dt_arg});
+        {p}_out[{n}u + k] = s.soc;
+    }}
+}}
+""")
+        calls.append((p, n))
+    body = "\n".join(f"    run_{p}();" for p, _ in calls)
+    writes = "\n".join(f"    if (write_all(h, {p}_out, sizeof {p}_out) != 0) return 2;" for p, _ in calls)
+    parts.append(f"""
+static int write_all(int h, const void *buf, size_t len)
+{{
+    uint32_t blk[3];
+    blk[0] = (uint32_t)h;
+    blk[1] = (uint32_t)buf;
+    blk[2] = (uint32_t)len;
+    return ecmh_semihost(0x05, blk);     /* SYS_WRITE: returns bytes not written */
+}}
+
+int main(void)
+{{
+    static const char name[] = "{OUT_NAME}";
+    uint32_t blk[3];
+    int h;
+{body}
+    blk[0] = (uint32_t)name;
+    blk[1] = 5u;                         /* "wb" */
+    blk[2] = sizeof name - 1u;
+    h = ecmh_semihost(0x01, blk);
+    if (h < 0) return 1;
+{writes}
+    blk[0] = (uint32_t)h;
+    ecmh_semihost(0x02, blk);
+    return 0;
+}}
+""")
+    return "".join(parts)
+
+
+def build_firmware(runs: list[TargetRun], out_dir, cpu: str = "m4f", opt: str = "-O2") -> Path:
+    """One ELF with every model of ``runs`` (distinct prefixes) and their inputs."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    flags = CPUS[cpu]["flags"]
+    objs = []
+    for r in runs:
+        objs.append(cross_compile(r.spec, out_dir, cpu=cpu, opt=opt).obj)
+    (out_dir / "startup.c").write_text(STARTUP)
+    (out_dir / "fw_main.c").write_text(firmware_main(runs))
+    (out_dir / "link.ld").write_text(LINKER_SCRIPT)
+    for name in ("startup.c", "fw_main.c"):
+        obj = out_dir / name.replace(".c", ".o")
+        _run([GCC, *flags, "-std=gnu99", "-O2", "-ffp-contract=off", "-I", out_dir, "-c",
+              out_dir / name, "-o", obj], cwd=out_dir)
+        objs.append(obj)
+    elf = out_dir / f"fw_{cpu}.elf"
+    _run([GCC, *flags, "-nostartfiles", "-T", out_dir / "link.ld", *objs, "-lgcc", "-o", elf],
+         cwd=out_dir)
+    return elf
+
+
+def run_qemu(elf, cpu: str = "m4f", timeout: float = 120) -> bytes:
+    """Run the image; return what it wrote through semihosting."""
+    machine = CPUS[cpu]["machine"]
+    if machine is None:
+        raise CBuildError(f"no QEMU machine for {cpu}")
+    work = Path(elf).parent
+    out = work / OUT_NAME
+    out.unlink(missing_ok=True)
+    try:
+        proc = subprocess.run([QEMU, "-M", machine, "-nographic", "-monitor", "none",
+                               "-serial", "none", "-semihosting-config", "enable=on,target=native",
+                               "-kernel", str(elf)], capture_output=True, text=True, cwd=work,
+                              timeout=timeout)
+    except FileNotFoundError:
+        raise CBuildError(f"{QEMU} not found; install with: {INSTALL_HINT}") from None
+    except subprocess.TimeoutExpired:
+        raise CBuildError(f"QEMU ({machine}) did not finish within {timeout} s") from None
+    if proc.returncode != 0:
+        raise CBuildError(f"firmware exited with status {proc.returncode} on {machine} "
+                          f"(99 = fault):\n{proc.stdout}{proc.stderr}")
+    return out.read_bytes()
+
+
+def qemu_equivalence(model, time_s, current_a, soc0: float, cpu: str = "m4f",
+                     variants=(("float", None), ("float", 0.1), ("fixed", None), ("fixed", 0.1)),
+                     out_dir=None, cache=None) -> dict:
+    """Run the generated models on the emulated target and on the host (cffi) over the same
+    inputs; compare voltages and SOC bit for bit. ``variants``: (numeric, dt_s) pairs; a
+    fixed-dt variant ignores the record's time stamps (each step lasts dt_s)."""
+    import tempfile
+
+    from . import cref
+
+    if cpu != "m4f":
+        variants = tuple(v for v in variants if v[0] == "fixed")   # soft-float CPUs: fixed only
+    t = np.asarray(time_s, dtype=np.float64)
+    dt = cref.dt_from_time(t)
+    runs, host = [], []
+    for numeric, dt_s in variants:
+        prefix = f"{'f' if numeric == 'float' else 'q'}{'v' if dt_s is None else 'd'}"
+        spec = prepare(model, numeric=numeric, dt_s=dt_s, prefix=prefix)
+        cm = compile_spec(spec, cache=cache)
+        i_n, dt_n, s0 = cm.native_inputs(current_a, dt if dt_s is None else None, soc0)
+        ref = cm.trace_native(i_n, dt_n, s0)
+        runs.append(TargetRun(spec, i_n, dt_n, s0))
+        host.append(ref)
+    tmp = None
+    if out_dir is None:
+        tmp = tempfile.TemporaryDirectory(prefix="ecmgen-qemu-")
+        out_dir = tmp.name
+    try:
+        elf = build_firmware(runs, out_dir, cpu=cpu)
+        raw = run_qemu(elf, cpu=cpu)
+    finally:
+        if tmp is not None:
+            tmp.cleanup()
+    res = {"cpu": CPUS[cpu]["name"], "machine": CPUS[cpu]["machine"], "steps": int(t.size),
+           "variants": {}}
+    off = 0
+    for r, h in zip(runs, host):
+        n = r.i.size
+        dtype = np.int32 if r.spec.fixed else np.float32
+        arr = np.frombuffer(raw, dtype=dtype, count=2 * n, offset=off)
+        off += 8 * n
+        v_t, soc_t = arr[:n], arr[n:]
+        name = f"{r.spec.numeric}/{'variable-dt' if r.spec.variable_dt else f'dt={r.spec.dt_s}'}"
+        if r.spec.fixed:
+            mism = int(np.count_nonzero(v_t != h.v) + np.count_nonzero(soc_t != h.soc))
+        else:
+            mism = int(np.count_nonzero(v_t.view(np.uint32) != h.v.view(np.uint32))
+                       + np.count_nonzero(soc_t.view(np.uint32) != h.soc.view(np.uint32)))
+        res["variants"][name] = {"steps": int(n), "mismatches": mism, "bit_exact": mism == 0}
+    if off != len(raw):
+        raise CBuildError(f"target wrote {len(raw)} bytes, expected {off}")
+    return res
