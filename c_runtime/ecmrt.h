@@ -23,6 +23,12 @@
 #define ECMRT_DISCHARGE 0u
 #define ECMRT_CHARGE 1u
 
+#endif /* ECMRT_H */
+
+/* The state types, each only where asked for (ECMRT_NEED_F32_STATE / ECMRT_NEED_Q_STATE),
+ * so that a fixed-point translation unit contains no floating-point type at all. */
+#if defined(ECMRT_NEED_F32_STATE) && !defined(ECMRT_F32_STATE_DEFINED)
+#define ECMRT_F32_STATE_DEFINED
 /* State of one cell model, numeric = "float". Owned by the caller; set with
  * <prefix>_init(), then only touched by <prefix>_step(). */
 typedef struct {
@@ -34,7 +40,10 @@ typedef struct {
     uint8_t k_ocv;      /* table segment hints: speed only, never change a result */
     uint8_t k_dir[2];
 } ecmrt_f32_state_t;
+#endif
 
+#if defined(ECMRT_NEED_Q_STATE) && !defined(ECMRT_Q_STATE_DEFINED)
+#define ECMRT_Q_STATE_DEFINED
 /* State of one cell model, numeric = "fixed" (Q formats in <prefix>_ecm.h). */
 typedef struct {
     int64_t soc_rem;    /* SOC below 1 LSB of Q30, carried to the next step: exact Coulomb count */
@@ -45,5 +54,4 @@ typedef struct {
     uint8_t k_ocv;
     uint8_t k_dir[2];
 } ecmrt_q_state_t;
-
-#endif /* ECMRT_H */
+#endif

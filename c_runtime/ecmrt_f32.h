@@ -17,6 +17,9 @@
 #define ECMRT_F32_H
 
 #include <float.h>
+#ifndef ECMRT_NEED_F32_STATE
+#define ECMRT_NEED_F32_STATE
+#endif
 #include "ecmrt.h"
 
 #if ECMRT_VERSION != 1
@@ -115,15 +118,14 @@ static inline float ecmrt_f32_one_minus_exp_neg(float x)
         uint32_t u;
         float f;
     } bits;
-    if (!(x > 0.0f)) {
-        return 0.0f;
-    }
-    if (x >= 87.0f) {
-        return 1.0f;
-    }
     if (x < 0.346573591f) {                 /* ln2/2: no reduction needed (n = 0, r = x) */
+        if (!(x > 0.0f)) {
+            return 0.0f;                    /* x <= 0 */
+        }
         n = 0;
         r = x;
+    } else if (!(x < 87.0f)) {
+        return x == x ? 1.0f : 0.0f;        /* exp(-87) < 2^-125: c rounds to 1; NaN: 0 */
     } else {
         /* x = n ln2 + r, |r| <= ln2/2 (Cody-Waite: n * LN2_HI is exact for n < 256) */
         n = (int32_t)(x * 1.44269502f + 0.5f);

@@ -27,6 +27,9 @@
 #ifndef ECMRT_Q_H
 #define ECMRT_Q_H
 
+#ifndef ECMRT_NEED_Q_STATE
+#define ECMRT_NEED_Q_STATE
+#endif
 #include "ecmrt.h"
 
 #if ECMRT_VERSION != 1

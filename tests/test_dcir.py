@@ -87,3 +87,33 @@ def test_dcir_csv_errors(tmp_path):
     p.write_text("soc,direction,t_s,r_ohm\n0.5,sideways,1,0.01\n")
     with pytest.raises(InputError, match="direction"):
         read_dcir_csv(p)
+
+
+def test_a_slow_logger_does_not_reuse_the_first_sample():
+    """At 1 s logging the first on-sample is R0's; R(1 s) cannot come from it too."""
+    m = flat(synthetic_nca_model())
+    series, soc0 = make_pulse_test(m, soc_levels=(0.6,), c_rates=(2.0,))
+    on = series.current_a != 0
+    keep = ~on | (np.round(series.time_s, 6) % 1.0 == 0)   # 1 Hz during the pulse
+    slow = TimeSeries(series.time_s[keep], series.current_a[keep], series.voltage_v[keep],
+                      None, series.charge_ah[keep], "slow.csv")
+    pulses = find_pulses(slow, 2.9, soc0=soc0)
+    table = extract_dcir(slow, pulses)
+    assert np.isnan(table.r_ohm[0, 1])          # 1 s: only the first sample is there
+    assert np.isfinite(table.r_ohm[0, [0, 2, 3, 4]]).all()
+    assert any("logger is too slow" in n for n in table.notes)
+
+
+def test_soc_outside_0_1_names_the_start_soc_and_capacity():
+    m = synthetic_nca_model()
+    series, _ = make_pulse_test(m, soc_levels=(0.5, 0.1), c_rates=(1.0,))
+    with pytest.raises(InputError, match="pulses_soc0.*capacity_ah"):
+        find_pulses(series, 2.9, soc0=0.5)   # the test really started full
+
+
+def test_a_dynamic_profile_is_not_a_pulse_test():
+    t = np.arange(0, 2000.0)
+    i = np.where((t // 5) % 2 == 0, -2.0, 0.0)   # 5 s on, 5 s off: never a real rest
+    series = TimeSeries(t, i, 3.7 + 0.02 * i, source="dst.csv")
+    with pytest.raises(InputError, match="dst.csv: no pulses found.*not a pulse test"):
+        find_pulses(series, 2.9, soc0=1.0)

@@ -72,12 +72,12 @@ def _cc_identity(cc: tuple[str, ...]) -> str:
     return out.splitlines()[0] if out else cc[0]
 
 
-def run_cc(args: list[str], cwd: Path | None = None) -> None:
+def run_cc(args: list[str], cwd: Path | None = None) -> subprocess.CompletedProcess:
+    """Run the compiler; any failure (with -Werror: any warning) raises CBuildError."""
     proc = subprocess.run(args, capture_output=True, text=True, cwd=cwd)
-    if proc.returncode != 0 or proc.stderr.strip():
-        # -Werror makes warnings fail; anything on stderr is reported (linker notes too)
-        if proc.returncode != 0:
-            raise CBuildError(f"compile failed: {' '.join(args)}\n{proc.stderr}")
+    if proc.returncode != 0:
+        raise CBuildError(f"compile failed: {' '.join(args)}\n{proc.stderr}")
+    return proc
 
 
 # --------------------------------------------------------------------------------------
@@ -107,7 +107,8 @@ def harness_source(spec: CSpec) -> str:
         if (s->soc < lo[1]) lo[1] = s->soc;
         if (s->soc > hi[1]) hi[1] = s->soc;
 """
-        stress_sig = f"void ecmh_stress({p}_state_t *s, uint32_t seed, size_t n, int32_t dt_max, int32_t *lo, int32_t *hi, uint32_t *bad)"
+        stress_sig = (f"void ecmh_stress({p}_state_t *s, uint32_t seed, size_t n, int32_t dt_max, "
+                      "int32_t *lo, int32_t *hi, uint32_t *bad)")
     else:
         stress_body = f"""
         const float u = (float)(int32_t)ecmh_rand(&x) * 4.65661287e-10f;  /* [-1, 1) */
@@ -128,10 +129,9 @@ def harness_source(spec: CSpec) -> str:
         if (s->soc < lo[1]) lo[1] = s->soc;
         if (s->soc > hi[1]) hi[1] = s->soc;
 """
-        stress_sig = f"void ecmh_stress({p}_state_t *s, uint32_t seed, size_t n, float i_amp, float dt_max, float *lo, float *hi, uint32_t *bad)"
-    unused = "" if vdt or spec.fixed else "    (void)dt_max;\n"
-    if spec.fixed and not vdt:
-        unused = "    (void)dt_max;\n"
+        stress_sig = (f"void ecmh_stress({p}_state_t *s, uint32_t seed, size_t n, float i_amp, "
+                      "float dt_max, float *lo, float *hi, uint32_t *bad)")
+    unused = "" if vdt else "    (void)dt_max;\n"
     return f"""/* test harness for {p}: traces and a pseudo-random stress loop (not shipped) */
 #include "ecmh_harness.h"
 
@@ -227,6 +227,14 @@ def _cdef(spec: CSpec) -> str:
 # --------------------------------------------------------------------------------------
 
 _LOADED: dict[str, object] = {}
+CACHE_KEEP = 200          # modules kept in the cache folder (least recently built go first)
+
+
+def _prune(cache: Path, keep: int = CACHE_KEEP) -> None:
+    mods = sorted(cache.glob("_ecmgen_c_*"), key=lambda p: p.stat().st_mtime, reverse=True)
+    for p in mods[keep:]:
+        if p.stem.split(".")[0] not in _LOADED:
+            p.unlink(missing_ok=True)
 
 
 def _load(name: str, path: Path):
@@ -292,6 +300,7 @@ def compile_spec(spec: CSpec, cache: Path | None = None, opt=HOST_OPT) -> "CMode
             os.replace(built, so)
         finally:
             shutil.rmtree(build, ignore_errors=True)
+        _prune(cache)
     mod = _load(name, so)
     return CModel(spec, mod.ffi, mod.lib, so)
 
@@ -446,7 +455,8 @@ def compare(model, cm: CModel, time_s, current_a, soc0: float, measured_v=None) 
     i_n, dt_n, s0 = cm.native_inputs(current_a, dt if cm.spec.variable_dt else None, soc0)
     got = cm.trace_native(i_n, dt_n, s0)
     ref = cm.reference(current_a, dt, soc0)
-    exact = all(_bits_equal(getattr(got, f), getattr(ref, f)) for f in ("v", "soc", "u_fast", "u_slow", "charging"))
+    exact = all(_bits_equal(getattr(got, f), getattr(ref, f))
+                for f in ("v", "soc", "u_fast", "u_slow", "charging"))
     if cm.spec.fixed:
         v_c, v_ref = cref.volts(cm.spec, got.v), cref.volts(cm.spec, ref.v)
     else:
@@ -473,27 +483,37 @@ def resample_uniform(time_s, current_a, voltage_v, dt_s: float):
     t = np.asarray(time_s, dtype=np.float64)
     n = int(np.floor((t[-1] - t[0]) / dt_s)) + 1
     tu = t[0] + dt_s * np.arange(n)
-    idx = np.clip(np.searchsorted(t, tu, side="left"), 0, t.size - 1)
+    # tolerance: t0 + k dt_s lands a rounding error after a sample taken at that instant
+    idx = np.clip(np.searchsorted(t, tu - 1e-6 * dt_s, side="left"), 0, t.size - 1)
     iu = np.asarray(current_a, dtype=np.float64)[idx]
     vu = None if voltage_v is None else np.interp(tu, t, np.asarray(voltage_v, dtype=np.float64))
     return tu, iu, vu
 
 
-def c_equivalence(model, series, soc0: float, *, dt_s: float | None = None, prefix: str = "ecm",
-                  i_max_a: float | None = None, cache: Path | None = None) -> dict:
+def c_equivalence(model, series, soc0: float | None = None, *, dt_s: float | None = None,
+                  prefix: str = "ecm", i_max_a: float | None = None,
+                  cache: Path | None = None, numerics=("float", "fixed")) -> dict:
     """The ``"c"`` block of ``ecmgen build --json``: for numeric float and fixed, the C's MAE
     against the measured voltage and its largest difference from the float64 Python model,
     plus bit-exactness against the float32 / bit-true references.
 
     ``dt_s=None`` (default): variable-dt builds driven by the record's own time stamps.
     ``dt_s`` given: fixed-dt builds; the record is resampled to the uniform grid of dt_s
-    (see resample_uniform) and the float64 Python model is driven on that same grid."""
+    (see resample_uniform) and the float64 Python model is driven on that same grid.
+    ``model``: EcmModel or model.json path; ``soc0`` None: from the record's first rested
+    sample (simulate.initial_soc), as validation does. Raises CBuildError without a compiler."""
+    from .codegen import _as_model
+    from .simulate import initial_soc
+
+    model = _as_model(model)
+    if soc0 is None:
+        soc0 = float(initial_soc(model, series))
     if dt_s is None:
         t, i, v = series.time_s, series.current_a, series.voltage_v
     else:
         t, i, v = resample_uniform(series.time_s, series.current_a, series.voltage_v, dt_s)
     out = {}
-    for numeric in ("float", "fixed"):
+    for numeric in numerics:
         cm = build(model, numeric=numeric, dt_s=dt_s, prefix=prefix, i_max_a=i_max_a, cache=cache)
         out[numeric] = compare(model, cm, t, i, soc0, v)
     return out

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import math
 import re
-import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -513,10 +512,28 @@ def file_names(prefix: str, numeric: str) -> dict[str, str]:
             "runtime": list(RUNTIME_FILES[numeric])}
 
 
-def render(spec: CSpec) -> dict[str, str]:
-    """File name -> text of every file generate_c writes (runtime headers included)."""
+def _equivalence_rows(eq: dict | None) -> list[dict]:
+    rows = []
+    for numeric, r in (eq or {}).items():
+        if not isinstance(r, dict):
+            continue
+
+        def mv(key):
+            return "-" if r.get(key) is None else f"{1e3 * float(r[key]):.4g}"
+
+        rows.append({"numeric": numeric, "dt": r.get("dt", "-"), "steps": r.get("steps", "-"),
+                     "exact": "yes" if r.get("bit_exact_vs_reference") else "NO",
+                     "mae": mv("mae_v"), "dmae": mv("delta_mae_v"),
+                     "dmax": mv("max_abs_diff_vs_python_v")})
+    return rows
+
+
+def render(spec: CSpec, equivalence: dict | None = None) -> dict[str, str]:
+    """File name -> text of every file generate_c writes (runtime headers included).
+    ``equivalence``: the dict of cbuild.c_equivalence, tabulated in the report."""
     env = _env()
     ctx = _context(spec)
+    ctx["equivalence"] = _equivalence_rows(equivalence)
     names = file_names(spec.prefix, spec.numeric)
     ctx["files"] = names
     out = {names["header"]: env.get_template("ecm.h.j2").render(ctx),
@@ -543,14 +560,18 @@ def describe(spec: CSpec) -> dict:
 
 
 def generate_c(model, out_dir, prefix: str = "ecm", numeric: str = "float",
-               dt_s: float | None = None, i_max_a: float | None = None) -> list[Path]:
+               dt_s: float | None = None, i_max_a: float | None = None,
+               equivalence: dict | None = None) -> list[Path]:
     """Write ``<prefix>_ecm.h``, ``<prefix>_ecm.c``, the runtime headers, a make include
     listing them and a short report into ``out_dir``; return the paths written.
 
-    ``model`` is an EcmModel or a model.json path. Everything is checked and rendered in
-    memory first: a bad model or option raises InputError before any file is written."""
+    ``model`` is an EcmModel or a model.json path; ``dt_s`` None gives the variable-dt step,
+    a number the fixed-dt one; ``i_max_a`` sets the current range (default 32 C, rounded up
+    to a power of two); ``equivalence`` (the dict of cbuild.c_equivalence) is tabulated in
+    the report. Everything is checked and rendered in memory first: a bad model or option
+    raises InputError before any file is written."""
     spec = prepare(model, numeric=numeric, dt_s=dt_s, prefix=prefix, i_max_a=i_max_a)
-    files = render(spec)
+    files = render(spec, equivalence)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
@@ -562,10 +583,42 @@ def generate_c(model, out_dir, prefix: str = "ecm", numeric: str = "float",
     return written
 
 
-def copy_runtime(out_dir: Path, numeric: str) -> list[Path]:
-    """Copy the runtime headers alone (for harnesses that build their own sources)."""
-    out = []
-    for name in RUNTIME_FILES[numeric]:
-        shutil.copyfile(runtime_dir() / name, Path(out_dir) / name)
-        out.append(Path(out_dir) / name)
-    return out
+def build_c_outputs(cfg, result, out_dir, progress=lambda msg: None) -> dict:
+    """The C stage of ``ecmgen build`` (called by pipeline._write_c).
+
+    For each numeric of ``cfg.c_numeric`` (prefix ``cfg.c_prefix``, ``cfg.c_dt_s``: None =
+    variable dt) the files go to ``out_dir/c/<numeric>/``; the C is compiled on the host and
+    compared (cbuild.c_equivalence) over the first validation cycle of the best model. Returns
+    the ``"c"`` block of ``--json``: ``{numeric: {"mae_v", "max_abs_diff_vs_python_v", ...,
+    "dir", "files"}}``. Without a host compiler the C is still written and each block says
+    ``"skipped"`` with the reason."""
+    from .cbuild import CBuildError, c_equivalence
+    from .measure import TimeSeries
+
+    model = result.models[result.best]
+    numerics = tuple(cfg.c_numeric)
+    dt_s, prefix = cfg.c_dt_s, cfg.c_prefix
+    specs = {n: prepare(model, numeric=n, dt_s=dt_s, prefix=prefix) for n in numerics}  # checks first
+    vals = (getattr(result, "validations", None) or {}).get(result.best) or {}
+    val = next(iter(vals.values()), None)
+    eq: dict = {}
+    if val is not None:
+        progress(f"checking the C against Python on {Path(val.source).name or 'the cycle'}")
+        series = TimeSeries(val.sim.time_s, val.sim.current_a, val.measured_v, source=val.source)
+        try:
+            eq = c_equivalence(model, series, val.soc0, dt_s=dt_s, prefix=prefix, numerics=numerics)
+        except CBuildError as exc:
+            eq = {n: {"skipped": str(exc).strip().splitlines()[0]} for n in numerics}
+        for r in eq.values():
+            r["cycle"] = Path(val.source).name
+    out_dir = Path(out_dir)
+    block = {}
+    for n in numerics:
+        progress(f"writing {n} C ({prefix}_ecm.c)")
+        files = generate_c(model, out_dir / "c" / n, prefix=prefix, numeric=n, dt_s=dt_s,
+                           equivalence={n: eq[n]} if n in eq else None)
+        entry = dict(eq.get(n, {"skipped": "no validation cycle to compare on"}))
+        entry.update({"dir": f"c/{n}", "files": [p.relative_to(out_dir).as_posix() for p in files],
+                      "table_bytes": describe(specs[n])["table_bytes"]})
+        block[n] = entry
+    return block

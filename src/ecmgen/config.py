@@ -4,7 +4,8 @@
     capacity_ah = 2.9
     [data]
     pulses = "hppc.mat"        # a pulse/HPPC test, or: dcir = "dcir.csv"
-    pulses_soc0 = 1.0          # SOC at the start of the pulse test (default 1.0)
+    pulses_soc0 = 1.0          # SOC at the start of the pulse test (default: from the
+                               # OCV of its first rested voltage, or 1.0 with OCV = "pulses")
     ocv = "ocv-c20.mat"        # a soc,ocv_v table, a low-rate test, or "pulses" (rests)
     cycle = "us06.mat"         # validation drive cycle
     soc0 = 1.0                 # optional; from the first rested voltage when absent
@@ -35,7 +36,7 @@ class BuildConfig:
     capacity_ah: float
     pulses: Path | None
     dcir: Path | None
-    pulses_soc0: float
+    pulses_soc0: float | None     # None: from the OCV of the first rest (or 1.0)
     ocv: Path | None              # None: from the pulse-test rests
     ocv_soc0: float | None
     ocv_branch: str               # "both" | "charge" | "discharge"
@@ -144,7 +145,8 @@ def load_config(path: str | Path) -> BuildConfig:
     if not (c_rate in ("max", "all") or (isinstance(c_rate, (int, float)) and c_rate > 0)):
         raise InputError(path, f"dcir.c_rate must be \"max\", \"all\" or a C-rate, got {c_rate!r}")
 
-    methods = fit.get("methods", list(METHODS))
+    # the whole-curve fit needs the pulse test itself, a DC-IR table is not enough
+    methods = fit.get("methods", list(METHODS) if pulses is not None else ["ga", "lm"])
     if not isinstance(methods, list) or not methods or any(m not in METHODS for m in methods):
         raise InputError(path, f"fit.methods must be a non-empty list from {list(METHODS)}")
     if "curve" in methods and pulses is None:
@@ -168,7 +170,7 @@ def load_config(path: str | Path) -> BuildConfig:
 
     return BuildConfig(
         path=path, capacity_ah=capacity, pulses=pulses, dcir=dcir,
-        pulses_soc0=_number(data, "pulses_soc0", path, "data", 1.0, unit_interval=True),
+        pulses_soc0=_number(data, "pulses_soc0", path, "data", None, unit_interval=True),
         ocv=ocv, ocv_soc0=_number(data, "ocv_soc0", path, "data", unit_interval=True),
         ocv_branch=branch,
         cycle=_file(base, data, "cycle", path),

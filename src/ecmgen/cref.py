@@ -21,6 +21,7 @@ import numpy as np
 from .codegen import DT_MAX_S, Q30, Q_D, SOC_LIM, CSpec, quantize
 
 F32 = np.float32
+PARAMS = ("r0", "r_fast", "r_slow", "k_fast", "k_slow")
 
 # --- constants of ecmrt_f32.h (same decimal text, hence the same float32) -------------
 F_INVLN2 = F32("1.44269502")
@@ -168,7 +169,7 @@ def simulate_f32(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0) -> RefRes
     per_dir = []
     for d in spec.dirs:
         k, w = _weight_f32(d.grid, soc)
-        p = {name: _lerp_f32(getattr(d, name), k, w) for name in ("r0", "r_fast", "r_slow", "k_fast", "k_slow")}
+        p = {name: _lerp_f32(getattr(d, name), k, w) for name in PARAMS}
         per_dir.append(p)
     p = {name: np.where(chg == 1, per_dir[1][name], per_dir[0][name]).astype(F32) for name in per_dir[0]}
     if spec.variable_dt:
@@ -288,8 +289,7 @@ def simulate_fixed_raw(spec: CSpec, i_raw, dt_raw=None, soc0_raw: int = ONE30) -
     per_dir = []
     for d in spec.dirs:
         k, w = _weight_q(d.grid, soc, q["Q_G"])
-        per_dir.append({name: _lerp_q(getattr(d, name), k, w)
-                        for name in ("r0", "r_fast", "r_slow", "k_fast", "k_slow")})
+        per_dir.append({name: _lerp_q(getattr(d, name), k, w) for name in PARAMS})
     p = {name: np.where(chg == 1, per_dir[1][name], per_dir[0][name]) for name in per_dir[0]}
     if spec.variable_dt:
         cf = one_minus_exp_neg_q(dt, p["k_fast"], q["Q_T"])

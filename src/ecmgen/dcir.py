@@ -128,8 +128,11 @@ def read_dcir_csv(path: str | Path) -> DcirTable:
 
 def find_pulses(series: TimeSeries, capacity_ah: float, *, soc0: float,
                 rest_current_a: float | None = None, max_pulse_s: float = 120.0,
-                min_rest_s: float = 0.0) -> list[Pulse]:
+                min_rest_s: float = 60.0) -> list[Pulse]:
     """Find the current steps from rest in a pulse test.
+
+    A pulse must follow at least ``min_rest_s`` of rest (else the voltage it starts
+    from is not a rested one) and last at most ``max_pulse_s``.
 
     SOC at each pulse comes from ``soc0`` plus the record's cumulative charge (its Ah
     column where it has one, which is right even when the file leaves out the
@@ -142,6 +145,7 @@ def find_pulses(series: TimeSeries, capacity_ah: float, *, soc0: float,
     stops = np.flatnonzero(~on[1:] & on[:-1]) + 1
     if on[-1]:
         stops = np.append(stops, len(i))
+    first_rest = 0 if not on[0] else int(np.argmax(~on))  # where the record's first rest begins
     stops = stops[stops > (starts[0] if starts.size else len(i))]
     q_ah = series.coulomb_ah()
     pulses: list[Pulse] = []
@@ -149,8 +153,9 @@ def find_pulses(series: TimeSeries, capacity_ah: float, *, soc0: float,
         dur = t[b - 1] - t[a - 1]
         if dur > max_pulse_s:
             continue  # a CC segment (SOC move, charge), not a pulse
-        rest_start = stops[n - 1] if n > 0 else 0
-        if t[a - 1] - t[rest_start] < min_rest_s:
+        # a record is taken to start rested: a rest from its first sample always counts
+        rest_start = stops[n - 1] if n > 0 else first_rest
+        if rest_start > 0 and t[a - 1] - t[rest_start] < min_rest_s:
             continue
         seg = i[a:b]
         med = float(np.median(seg))
@@ -166,8 +171,15 @@ def find_pulses(series: TimeSeries, capacity_ah: float, *, soc0: float,
             soc=float(soc0 + q_ah[a - 1] / capacity_ah), duration_s=float(dur),
             cut_short=False))
     if not pulses:
-        raise InputError(series.source, f"no pulses found (current steps from rest above "
-                                        f"{thr:.3g} A lasting at most {max_pulse_s:g} s)")
+        raise InputError(series.source, f"no pulses found (current steps above {thr:.3g} A "
+                                        f"after at least {min_rest_s:g} s of rest, lasting at "
+                                        f"most {max_pulse_s:g} s): not a pulse test?")
+    socs = np.array([p.soc for p in pulses])
+    if socs.min() < -0.05 or socs.max() > 1.05:
+        raise InputError(series.source, f"pulse SOC runs from {socs.min():.3f} to {socs.max():.3f} "
+                                        f"by coulomb counting from soc0 = {soc0:g} with "
+                                        f"{capacity_ah:g} Ah: check the start SOC "
+                                        "(data.pulses_soc0) and cell.capacity_ah")
     # a pulse is cut short when it ends well before its siblings of the same C-rate
     # and direction (a voltage limit stopped it)
     flagged = []
@@ -193,6 +205,7 @@ def extract_dcir(series: TimeSeries, pulses: list[Pulse],
     times = np.asarray(times_s, dtype=np.float64)
     t, i, v = series.time_s, series.current_a, series.voltage_v
     rows, notes = [], []
+    first_dt = []
     for p in pulses:
         if p.cut_short:
             notes.append(f"pulse at t={t[p.start]:.1f} s ({p.direction} {p.c_rate:g}C, "
@@ -203,12 +216,19 @@ def extract_dcir(series: TimeSeries, pulses: list[Pulse],
         dv = v[p.start:p.stop] - v[p.rest_index]
         di = i[p.start:p.stop] - i[p.rest_index]
         r[0] = dv[0] / di[0]
+        first_dt.append(t_on[0])
         dt_local = np.median(np.diff(t_on)) if t_on.size > 1 else np.inf
+        used = {0}  # the first sample is R0's; a slow logger cannot give R(1 s) from it too
         for j in range(1, times.size):
             k = int(np.argmin(np.abs(t_on - times[j])))
-            if abs(t_on[k] - times[j]) <= 0.5 * dt_local + 1e-6:
+            if k not in used and abs(t_on[k] - times[j]) <= min(0.5 * dt_local, 0.25 * times[j]) + 1e-6:
                 r[j] = dv[k] / di[k]
+                used.add(k)
         rows.append((p.soc, p.direction, p.c_rate, r))
+    if first_dt and np.median(first_dt) > 2.0 * times[0]:
+        notes.append(f"the first sample after a pulse edge comes {np.median(first_dt):.2g} s "
+                     f"after it (not {times[0]:g} s): R0 is taken there; the logger is too "
+                     "slow for the early DC-IR times")
     if not rows:
         raise InputError(series.source, "every pulse was cut short; no DC-IR values")
     return DcirTable(np.array([x[0] for x in rows]), np.array([x[1] for x in rows]),

@@ -175,8 +175,13 @@ def noise_std(series: TimeSeries, rest_a: float) -> float:
     dv = np.diff(v)[rested]
     if dv.size < 20:
         dv = np.diff(v)
-    mad = float(np.median(np.abs(dv - np.median(dv))))
-    return 1.4826 * mad / math.sqrt(2.0)
+    if dv.size == 0:
+        return 0.0
+    mad = 1.4826 * float(np.median(np.abs(dv - np.median(dv))))
+    # quantised records change by one step now and then (MAD = 0): RMS without the
+    # largest 2 % (relaxation right after a current edge)
+    sq = np.sort(dv * dv)[: max(1, int(0.98 * dv.size))]
+    return max(mad, math.sqrt(float(np.mean(sq)))) / math.sqrt(2.0)
 
 
 def block_bootstrap_low(d: np.ndarray, block: int, confidence: float, n_boot: int = 2000,
@@ -318,14 +323,21 @@ class _Problem:
         hi = [math.log(sp.hi) if sp.log else sp.hi for _, _, sp in self.free]
         return np.array(lo), np.array(hi)
 
-    def native(self, z) -> list[dict[str, float]]:
+    def native(self, z, snap: bool = False) -> list[dict[str, float]]:
+        """Parameter values of z; ``snap``: values within 1e-6 of the span of a bound are
+        set to the bound (a term the fit switched off reads as exactly 0)."""
         vals = [dict(v) for v in self.values]
         for zk, (k, pname, sp) in zip(np.asarray(z, dtype=np.float64), self.free):
-            vals[k][pname] = float(math.exp(zk) if sp.log else zk)
+            x = float(math.exp(zk) if sp.log else zk)
+            if snap:
+                tol = 1e-6 * (sp.hi - sp.lo)
+                x = sp.lo if x - sp.lo < tol else sp.hi if sp.hi - x < tol else x
+            vals[k][pname] = x
         return vals
 
     def effects_of(self, z) -> list:
-        return [fx.make_effect(name, **vals) for name, vals in zip(self.names, self.native(z))]
+        return [fx.make_effect(name, **vals)
+                for name, vals in zip(self.names, self.native(z, snap=True))]
 
     # casadi step ----------------------------------------------------------------------
     def _build(self) -> None:
@@ -636,7 +648,7 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries, judge_series: TimeSer
              min_rel_gain: float = 0.08, min_gain_noise: float = 1.0, min_gain_v: float = 2e-4,
              confidence: float = 0.99,
              block_s: float | None = None, max_fit_samples: int = 12000, max_nfev: int = 40,
-             seed: int = 0, progress: Callable[[str], None] | None = None) -> DiagnoseResult:
+             loss_scale_v: float | None = None, seed: int = 0, progress: Callable[[str], None] | None = None) -> DiagnoseResult:
     """Find the effects missing from ``base_model`` on ``fit_series`` (see module doc).
 
     soc0 / judge_soc0: start SOC of the cycles (default: from the OCV of the first rested
@@ -712,7 +724,7 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries, judge_series: TimeSer
     factor = max(1, int(math.ceil(fit_stop / max_fit_samples)))
     fit_data = decimate(fit_part, factor)
     rows = np.arange(len(fit_data))
-    f_scale = max(3.0 * noise, 0.5 * fit_mae0, 1e-3)
+    f_scale = loss_scale_v if loss_scale_v is not None else max(3.0 * noise, 0.5 * fit_mae0, 1e-3)
 
     # effects already in the base model stay as they are (fixed parameters)
     fixed_effects = [(e.name, e.params(), {}) for e in base_model.effects]
@@ -725,6 +737,27 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries, judge_series: TimeSer
     judge_sim = base_judge_sim
     fit_mae_cur = fit_mae0
     rnd = 0
+    def judged(effects):
+        model = base_model.with_effects(effects)
+        sj = sim_judge(model)
+        e1 = sj.voltage_v[judge_start:] - vj
+        sf = sj if same else sim_fit(model)
+        fit_mae1 = _mae(sf.voltage_v[:fit_stop] - fit_series.voltage_v[:fit_stop])
+        return model, sj, e1, _mae(e1), fit_mae1
+
+    def fitted(layout, starts_native, fixed):
+        """Fit the free parameters of the last layout entry (and of any other entry
+        that has specs) from the best of the starts; returns the effects."""
+        name, _, specs = layout[-1]
+        prob = _Problem(base_model.with_effects(()), fit_data, soc0,
+                        layout[:-1] + [(name, dict(starts_native[0], **fixed), specs)])
+        z_starts = []
+        for st in starts_native:
+            prob.values[-1] = dict(st, **fixed)
+            z_starts.append(prob.z0())
+        z, _ = _fit(prob, rows, z_starts, max_nfev, f_scale)
+        return prob.native(z, snap=True), prob.effects_of(z)
+
     while order and len(steps) < max_effects:
         rnd += 1
         tried = []
@@ -733,28 +766,16 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries, judge_series: TimeSer
             specs = _specs(name, base_model, ctx)
             fixed = _fixed(name, ctx)
             starts = _starts(name, sigs[name], ctx, specs)
-            layout = fixed_effects + [(n, dict(v), sp) for n, v, sp in added]
+            # the effects added so far keep their parameters while a candidate is fitted
+            layout = fixed_effects + [(n, dict(v), {}) for n, v, _ in added]
             try:
-                prob = _Problem(base_model.with_effects(()), fit_data, soc0,
-                                layout + [(name, dict(starts[0], **fixed), specs)])
-                z_starts = []
-                for st in starts:
-                    prob.values[-1] = dict(st, **fixed)
-                    z_starts.append(prob.z0())
-                z, _ = _fit(prob, rows, z_starts, max_nfev, f_scale)
-                vals = prob.native(z)
-                effects = prob.effects_of(z)
+                vals, effects = fitted(layout + [(name, None, specs)], starts, fixed)
             except (ValueError, ArithmeticError, RuntimeError) as exc:
                 cands.append(Candidate(rnd, name, None, float("nan"), float("nan"), float("nan"),
                                        float("nan"), float("nan"), False,
                                        _time.perf_counter() - t0, f"fit failed: {exc}"))
                 continue
-            model = base_model.with_effects(effects)
-            sj = sim_judge(model)
-            e1 = sj.voltage_v[judge_start:] - vj
-            mae1 = _mae(e1)
-            sf = sj if same else sim_fit(model)
-            fit_mae1 = _mae(sf.voltage_v[:fit_stop] - fit_series.voltage_v[:fit_stop])
+            model, sj, e1, mae1, fit_mae1 = judged(effects)
             d = np.abs(e_cur) - np.abs(e1)
             d = np.where(np.isfinite(d), d, 0.0)
             low = block_bootstrap_low(d, block, confidence, seed=seed + rnd)
@@ -784,16 +805,32 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries, judge_series: TimeSer
             break
         _, mae1, name, vals, specs, model, sj, e1, low, fit_mae1 = min(passing, key=lambda c: c[1])
         n_fixed = len(fixed_effects)
-        added = [(n, v, sp) for (n, _, sp), v in
-                 zip(added + [(name, None, specs)], vals[n_fixed:])]
+        new_added = [(n, v, sp) for (n, _, sp), v in
+                     zip(added + [(name, None, specs)], vals[n_fixed:])]
+        if added:
+            # refit all added effects jointly, from where they are; kept if the held-out
+            # error does not get worse
+            try:
+                layout = fixed_effects + [(n, dict(v), sp) for n, v, sp in new_added]
+                last = layout[-1]
+                vals_j, effects_j = fitted(layout, [last[1]], {})
+                judged_j = judged(effects_j)
+                if judged_j[3] <= mae1:
+                    model, sj, e1, mae1, fit_mae1 = judged_j
+                    new_added = [(n, v, sp) for (n, _, sp), v in
+                                 zip(new_added, vals_j[n_fixed:])]
+                    say(f"joint refit: held-out MAE {mae1 * 1e3:.2f} mV")
+            except (ValueError, ArithmeticError, RuntimeError):
+                pass
+        added = new_added
         steps.append(DiagnoseStep(name, model.effects[-1], mae_cur, mae1, low))
         say(f"added {name}: held-out MAE {mae_cur * 1e3:.2f} -> {mae1 * 1e3:.2f} mV")
         current, e_cur, mae_cur, judge_sim, fit_mae_cur = model, e1, mae1, sj, fit_mae1
         order = [n for n in order if n != name]
 
-    if steps:
-        # the final effects carry the jointly refitted parameters of the last round
-        current = current
+    # each step reports the effect as it is in the final model (parameters refitted jointly)
+    final = {e.name: e for e in current.effects}
+    steps = [replace(st, effect=final.get(st.name, st.effect)) for st in steps]
     return DiagnoseResult(
         base_model=base_model, model=current, steps=tuple(steps), candidates=tuple(cands),
         signatures=sigs, mae_before_v=mae0, mae_after_v=mae_cur, fit_mae_before_v=fit_mae0,
@@ -802,3 +839,242 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries, judge_series: TimeSer
         judge_soc0=judge_soc0, base_fit_sim=base_fit_sim, base_judge_sim=base_judge_sim,
         judge_sim=judge_sim, seconds=_time.perf_counter() - t_start,
         notes=(f"fit on {len(fit_data)} samples (block averages of {factor})",) if factor > 1 else ())
+
+
+# -- outputs: model.json, plots, report.md ---------------------------------------------------
+
+EFFECT_WORDS = {
+    fx.Hysteresis.name: "OCV hysteresis: the voltage depends on the sign and history of the "
+                        "current (one-state Plett model)",
+    fx.CurrentDependentResistance.name: "resistance falling with |I| (Butler-Volmer-like "
+                                        "charge transfer)",
+    fx.ExtraRc.name: "a slow polarisation (a further RC pair with a time constant of minutes) "
+                     "that 10 s pulses cannot see",
+    fx.CapacityError.name: "the capacity used for coulomb counting is off",
+    fx.TemperatureDependence.name: "resistances falling as the cell warms (Arrhenius)",
+}
+
+
+def _signature_x(name: str, result: DiagnoseResult):
+    """x values and label of an effect's signature plot over the fit part."""
+    s = result.fit_series
+    sim = result.base_fit_sim
+    stop = result.fit_stop
+    dt = np.diff(s.time_s, prepend=s.time_s[0])
+    i = s.current_a
+    q = result.base_model.capacity_ah
+    g = result.signatures[name].guess
+    if name == fx.Hysteresis.name:
+        ch = np.where(sim.charging, 1.0, -1.0)
+        a = np.exp(-np.abs(i) * dt / (3600.0 * g.get("decay_ah", 0.05 * q)))
+        x = rc_recurrence(a, (1 - a) * ch, ch[0])
+        return x[:stop], f"direction memory h (decay {g.get('decay_ah', 0.05 * q):.3g} Ah)"
+    if name == fx.CurrentDependentResistance.name:
+        return i[:stop], "current [A]"
+    if name == fx.ExtraRc.name:
+        tau = g.get("tau_s", 600.0)
+        return _lowpass(dt, i, tau)[:stop], f"current low-pass filtered, tau {tau:.0f} s [A]"
+    if name == fx.CapacityError.name:
+        return (np.cumsum(i * dt) / 3600.0)[:stop], "charge throughput [Ah]"
+    if name == fx.TemperatureDependence.name:
+        if s.temperature_c is None:
+            return None, "temperature (not in the data)"
+        return s.temperature_c[:stop], "cell temperature [degC]"
+    raise ValueError(name)
+
+
+def _binned(x, y, n=25):
+    ok = np.isfinite(x) & np.isfinite(y)
+    x, y = x[ok], y[ok]
+    if x.size < 10 or np.ptp(x) <= 0:
+        return np.array([]), np.array([])
+    edges = np.quantile(x, np.linspace(0, 1, n + 1))
+    edges = np.unique(edges)
+    k = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, edges.size - 2)
+    cnt = np.bincount(k, minlength=edges.size - 1)
+    sy = np.bincount(k, weights=y, minlength=edges.size - 1)
+    sx = np.bincount(k, weights=x, minlength=edges.size - 1)
+    m = cnt > 0
+    return sx[m] / cnt[m], sy[m] / cnt[m]
+
+
+def plot_signatures(result: DiagnoseResult, path: Path) -> Path:
+    """Residual of the base model (fit part) against each effect's signature."""
+    from .plots import _plt
+
+    plt = _plt()
+    res = (result.fit_series.voltage_v - result.base_fit_sim.voltage_v)[:result.fit_stop] * 1e3
+    names = list(fx.EFFECT_NAMES)
+    fig, axes = plt.subplots(2, 3, figsize=(14, 7.5))
+    rng = np.random.default_rng(0)
+    pick = rng.choice(res.size, size=min(res.size, 4000), replace=False)
+    for ax, name in zip(axes.flat, names):
+        sig = result.signatures[name]
+        x, label = _signature_x(name, result)
+        if x is None:
+            ax.text(0.5, 0.5, sig.detail, ha="center", va="center", transform=ax.transAxes,
+                    fontsize=9, wrap=True)
+        else:
+            ax.plot(x[pick], res[pick], ".", ms=2, alpha=0.25, color="0.5")
+            bx, by = _binned(x, res)
+            ax.plot(bx, by, "o-", color="C3", ms=3, lw=1.2, label="binned mean")
+            ax.axhline(0, color="k", lw=0.6)
+            lo, hi = np.percentile(res, [1, 99])
+            pad = 0.1 * (hi - lo + 1e-3)
+            ax.set_ylim(lo - pad, hi + pad)
+        added = name in result.effects
+        ax.set_title(f"{name}  (explains {100 * sig.r2:.0f} %)" + ("  ADDED" if added else ""),
+                     fontsize=9, color="C2" if added else "k")
+        ax.set_xlabel(label, fontsize=8)
+        ax.set_ylabel("measured - base [mV]", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.3)
+    t = result.fit_series.time_s[:result.fit_stop]
+    ax = axes.flat[5]
+    ax.plot(t, res, lw=0.5, color="C0")
+    ax.axhline(0, color="k", lw=0.6)
+    ax.set_title("residual over time (fit part)", fontsize=9)
+    ax.set_xlabel("time [s]", fontsize=8)
+    ax.set_ylabel("measured - base [mV]", fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.grid(alpha=0.3)
+    fig.suptitle("Where the base model misses: residual against each effect's signature",
+                 fontsize=11)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def plot_comparison(result: DiagnoseResult, path: Path) -> Path:
+    """Held-out part: measured vs base vs augmented voltage, the errors, MAE per step."""
+    from .plots import _plt
+
+    plt = _plt()
+    a = result.judge_start
+    s = result.judge_series
+    t = s.time_s[a:]
+    vm = s.voltage_v[a:]
+    vb = result.base_judge_sim.voltage_v[a:]
+    va = result.judge_sim.voltage_v[a:]
+    fig = plt.figure(figsize=(13, 9))
+    gs = fig.add_gridspec(3, 4)
+    ax0 = fig.add_subplot(gs[0, :])
+    ax0.plot(t, vm, lw=0.8, color="k", label="measured")
+    ax0.plot(t, vb, lw=0.7, color="C1", label=f"base (MAE {result.mae_before_v * 1e3:.2f} mV)")
+    ax0.plot(t, va, lw=0.7, color="C2",
+             label=f"with {', '.join(result.effects) or 'no effects'} "
+                   f"(MAE {result.mae_after_v * 1e3:.2f} mV)")
+    ax0.set_ylabel("voltage [V]")
+    ax0.legend(fontsize=8, loc="lower left")
+    ax0.set_title(f"held out: {result.split}", fontsize=9)
+    ax0.grid(alpha=0.3)
+    ax1 = fig.add_subplot(gs[1, :], sharex=ax0)
+    ax1.plot(t, (vb - vm) * 1e3, lw=0.5, color="C1", label="base")
+    ax1.plot(t, (va - vm) * 1e3, lw=0.5, color="C2", label="augmented")
+    ax1.axhline(0, color="k", lw=0.6)
+    e = np.concatenate([vb - vm, va - vm]) * 1e3
+    lo, hi = np.percentile(e, [0.5, 99.5])
+    ax1.set_ylim(lo - 0.1 * (hi - lo + 1), hi + 0.1 * (hi - lo + 1))
+    ax1.set_ylabel("simulated - measured [mV]")
+    ax1.set_xlabel("time [s]")
+    ax1.legend(fontsize=8)
+    ax1.grid(alpha=0.3)
+    ax2 = fig.add_subplot(gs[2, :2])
+    labels = ["base"] + [f"+ {st.name}" for st in result.steps]
+    maes = [result.mae_before_v * 1e3] + [st.mae_after_v * 1e3 for st in result.steps]
+    ax2.bar(range(len(maes)), maes, color=["C1"] + ["C2"] * len(result.steps))
+    ax2.set_xticks(range(len(maes)))
+    ax2.set_xticklabels(labels, fontsize=8, rotation=15)
+    ax2.set_ylabel("held-out MAE [mV]")
+    ax2.grid(alpha=0.3, axis="y")
+    ax3 = fig.add_subplot(gs[2, 2:])
+    rounds = sorted({c.round for c in result.candidates})
+    for r in rounds:
+        cs = [c for c in result.candidates if c.round == r and math.isfinite(c.judge_mae_v)]
+        ax3.plot([c.judge_mae_v * 1e3 for c in cs], [c.name for c in cs], "o",
+                 label=f"round {r}")
+    ax3.axvline(result.mae_before_v * 1e3, color="C1", lw=0.8, ls="--")
+    ax3.set_xlabel("held-out MAE with the candidate [mV]")
+    ax3.tick_params(labelsize=7)
+    ax3.legend(fontsize=7)
+    ax3.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def report_text(result: DiagnoseResult, model_name: str = "model.json") -> str:
+    """report.md: what is missing, in words, with the numbers behind it."""
+    mv = lambda x: f"{x * 1e3:.2f} mV"  # noqa: E731
+    lines = ["# ecmgen diagnose", ""]
+    fit_name = Path(result.fit_series.source).name or "the cycle"
+    lines += [f"Fitted on: {fit_name} (first {result.fit_stop} samples)",
+              f"Held out: {result.split}",
+              f"Start SOC {result.soc0:.4f} (held-out record {result.judge_soc0:.4f}); "
+              f"voltage noise {mv(result.noise_v)} (std, from the rests); "
+              f"run time {result.seconds:.1f} s", ""]
+    lines += ["## Verdict", ""]
+    if result.steps:
+        lines.append(f"The base model misses {len(result.steps)} effect(s); each was added "
+                     "only because it lowered the error on data the fit did not see by more "
+                     "than noise explains:")
+        lines.append("")
+        for k, st in enumerate(result.steps, 1):
+            lines.append(f"{k}. **{st.name}** - {EFFECT_WORDS[st.name]}. Held-out MAE "
+                         f"{mv(st.mae_before_v)} -> {mv(st.mae_after_v)} "
+                         f"({100 * (1 - st.mae_after_v / st.mae_before_v):.0f} % lower; "
+                         f"99 % lower bound of the gain {mv(st.ci_low_v)}).")
+        lines += ["", f"Held-out MAE of the base model {mv(result.mae_before_v)}, of the "
+                      f"augmented model ({model_name}) {mv(result.mae_after_v)}."]
+    else:
+        lines.append(f"Nothing is missing that this data can show: no effect lowered the "
+                     f"held-out MAE ({mv(result.mae_before_v)}) by more than noise explains. "
+                     f"{model_name} is the base model unchanged.")
+    lines += ["", "## Signatures in the base residual (fit part)", "",
+              "| effect | explains | what was regressed |", "|---|---|---|"]
+    for name, sig in sorted(result.signatures.items(), key=lambda kv: -kv[1].r2):
+        share = f"{100 * sig.r2:.1f} %" if sig.applicable else "n/a"
+        lines.append(f"| {name} | {share} | {sig.detail} |")
+    lines += ["", "## Candidates tried", "",
+              "| round | effect | held-out MAE | gain | gain lower bound | kept | why not |",
+              "|---|---|---|---|---|---|---|"]
+    kept = {(k + 1, st.name) for k, st in enumerate(result.steps)}
+    for c in result.candidates:
+        yes = (c.round, c.name) in kept
+        why = c.message or ("" if yes else "passed, but another candidate did better")
+        lines.append(f"| {c.round} | {c.name} | {mv(c.judge_mae_v)} | {mv(c.gain_v)} "
+                     f"({100 * c.rel_gain:.1f} %) | {mv(c.ci_low_v)} | "
+                     f"{'yes' if yes else 'no'} | {why} |")
+    if result.steps:
+        lines += ["", "## Effect parameters (as in the augmented model)", ""]
+        for st in result.steps:
+            params = ", ".join(f"{k} = {v:.6g}" for k, v in st.effect.params().items())
+            lines.append(f"- {st.name}: {params}")
+    lines += ["", "## Plots", "", "- diagnose-signatures.png: the base residual against each "
+              "effect's signature", "- diagnose-comparison.png: measured vs base vs augmented "
+              "on the held-out part, and the MAE per step"]
+    for n in result.notes:
+        lines.append(f"- note: {n}")
+    return "\n".join(lines) + "\n"
+
+
+def write_diagnose_outputs(result: DiagnoseResult, out_dir: str | Path, *, plots: bool = True,
+                           model_name: str = "model.json") -> list[Path]:
+    """Write the augmented model, report.md, diagnose.json and the plots into ``out_dir``."""
+    import json
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    files = [result.model.save(out / model_name)]
+    report = out / "report.md"
+    write_atomic(report, report_text(result, model_name))
+    files.append(report)
+    js = out / "diagnose.json"
+    write_atomic(js, json.dumps(result.to_json_dict(out / model_name), indent=1) + "\n")
+    files.append(js)
+    if plots:
+        files.append(plot_signatures(result, out / "diagnose-signatures.png"))
+        files.append(plot_comparison(result, out / "diagnose-comparison.png"))
+    return files

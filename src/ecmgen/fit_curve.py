@@ -135,7 +135,9 @@ def _solve(wins, xf, xs, tau_slow_s: float):
 
 def fit_group(wins: list[_Window], *, tau_fast_range=(0.2, 60.0),
               tau_slow_range=(5.0, 3000.0), n_grid: int = 24):
-    """Fit one group of windows. Returns (r0, r_fast, tau_fast, r_slow, tau_slow, rms, ok)."""
+    """Fit one group of windows. Returns (r0, r_fast, tau_fast, r_slow, tau_slow, rms, ok,
+    unit responses, resistances, drift); ok is False when the refinement failed or a
+    time constant ended on its search bound (not resolved by the data)."""
     lo = min(tau_fast_range[0], tau_slow_range[0])
     hi = max(tau_fast_range[1], tau_slow_range[1])
     grid = np.geomspace(lo, hi, n_grid)
@@ -175,7 +177,11 @@ def fit_group(wins: list[_Window], *, tau_fast_range=(0.2, 60.0),
     r, u0, res = _solve(wins, [x[:, 0] for x in xs], [x[:, 1] for x in xs], ts)
     rms = float(np.sqrt(np.mean(res ** 2)))
     drift = [u * np.expm1(-w.t / ts) for u, w in zip(u0, wins)]
-    return r[0], r[1], tf, r[2], ts, rms, bool(sol.success), xs, r, drift
+    # a time constant pinned at its search bound was not resolved by the data
+    at_edge = (np.isclose(ts, tau_slow_range[1], rtol=0.01) or
+               np.isclose(tf, tau_fast_range[0], rtol=0.01) and r[1] > 0.05 * r[0])
+    ok = bool(sol.success) and not at_edge and np.all(np.isfinite(r))
+    return r[0], r[1], tf, r[2], ts, rms, ok, xs, r, drift
 
 
 def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,

@@ -248,10 +248,119 @@ def _bounds_for(data: _Data, bounds: Bounds | None) -> Bounds:
 
 
 # --------------------------------------------------------------------------------------
+# Eq. 5 over the two resistances for fixed time constants (GA inner solve)
+# --------------------------------------------------------------------------------------
+_EXACT_MAX_POINTS = 8     # up to this many fitted points: exact vertex enumeration
+
+
+@lru_cache(maxsize=16)
+def _pairs(m: int):
+    return np.triu_indices(m, 1)
+
+
+def _vertices(pf, ps, d, mask, cf, cs, ra, box):
+    """Candidate optima of the 2-variable L1 problem: every intersection of two of
+    the lines {d_k = x pf_k + y ps_k}, x = xl|xh, y = yl|yh and cf x + cs y = ra.
+    Returns x, y, ok with a trailing candidate axis."""
+    xl, xh, yl, yh = box
+    n = pf.shape[-1]
+    shp = cf.shape
+    ra = np.broadcast_to(ra, shp)
+    xs, ys, oks = [], [], []
+
+    def add(x, y, ok):
+        xs.append(np.broadcast_to(x, shp + x.shape[len(shp):]))
+        ys.append(np.broadcast_to(y, shp + y.shape[len(shp):]))
+        oks.append(np.broadcast_to(ok, shp + ok.shape[len(shp):]))
+
+    tiny = 1e-12
+    if n >= 2:                                             # two residual lines
+        i, j = _pairs(n)
+        det = pf[..., i] * ps[..., j] - pf[..., j] * ps[..., i]
+        ok = mask[..., i] & mask[..., j] & (np.abs(det) > tiny)
+        sd = np.where(ok, det, 1.0)
+        add((d[..., i] * ps[..., j] - d[..., j] * ps[..., i]) / sd,
+            (pf[..., i] * d[..., j] - pf[..., j] * d[..., i]) / sd, ok)
+    okf = mask & (np.abs(pf) > tiny)
+    oks_ = mask & (np.abs(ps) > tiny)
+    spf, sps = np.where(okf, pf, 1.0), np.where(oks_, ps, 1.0)
+    for c in (xl, xh):                                     # residual line x vertical box side
+        add(np.full(pf.shape, c), (d - c * pf) / sps, oks_)
+    for c in (yl, yh):                                     # residual line x horizontal side
+        add((d - c * ps) / spf, np.full(pf.shape, c), okf)
+    # residual line x R0 line: [pf ps; cf cs] [x y]' = [d ra]'
+    det = pf * cs[..., None] - ps * cf[..., None]
+    ok = mask & (np.abs(det) > tiny)
+    sd = np.where(ok, det, 1.0)
+    add((d * cs[..., None] - ps * ra[..., None]) / sd,
+        (pf * ra[..., None] - d * cf[..., None]) / sd, ok)
+    # corners of the box, and box sides x R0 line
+    cx = np.array([xl, xl, xh, xh])
+    cy = np.array([yl, yh, yl, yh])
+    add(np.broadcast_to(cx, shp + (4,)), np.broadcast_to(cy, shp + (4,)),
+        np.ones(shp + (4,), bool))
+    okc, oks2 = cs > tiny, cf > tiny
+    scs, scf = np.where(okc, cs, 1.0), np.where(oks2, cf, 1.0)
+    add(np.stack([np.full(shp, xl), np.full(shp, xh),
+                  (ra - cs * yl) / scf, (ra - cs * yh) / scf], axis=-1),
+        np.stack([(ra - cf * xl) / scs, (ra - cf * xh) / scs,
+                  np.full(shp, yl), np.full(shp, yh)], axis=-1),
+        np.stack([okc, okc, oks2, oks2], axis=-1))
+    return (np.concatenate(xs, axis=-1), np.concatenate(ys, axis=-1),
+            np.concatenate(oks, axis=-1))
+
+
+def _l1_resistances(pf, ps, d, mask, cf, cs, ra, box, scale, exact: bool):
+    """argmin over (x, y) = (R_fast, R_slow) of sum mask |d - x pf - y ps|
+    subject to box = (xl, xh, yl, yh) and cf x + cs y <= ra (i.e. R0 >= 0).
+
+    pf, ps, d, mask: (..., n); cf, cs: (...); ra, scale: broadcastable to (...).
+    exact=True: the problem is a 2-variable LP, whose optimum lies on a vertex of the
+    arrangement of the lines {residual_k = 0} and the constraint lines; all pairwise
+    intersections are enumerated (fine for a handful of points). exact=False:
+    iteratively reweighted least squares (8 sweeps) then projection on the
+    constraints, an approximation for long (dense) curves.
+    """
+    xl, xh, yl, yh = box
+    if exact:
+        x, y, ok = _vertices(pf, ps, d, mask, cf, cs, ra, box)
+        tx, ty = 1e-9 * (xh - xl), 1e-9 * (yh - yl)
+        ok &= (x >= xl - tx) & (x <= xh + tx) & (y >= yl - ty) & (y <= yh + ty)
+        x, y = np.clip(x, xl, xh), np.clip(y, yl, yh)
+        ok &= cf[..., None] * x + cs[..., None] * y \
+            <= np.asarray(ra)[..., None] + 1e-9 * np.asarray(scale)[..., None]
+        res = np.abs(d[..., None, :] - x[..., None] * pf[..., None, :]
+                     - y[..., None] * ps[..., None, :])
+        obj = np.where(ok, np.einsum("...cn,...n->...c", res, mask.astype(np.float64)), np.inf)
+        k = np.argmin(obj, axis=-1)[..., None]
+        found = np.isfinite(np.take_along_axis(obj, k, axis=-1)[..., 0])
+        x = np.where(found, np.take_along_axis(x, k, axis=-1)[..., 0], xl)
+        y = np.where(found, np.take_along_axis(y, k, axis=-1)[..., 0], yl)
+        return x, y
+    w = mask.astype(np.float64)
+    eps = 1e-6 * np.asarray(scale)[..., None]
+    for sweep in range(9):
+        a11, a12, a22 = (w * pf * pf).sum(-1), (w * pf * ps).sum(-1), (w * ps * ps).sum(-1)
+        b1, b2 = (w * pf * d).sum(-1), (w * ps * d).sum(-1)
+        ridge = 1e-12 * (a11 + a22) + 1e-300
+        a11, a22 = a11 + ridge, a22 + ridge
+        det = a11 * a22 - a12 * a12
+        x, y = (a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det
+        if sweep < 8:
+            w = mask / np.maximum(np.abs(d - x[..., None] * pf - y[..., None] * ps), eps)
+    x, y = np.clip(x, xl, xh), np.clip(y, yl, yh)
+    load = cf * x + cs * y
+    over = load > ra
+    k = np.where(over, np.maximum(ra, 0.0) / np.where(over, load, 1.0), 1.0)
+    return np.maximum(x * k, xl), np.maximum(y * k, yl)
+
+
+# --------------------------------------------------------------------------------------
 # genetic algorithm
 # --------------------------------------------------------------------------------------
 _GA = dict(eta_c=10.0, p_sbx=0.5, line_ext=0.25, p_mut=0.25, sigma0=0.2, sigma_half=100.0,
-           decades=5.0)
+           decades=5.0, dedup=True, crowding=False,
+           inner=True)
 
 
 def fit_ga(t_s, r_ohm, *, bounds: Bounds | None = None, seed: int = 0, population: int = 48,
@@ -308,32 +417,38 @@ def fit_ga(t_s, r_ohm, *, bounds: Bounds | None = None, seed: int = 0, populatio
     act = np.flatnonzero(data.ok)              # cells still evolving
 
     def cell_arrays(ix):
-        return (data.tm[ix][:, None, :], data.t0[ix][:, None], data.d[ix][:, None, :],
-                data.mask[ix][:, None, :], data.ra[ix][:, None], data.scale[ix][:, None])
+        return (data.tm[ix][:, None, used], data.t0[ix][:, None], data.d[ix][:, None, used],
+                data.mask[ix][:, None, used], data.ra[ix][:, None], data.scale[ix][:, None])
+
+    # only the columns some cell fits (drops the pinned first column, for instance)
+    used = data.mask.any(axis=0)
+    exact = int(used.sum()) <= _EXACT_MAX_POINTS
+    box = (lo[2], hi[2], lo[3], hi[3])
 
     def repair_and_score(u, arrs):
         """Repaired genes and their fitness (Eq. 5 plus constraint penalties)."""
         tm, t0, d, mask, ra, scale = arrs
         x = lo + np.clip(u, 0.0, 1.0) * width
-        lf, ls, rf, rs = x[..., 0], x[..., 1], x[..., 2], x[..., 3]
-        # tau_fast > tau_slow: swap the two branches (same curve) where the box allows
-        swap = (lf > ls) & (ls <= hi[0]) & (lf >= lo[1]) & \
-            (rs >= lo[2]) & (rs <= hi[2]) & (rf >= lo[3]) & (rf <= hi[3])
-        lf, ls, rf, rs = (np.where(swap, ls, lf), np.where(swap, lf, ls),
-                          np.where(swap, rs, rf), np.where(swap, rf, rs))
+        lf, ls = x[..., 0], x[..., 1]
+        # tau_fast > tau_slow: swap the two time constants where the box allows
+        swap = (lf > ls) & (ls <= hi[0]) & (lf >= lo[1])
+        lf, ls = np.where(swap, ls, lf), np.where(swap, lf, ls)
         tf, ts = np.exp(lf), np.exp(ls)
-        ef, es = np.expm1(-t0 / tf), np.expm1(-t0 / ts)     # -(1 - exp(-t0/tau))
-        # R0 = ra + rf ef + rs es >= 0: shrink both branches towards zero
-        load = -(rf * ef + rs * es)
-        over = load > ra
-        k = np.where(over, np.maximum(ra, 0.0) / np.where(over, load, 1.0), 1.0)
-        rf = np.maximum(rf * k, lo[2])
-        rs = np.maximum(rs * k, lo[3])
+        pf = _phi(tm, t0[..., None], tf[..., None])
+        ps = _phi(tm, t0[..., None], ts[..., None])
+        cf, cs = -np.expm1(-t0 / tf), -np.expm1(-t0 / ts)   # 1 - exp(-t0/tau)
+        if o["inner"]:
+            rf, rs = _l1_resistances(pf, ps, d, mask, cf, cs, ra, box, scale, exact)
+        else:
+            rf, rs = np.clip(x[..., 2], lo[2], hi[2]), np.clip(x[..., 3], lo[3], hi[3])
+            load = rf * cf + rs * cs
+            over = load > ra
+            k = np.where(over, np.maximum(ra, 0.0) / np.where(over, load, 1.0), 1.0)
+            rf, rs = np.maximum(rf * k, lo[2]), np.maximum(rs * k, lo[3])
         u = np.clip(np.stack([lf, ls, rf, rs], axis=-1) - lo, 0.0, width) / width
-        fitted = rf[..., None] * _phi(tm, t0[..., None], tf[..., None]) + \
-            rs[..., None] * _phi(tm, t0[..., None], ts[..., None])
-        fit = np.sum(np.where(mask, np.abs(d - fitted), 0.0), axis=-1)
-        r0 = ra + rf * ef + rs * es
+        fit = np.sum(np.where(mask, np.abs(d - rf[..., None] * pf - rs[..., None] * ps), 0.0),
+                     axis=-1)
+        r0 = ra - rf * cf - rs * cs
         viol = np.maximum(-r0, 0.0) + np.maximum(lf - ls + _LOG_GAP, 0.0) * scale
         return u, fit + _PENALTY * viol
 
@@ -350,9 +465,12 @@ def fit_ga(t_s, r_ohm, *, bounds: Bounds | None = None, seed: int = 0, populatio
         g += 1
         n = act.size
         # -- selection: binary tournaments ---------------------------------------------
-        cand = rng.integers(0, pop, size=(n, pop, 2))
-        fc = np.take_along_axis(fit, cand.reshape(n, -1), axis=1).reshape(n, pop, 2)
-        win = np.where(fc[..., 0] <= fc[..., 1], cand[..., 0], cand[..., 1])
+        if o["crowding"]:
+            win = np.argsort(rng.random((n, pop)), axis=1)
+        else:
+            cand = rng.integers(0, pop, size=(n, pop, 2))
+            fc = np.take_along_axis(fit, cand.reshape(n, -1), axis=1).reshape(n, pop, 2)
+            win = np.where(fc[..., 0] <= fc[..., 1], cand[..., 0], cand[..., 1])
         pa, pb = u[rows, win[:, :half]], u[rows, win[:, half:]]
         # -- crossover: SBX or extended line recombination, per pair -------------------
         w = rng.random((n, half, 4))
@@ -370,12 +488,44 @@ def fit_ga(t_s, r_ohm, *, bounds: Bounds | None = None, seed: int = 0, populatio
             * rng.standard_normal((n, pop, 4))
         kids = kids + np.where(rng.random((n, pop, 4)) < o["p_mut"], step, 0.0)
         kids, kfit = repair_and_score(kids, arrs)
+        if o["crowding"]:
+            k1, k2 = kids[:, :half], kids[:, half:]
+            f1, f2 = kfit[:, :half], kfit[:, half:]
+            dist = lambda x, y: np.sum((x - y) ** 2, axis=-1)  # noqa: E731
+            cross = dist(k1, pa) + dist(k2, pb) > dist(k1, pb) + dist(k2, pa)
+            ka = np.where(cross[..., None], k2, k1)
+            kb = np.where(cross[..., None], k1, k2)
+            fa = np.where(cross, f2, f1)
+            fb = np.where(cross, f1, f2)
+            ia, ib = win[:, :half], win[:, half:]
+            fpa = np.take_along_axis(fit, ia, axis=1)
+            fpb = np.take_along_axis(fit, ib, axis=1)
+            ra_ = fa <= fpa
+            rb_ = fb <= fpb
+            u = u.copy()
+            fit = fit.copy()
+            u[rows, ia] = np.where(ra_[..., None], ka, pa)
+            u[rows, ib] = np.where(rb_[..., None], kb, pb)
+            fit[rows, ia] = np.where(ra_, fa, fpa)
+            fit[rows, ib] = np.where(rb_, fb, fpb)
+            # keep the best individual first (the stall rule and the result read u[:, 0])
+            j = np.argmin(fit, axis=1)
+            u[:, [0]], u[rows, j[:, None]] = u[rows, j[:, None]], u[:, [0]]
+            fit[:, [0]], fit[rows, j[:, None]] = fit[rows, j[:, None]], fit[:, [0]]
         # -- survivors: best of parents + offspring ------------------------------------
-        allu = np.concatenate([u, kids], axis=1)
-        allf = np.concatenate([fit, kfit], axis=1)
-        keep = np.argsort(allf, axis=1, kind="stable")[:, :pop]
-        u = np.take_along_axis(allu, keep[..., None], axis=1)
-        fit = np.take_along_axis(allf, keep, axis=1)
+        else:
+            allu = np.concatenate([u, kids], axis=1)
+            allf = np.concatenate([fit, kfit], axis=1)
+            order = np.argsort(allf, axis=1, kind="stable")
+            if o["dedup"]:
+                # exact clones (same fitness as the better neighbour) go to the back: keeps
+                # the population diverse instead of filling it with copies of the elite
+                fs = np.take_along_axis(allf, order, axis=1)
+                dup = np.concatenate([np.zeros((n, 1), bool), fs[:, 1:] == fs[:, :-1]], axis=1)
+                order = np.take_along_axis(order, np.argsort(dup, axis=1, kind="stable"), axis=1)
+            keep = order[:, :pop]
+            u = np.take_along_axis(allu, keep[..., None], axis=1)
+            fit = np.take_along_axis(allf, keep, axis=1)
         # -- stall rule ----------------------------------------------------------------
         best = fit[:, 0]
         if g > stall:
@@ -524,7 +674,12 @@ def _lm_iterate(prob: _LmProblem, z, max_iterations: int, progress: Progress | N
         # projected gradient (box only): zero where a bound blocks the descent
         blocked = ((z <= prob.lo) & (g > 0)) | ((z >= prob.hi) & (g < 0))
         small_grad = np.max(np.abs(np.where(blocked, 0.0, g)), axis=1) <= gtol
-        h = np.linalg.solve(a + mu[:, None, None] * eye, -g[..., None])[..., 0]
+        # active set: a variable held at its bound by the gradient stays there, and the
+        # step of the others is solved with it fixed (projected Newton, Bertsekas)
+        free = ~blocked
+        pair = free[:, :, None] & free[:, None, :]
+        m = np.where(pair, a, 0.0) + np.where(free, mu[:, None], 1.0)[:, :, None] * eye
+        h = np.linalg.solve(m, np.where(free, -g, 0.0)[..., None])[..., 0]
         z_try = prob.project(z + h)
         step = z_try - z
         r_try, jac_try = prob.eval(z_try)

@@ -76,31 +76,42 @@ def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
     notes: list[str] = []
     records: list[InputRecord] = []
     q = cfg.capacity_ah
-    series, pulses = None, ()
-    if cfg.pulses is not None:
-        progress(f"reading pulse test {cfg.pulses.name}")
-        series = read_series(cfg, cfg.pulses)
-        records.append(InputRecord("pulses", cfg.pulses.name, file_sha256(cfg.pulses)))
-        pulses = tuple(dcir_mod.find_pulses(series, q, soc0=cfg.pulses_soc0))
-        table = dcir_mod.extract_dcir(series, list(pulses), cfg.times_s)
-        notes.extend(table.notes)
-        progress(f"{len(pulses)} pulses, {len(table)} DC-IR rows")
-    else:
-        table = dcir_mod.read_dcir_csv(cfg.dcir)
-        records.append(InputRecord("dcir", cfg.dcir.name, file_sha256(cfg.dcir)))
-
-    if cfg.ocv is None:
-        ocv, n = ocv_from_pulse_rests(series, pulses, q, cfg.pulses_soc0)
-        notes.extend(n)
-    elif looks_like_ocv_table(cfg.ocv):
+    ocv = None
+    if cfg.ocv is not None and looks_like_ocv_table(cfg.ocv):
         ocv = read_ocv_table(cfg.ocv)
         records.append(InputRecord("ocv", cfg.ocv.name, file_sha256(cfg.ocv)))
-    else:
+    elif cfg.ocv is not None:
         progress(f"reading low-rate OCV test {cfg.ocv.name}")
         low = read_series(cfg, cfg.ocv)
         records.append(InputRecord("ocv", cfg.ocv.name, file_sha256(cfg.ocv)))
         ocv, n = ocv_from_low_rate(low, q, cfg.ocv_soc0, branch=cfg.ocv_branch)
         notes.extend(n)
+
+    series, pulses = None, ()
+    if cfg.pulses is not None:
+        progress(f"reading pulse test {cfg.pulses.name}")
+        series = read_series(cfg, cfg.pulses)
+        records.append(InputRecord("pulses", cfg.pulses.name, file_sha256(cfg.pulses)))
+        soc0 = cfg.pulses_soc0
+        if soc0 is None and ocv is not None:
+            from .simulate import rested_soc
+
+            soc0 = rested_soc(ocv, q, series)
+            notes.append(f"pulse test start SOC {soc0:.3f} from the OCV of its first rested "
+                         "voltage (set data.pulses_soc0 to override)")
+        elif soc0 is None:
+            soc0 = 1.0
+            notes.append("pulse test assumed to start at SOC 1.0 (set data.pulses_soc0)")
+        pulses = tuple(dcir_mod.find_pulses(series, q, soc0=soc0))
+        table = dcir_mod.extract_dcir(series, list(pulses), cfg.times_s)
+        notes.extend(table.notes)
+        progress(f"{len(pulses)} pulses, {len(table)} DC-IR rows")
+        if ocv is None:
+            ocv, n = ocv_from_pulse_rests(series, pulses, q, soc0)
+            notes.extend(n)
+    else:
+        table = dcir_mod.read_dcir_csv(cfg.dcir)
+        records.append(InputRecord("dcir", cfg.dcir.name, file_sha256(cfg.dcir)))
     return Inputs(q, ocv, table, series, pulses, tuple(records), tuple(notes))
 
 
@@ -211,7 +222,16 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
                               progress=lambda k, n: progress(f"  curve fit level {k}/{n}"))
         cols = {k: getattr(cf, k) for k in ("r0_ohm", "r_fast_ohm", "tau_fast_s",
                                             "r_slow_ohm", "tau_slow_s")}
+        bad = ~cf.converged
+        if bad.all():
+            raise InputError(cfg.pulses, "the whole-curve fit resolved no SOC level "
+                                         "(time constants outside 0.2 s .. 3000 s?)")
+        n_bad = [f"curve: SOC level {s:.3f} ({d}) not resolved (a time constant on its "
+                 "search bound): left out, its neighbours are interpolated"
+                 for s, d in zip(cf.soc[bad], cf.direction[bad])]
+        cols = {k: np.where(bad, np.nan, v) for k, v in cols.items()}
         ch, dis, n2 = _rc_tables(cf.soc, cf.direction, cols, cf.rms_error_v, cf.converged)
+        n2 = n_bad + n2
         models["curve"] = EcmModel(charge=ch, discharge=dis, method="curve",
                                    notes=inputs.notes + tuple(n2), **common)
         raw["curve_fit"] = cf

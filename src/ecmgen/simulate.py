@@ -98,20 +98,25 @@ def simulate(model: EcmModel, time_s, current_a, soc0: float,
 
 
 def initial_soc(model: EcmModel, series: TimeSeries) -> float:
-    """SOC at the start of a record from the OCV of its first rested voltage.
+    """SOC at the start of a record from the OCV of its first rested voltage."""
+    return rested_soc(model.ocv, model.capacity_ah, series,
+                      max(model.direction_deadband_a, model.capacity_ah / 100.0))
 
-    The first sample whose |current| is within the model's deadband (at least C/100)
-    is taken as rested; its voltage is inverted through the OCV table and the charge
-    passed before it is subtracted."""
-    rest_a = max(model.direction_deadband_a, model.capacity_ah / 100.0)
+
+def rested_soc(ocv, capacity_ah: float, series: TimeSeries, rest_a: float | None = None
+               ) -> float:
+    """SOC at a record's first sample: the first sample whose |current| is at most
+    ``rest_a`` (default C/100) is taken as rested, its voltage inverted through the OCV,
+    and the charge passed before it subtracted."""
+    rest_a = capacity_ah / 100.0 if rest_a is None else rest_a
     rested = np.flatnonzero(np.abs(series.current_a) <= rest_a)
     if rested.size == 0:
         raise InputError(series.source, "no rested sample to find the start SOC from; "
                                         "give soc0")
     k = int(rested[0])
-    soc_k = float(model.ocv.soc_at(series.voltage_v[k]))
+    soc_k = float(ocv.soc_at(series.voltage_v[k]))
     passed = float(np.sum(series.current_a[1:k + 1] * np.diff(series.time_s[:k + 1])))
-    return soc_k - passed / (3600.0 * model.capacity_ah)
+    return soc_k - passed / (3600.0 * capacity_ah)
 
 
 @dataclass(frozen=True)

@@ -150,11 +150,13 @@ class SyntheticCell:
         return self._measure(t, i, 1.0, rng, "ocv")
 
     def drive_cycle(self, soc_start: float = 0.95, soc_end: float = 0.12, seed: int | None = None,
-                    dt: float = 1.0, with_temperature: bool = True) -> TimeSeries:
+                    dt: float = 1.0, with_temperature: bool = True, mean_c_rate: float = 0.8
+                    ) -> TimeSeries:
         """A drive cycle with rests: 10 min rest, then until the SOC reaches ``soc_end``:
-        drive segments of 8-20 min (random, mean about -0.8 C, peaks -4 C .. +1.5 C of
-        regeneration), rests of 4-12 min, and every third segment a 0.5 C charge of
-        6-12 min. Starts rested at ``soc_start`` (true SOC) after a charge."""
+        drive segments of 8-20 min (random, mean about -``mean_c_rate`` C, peaks -4 C ..
+        +1.5 C of regeneration), rests of 4-12 min, and every third segment a 0.5 C charge
+        of 6-12 min; 15 min rest at the end. Starts rested at ``soc_start`` (true SOC)
+        after a charge. About 3 h at the default rate."""
         rng = np.random.default_rng(self.seed + 17 if seed is None else seed)
         qn = self.capacity_ah
         q = self.true_capacity_ah
@@ -169,7 +171,7 @@ class SyntheticCell:
             phi = math.exp(-dt / 15.0)
             for j in range(1, n):
                 x[j] = phi * x[j - 1] + math.sqrt(1 - phi * phi) * e[j]
-            amps = qn * np.clip(-0.8 + 1.1 * x, -4.0, 1.5)
+            amps = qn * np.clip(-mean_c_rate + 1.1 * x, -4.0, 1.5)
             # hold each value 1..4 s like a speed trace at 1 Hz with gear changes
             hold = rng.integers(1, 5, n)
             idx = np.minimum(np.cumsum(hold) - hold, n - 1)
@@ -236,16 +238,16 @@ def _smooth_on_grid(soc: np.ndarray, v: np.ndarray, half_width: float = 0.01) ->
 
 
 def fit_pulses(series: TimeSeries, ocv: OcvTable, capacity_ah: float, relax_s: float = 30.0,
-               min_a: float | None = None) -> tuple[RcTable, RcTable]:
+               min_a: float | None = None, soc0: float = 1.0) -> tuple[RcTable, RcTable]:
     """2RC tables from a pulse test, the common DC-IR practice: each pulse (with
     ``relax_s`` of relaxation) is fitted on its own, and the parameters of the pulses of
-    one SOC level and direction are averaged over their C-rates."""
+    one SOC level and direction are averaged over their C-rates. A direction without
+    pulses gets the other direction's table. The test starts at ``soc0``."""
     t, i, v = series.time_s, series.current_a, series.voltage_v
     min_a = 0.1 * capacity_ah if min_a is None else min_a
     on = np.abs(i) > min_a
     edges = np.flatnonzero(on[1:] & ~on[:-1]) + 1
-    dt_all = np.diff(t, prepend=t[0])
-    soc_all = 1.0 + np.cumsum(i * dt_all) / 3600.0 / capacity_ah
+    soc_all = soc0 + series.coulomb_ah() / capacity_ah     # the logged Ah where there is one
     fits: dict[tuple[str, int], list] = {}
     for e in edges:
         end = e
@@ -270,6 +272,8 @@ def fit_pulses(series: TimeSeries, ocv: OcvTable, capacity_ah: float, relax_s: f
                                 float(np.mean([r[2] for r in f])), all(r[3] for r in f)))
     tables = {}
     for d, r in rows.items():
+        if not r:
+            continue
         r.sort()
         a = np.array([x[:7] for x in r], dtype=np.float64)
         keep = np.concatenate([[True], np.diff(a[:, 0]) > 1e-6])
@@ -277,7 +281,10 @@ def fit_pulses(series: TimeSeries, ocv: OcvTable, capacity_ah: float, relax_s: f
         tables[d] = RcTable(soc=np.clip(a[:, 0], 0, 1), r0_ohm=a[:, 1], r_fast_ohm=a[:, 2],
                             tau_fast_s=a[:, 3], r_slow_ohm=a[:, 4], tau_slow_s=a[:, 5],
                             fit_error=a[:, 6], converged=np.array([x[7] for x in r])[keep])
-    return tables["charge"], tables["discharge"]
+    if not tables:
+        raise ValueError(f"{series.source}: no pulses found")
+    return tables.get("charge", tables.get("discharge")), \
+        tables.get("discharge", tables.get("charge"))
 
 
 def _fit_pulse(dt: np.ndarray, i: np.ndarray, target: np.ndarray):

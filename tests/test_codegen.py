@@ -1,0 +1,357 @@
+"""C generation: files, determinism, literals, strict compilation, symbols, refusal of bad
+models. (Equivalence with Python: test_codegen_equiv.py; robustness: test_codegen_robust.py;
+property tests: test_codegen_props.py; Cortex-M: test_target.py.)"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from ecmgen import __version__, cref
+from ecmgen.cbuild import STRICT_CFLAGS, host_cc
+from ecmgen.codegen import c_float, describe, generate_c, prepare, render, runtime_dir
+from ecmgen.errors import InputError
+
+VARIANTS = [("float", None), ("float", 0.1), ("fixed", None), ("fixed", 0.1)]
+VARIANT_IDS = ["float-vdt", "float-dt0.1", "fixed-vdt", "fixed-dt0.1"]
+
+
+def _cc(args, cwd=None):
+    proc = subprocess.run([*host_cc(), *map(str, args)], capture_output=True, text=True, cwd=cwd)
+    assert proc.returncode == 0, proc.stderr
+    return proc
+
+
+@pytest.mark.parametrize("numeric,dt_s", VARIANTS, ids=VARIANT_IDS)
+def test_files_banner_and_byte_identical(tmp_path, synthetic_model, numeric, dt_s):
+    a = generate_c(synthetic_model, tmp_path / "a", prefix="cell", numeric=numeric, dt_s=dt_s)
+    b = generate_c(synthetic_model, tmp_path / "b", prefix="cell", numeric=numeric, dt_s=dt_s)
+    names = sorted(p.name for p in a)
+    rt = "ecmrt_f32.h" if numeric == "float" else "ecmrt_q.h"
+    assert names == sorted(["cell_ecm.h", "cell_ecm.c", "ecmrt.h", rt, "cell_ecm_files.mk",
+                            "cell_ecm_report.md"])
+    for pa, pb in zip(a, b):
+        assert pa.read_bytes() == pb.read_bytes(), pa.name
+    # regenerating into the same folder leaves the files alone
+    before = {p: p.stat().st_mtime_ns for p in a}
+    generate_c(synthetic_model, tmp_path / "a", prefix="cell", numeric=numeric, dt_s=dt_s)
+    assert {p: p.stat().st_mtime_ns for p in a} == before
+    header = (tmp_path / "a" / "cell_ecm.h").read_text()
+    if dt_s is None:
+        assert "Time step: variable" in header and "cell_step(cell_state_t *s, " in header
+    else:
+        assert f"Time step: fixed, dt = {dt_s} s - D = 1/(1 - exp(-dt/tau))" in header
+    sha = synthetic_model.sha256()
+    for name in ("cell_ecm.h", "cell_ecm.c"):
+        text = (tmp_path / "a" / name).read_text()
+        assert f"ecmgen {__version__}" in text and sha in text
+        assert text.isascii()
+    # the runtime is copied verbatim
+    assert (tmp_path / "a" / rt).read_text() == (runtime_dir() / rt).read_text()
+
+
+def test_different_model_different_bytes(tmp_path, synthetic_model):
+    from dataclasses import replace
+
+    a = render(prepare(synthetic_model))["ecm_ecm.c"]
+    b = render(prepare(replace(synthetic_model, capacity_ah=3.0)))["ecm_ecm.c"]
+    assert a != b
+
+
+def test_float_literals_round_trip(synthetic_model):
+    for x in [0.0, 1.0, 3.0, 0.1, 1e-5, 123456789.0, 3.4e38, 1.17549435e-38, 2.0**-140, 0.3]:
+        s = c_float(x)
+        assert s.endswith("f") and ("." in s or "e" in s)
+        assert np.float32(float(s[:-1])) == np.float32(x)
+        assert len(re.sub(r"[^0-9]", "", s.split("e")[0]).strip("0")) <= 9
+    rng = np.random.default_rng(3)
+    bits = rng.integers(0, 0x7F800000, 2000, dtype=np.uint32)
+    for f in bits.view(np.float32):
+        assert np.float32(float(c_float(f)[:-1])).view(np.uint32) == f.view(np.uint32)
+    # every literal of a generated file reads back to the spec's float32 values
+    spec = prepare(synthetic_model, numeric="float", dt_s=0.1)
+    text = render(spec)["ecm_ecm.c"]
+    lits = re.findall(r"(?<![\w.])(-?\d+\.\d*(?:e[-+]?\d+)?|-?\d+e[-+]?\d+)f\b", text)
+    values = {np.float32(float(s)).view(np.uint32).item() for s in lits}
+    d = spec.dirs[0]
+    for arr in (spec.ocv, spec.ocv_grid.x, spec.ocv_grid.inv_dx, d.r0, d.k_fast, d.k_slow):
+        assert set(np.asarray(arr, np.float32).view(np.uint32).tolist()) <= values
+
+
+@pytest.mark.parametrize("numeric,dt_s", VARIANTS, ids=VARIANT_IDS)
+@pytest.mark.parametrize("opt", ["-O0", "-O2", "-Os"])
+def test_strict_flags_compile_without_warnings(tmp_path, synthetic_model, numeric, dt_s, opt):
+    generate_c(synthetic_model, tmp_path, prefix="ecm", numeric=numeric, dt_s=dt_s)
+    proc = _cc([*STRICT_CFLAGS, opt, "-I", tmp_path, "-c", tmp_path / "ecm_ecm.c",
+                "-o", tmp_path / "ecm.o"])
+    assert proc.stderr == ""
+
+
+@pytest.mark.parametrize("numeric,dt_s", VARIANTS, ids=VARIANT_IDS)
+def test_symbols_prefixed_and_no_mutable_globals(tmp_path, synthetic_model, numeric, dt_s):
+    generate_c(synthetic_model, tmp_path, prefix="pk1", numeric=numeric, dt_s=dt_s)
+    obj = tmp_path / "m.o"
+    _cc([*STRICT_CFLAGS, "-O2", "-fno-pic", "-I", tmp_path, "-c", tmp_path / "pk1_ecm.c", "-o", obj])
+    out = subprocess.run(["nm", obj], capture_output=True, text=True, check=True).stdout
+    syms = [line.split() for line in out.splitlines() if line.strip()]
+    defined_global = [s[-1] for s in syms if len(s) == 3 and s[1].isupper()]
+    assert sorted(defined_global) == ["pk1_init", "pk1_run", "pk1_step"]
+    undefined = [s[-1] for s in syms if s[0] == "U"]
+    assert undefined == []                          # no libc, no libm, no malloc
+    writable = [s for s in syms if len(s) == 3 and s[1] in "bBdDcC"]
+    assert writable == [], "mutable globals found"
+
+
+TWO_MODEL_MAIN = r"""
+#include <stdio.h>
+#include "cellA_ecm.h"
+#include "cellB_ecm.h"
+int main(void)
+{
+    cellA_state_t a;
+    cellB_state_t b;
+    float va = 0.0f;
+    int32_t vb = 0;
+    int k;
+    cellA_init(&a, 0.8f);
+    cellB_init(&b, (int32_t)(0.8 * 1073741824.0));
+    for (k = 0; k < 100; k++) {
+        va = cellA_step(&a, -2.0f, 0.1f);
+        vb = cellB_step(&b, (int32_t)(-2.0 * (double)(1L << CELLB_ECM_Q_I)));
+    }
+    printf("%.6f %.6f\n", (double)va, (double)vb / (double)(1L << CELLB_ECM_Q_V));
+    return 0;
+}
+"""
+
+
+def test_two_models_link_into_one_program(tmp_path, synthetic_model):
+    generate_c(synthetic_model, tmp_path, prefix="cellA", numeric="float")
+    generate_c(synthetic_model, tmp_path, prefix="cellB", numeric="fixed", dt_s=0.1)
+    (tmp_path / "main.c").write_text(TWO_MODEL_MAIN)
+    exe = tmp_path / "two"
+    _cc([*STRICT_CFLAGS, "-O2", "-I", tmp_path, tmp_path / "cellA_ecm.c", tmp_path / "cellB_ecm.c",
+         tmp_path / "main.c", "-o", exe])
+    out = subprocess.run([exe], capture_output=True, text=True, check=True).stdout.split()
+    va, vb = float(out[0]), float(out[1])
+    assert 3.0 < va < 4.3 and 3.0 < vb < 4.3 and abs(va - vb) < 0.01
+
+
+def _strip_comments(text: str) -> str:
+    text = re.sub(r"/\*.*?\*/", " ", text, flags=re.S)
+    text = re.sub(r'"[^"\n]*"', '""', text)            # string literals (version, hash)
+    return re.sub(r"//[^\n]*", " ", text)
+
+
+@pytest.mark.parametrize("dt_s", [None, 0.1], ids=["vdt", "dt0.1"])
+def test_fixed_point_has_no_float(tmp_path, synthetic_model, dt_s):
+    files = generate_c(synthetic_model, tmp_path, prefix="ecm", numeric="fixed", dt_s=dt_s)
+    for p in files:
+        if p.name.startswith("ecm_ecm.") and p.suffix in (".c", ".h"):
+            code = _strip_comments(p.read_text())
+            assert not re.search(r"\b(float|double)\b", code), p.name
+            assert not re.search(r"\d\.\d*[fF]?\b|\d[eE][-+]?\d", code), p.name  # no FP literal
+    # the whole translation unit after preprocessing, our files only (not libc headers)
+    pre = _cc(["-std=c99", "-E", "-I", tmp_path, tmp_path / "ecm_ecm.c"]).stdout
+    ours, keep = [], True
+    for line in pre.splitlines():
+        if line.startswith("# "):
+            keep = str(tmp_path) in line
+        elif keep:
+            ours.append(line)
+    tu = _strip_comments("\n".join(ours))
+    assert "ecmrt_q_step" in tu
+    assert not re.search(r"\b(float|double)\b", tu)
+    # the compiler agrees: x86-64 without SSE/x87 registers accepts it
+    proc = subprocess.run([*host_cc(), "-mgeneral-regs-only", "-x", "c", "-c", "-o", "/dev/null", "-"],
+                          input="int f(int a){return a;}\n", capture_output=True, text=True)
+    if proc.returncode != 0:
+        pytest.skip("compiler lacks -mgeneral-regs-only (not x86-64 gcc/clang)")
+    _cc([*STRICT_CFLAGS, "-O2", "-mgeneral-regs-only", "-I", tmp_path, "-c", tmp_path / "ecm_ecm.c",
+         "-o", tmp_path / "m.o"])
+
+
+def test_fixed_header_documents_q_formats(synthetic_model):
+    for dt_s in (None, 0.1):
+        spec = prepare(synthetic_model, numeric="fixed", dt_s=dt_s)
+        h = render(spec)["ecm_ecm.h"]
+        for key, val in spec.q.items():
+            if key in ("Q_K", "Q_RATE"):
+                continue
+            assert f"#define ECM_ECM_{key} {val}" in h, key
+        assert "Saturation:" in h and "Rounding:" in h and f"Q{spec.q['Q_I']}" in h
+        tables = [getattr(d, f) for d in spec.dirs for f in cref.PARAMS]
+        for arr in (spec.ocv, spec.ocv_grid.x, spec.ocv_grid.inv_dx, *tables):
+            assert arr.dtype == np.int64 and arr.min() >= 0 and arr.max() <= 2**31 - 1
+        # the formats use the range: each table's largest value has >= 30 significant bits
+        d = spec.dirs[0]
+        for f in ("r0", "r_fast", "r_slow"):
+            assert max(getattr(x, f).max() for x in spec.dirs) >= 2**30
+        assert d.grid.inv_dx.max() >= 2**30
+        rep = describe(spec)
+        assert rep["numeric"] == "fixed" and rep["q"] == spec.q
+
+
+def test_runtime_constants_match_python_reference():
+    q = (runtime_dir() / "ecmrt_q.h").read_text()
+    tab = re.search(r"exp2_tab\[8\] = \{([^}]*)\}", q).group(1)
+    assert tuple(int(v) for v in tab.replace("\n", " ").split(",")) == cref.Q_EXP2_TAB
+    poly = re.search(r"poly\[7\] = \{([^}]*)\}", q).group(1)
+    assert tuple(int(v) for v in poly.replace("\n", " ").split(",")) == cref.Q_POLY
+    assert cref.Q_EXP2_TAB == tuple(round(2**30 * 2 ** (-j / 8)) for j in range(8))
+    assert cref.Q_POLY == tuple(round((-1) ** k / math.factorial(k) * 2**30) for k in range(7))
+    assert f"((int64_t){cref.Q_LOG2E})" in q and f"((int64_t){cref.Q_LN2})" in q
+    assert f"((int64_t){cref.Q_XMAX26})" in q
+    f = _strip_comments((runtime_dir() / "ecmrt_f32.h").read_text())
+    lits = {np.float32(float(x)) for x in re.findall(r"(\d+\.\d*(?:e[-+]?\d+)?)f\b", f)}
+    for c in (cref.F_INVLN2, cref.F_LN2_HI, cref.F_LN2_LO, cref.F_HALF_LN2, cref.F_XMAX,
+              *cref.F_TAYLOR):
+        assert c in lits, c
+    assert "(x - fn * 0.693145752f) - fn * 1.42860677e-06f" in f
+
+
+def test_make_file_list(tmp_path, synthetic_model):
+    if shutil.which("make") is None:
+        pytest.skip("make not installed")
+    generate_c(synthetic_model, tmp_path / "gen", prefix="bms", numeric="fixed")
+    (tmp_path / "Makefile").write_text(
+        "include gen/bms_ecm_files.mk\n"
+        "show:\n\t@echo $(BMS_ECM_SRCS)\n\t@echo $(BMS_ECM_HDRS)\n\t@echo $(BMS_ECM_INC)\n")
+    out = subprocess.run(["make", "-s", "show"], cwd=tmp_path, capture_output=True, text=True,
+                         check=True).stdout.split("\n")
+    assert out[0] == "gen/bms_ecm.c"
+    assert out[1].split() == ["gen/bms_ecm.h", "gen/ecmrt.h", "gen/ecmrt_q.h"]
+    assert out[2] == "gen"
+    for p in [*out[0].split(), *out[1].split()]:
+        assert (tmp_path / p).exists()
+
+
+def test_report(tmp_path, synthetic_model):
+    files = generate_c(synthetic_model, tmp_path, prefix="ecm", numeric="fixed", dt_s=0.1)
+    rep = next(p for p in files if p.name.endswith("_report.md")).read_text()
+    assert synthetic_model.sha256() in rep and "| current i |" in rep and "dt = 0.1 s" in rep
+
+
+def test_generate_from_path(tmp_path, synthetic_model):
+    path = synthetic_model.save(tmp_path / "model.json")
+    files = generate_c(path, tmp_path / "out", numeric="float")
+    assert (tmp_path / "out" / "ecm_ecm.c").exists() and len(files) == 6
+
+
+# --- refusal ----------------------------------------------------------------------------
+
+def _broken(tmp_path, synthetic_model, how: str):
+    raw = synthetic_model.to_json_dict()
+    if how == "schema_version":
+        raw["schema_version"] = 99
+    elif how == "schema":
+        raw["schema"] = "something.else"
+    elif how == "missing_charge":
+        del raw["rc"]["charge"]
+    elif how == "missing_ocv":
+        del raw["ocv"]
+    elif how == "missing_r0":
+        del raw["rc"]["discharge"]["r0_ohm"]
+    elif how == "nan":
+        raw["rc"]["charge"]["r0_ohm"][3] = float("nan")
+    elif how == "inf":
+        raw["ocv"]["ocv_v"][2] = float("inf")
+    elif how == "short":
+        raw["rc"]["discharge"]["tau_slow_s"] = raw["rc"]["discharge"]["tau_slow_s"][:-1]
+    path = tmp_path / f"{how}.json"
+    path.write_text(json.dumps(raw))          # json writes NaN/Infinity tokens
+    return path
+
+
+@pytest.mark.parametrize("how,words", [
+    ("schema_version", "schema_version 99 is not supported"),
+    ("schema", "not an ecmgen model"),
+    ("missing_charge", "missing rc.charge"),
+    ("missing_ocv", "missing ocv"),
+    ("missing_r0", "missing rc.discharge.r0_ohm"),
+    ("nan", "non-finite"),
+    ("inf", "non-finite"),
+    ("short", "has 10 values, soc has 11"),
+])
+def test_bad_model_json_refused_before_any_file(tmp_path, synthetic_model, how, words):
+    path = _broken(tmp_path, synthetic_model, how)
+    out = tmp_path / "out"
+    with pytest.raises(InputError) as exc:
+        generate_c(path, out, numeric="fixed")
+    assert words in str(exc.value) and path.name in str(exc.value)
+    assert not out.exists()
+
+
+def test_bad_in_memory_model_refused(tmp_path, synthetic_model):
+    from dataclasses import replace
+
+    bad = replace(synthetic_model, charge=replace(synthetic_model.charge,
+                                                  r_slow_ohm=np.full(11, np.nan)))
+    with pytest.raises(InputError, match="rc.charge.r_slow_ohm has non-finite"):
+        generate_c(bad, tmp_path / "out")
+    bad = replace(synthetic_model, capacity_ah=float("inf"))
+    with pytest.raises(InputError, match="capacity_ah"):
+        generate_c(bad, tmp_path / "out")
+    bad = replace(synthetic_model, discharge=replace(synthetic_model.discharge,
+                                                     tau_fast_s=np.zeros(11)))
+    with pytest.raises(InputError, match="tau_fast_s"):
+        generate_c(bad, tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("kw,words", [
+    ({"prefix": "1cell"}, "prefix"), ({"prefix": "a-b"}, "prefix"), ({"prefix": ""}, "prefix"),
+    ({"numeric": "double"}, "numeric"), ({"dt_s": 0.0}, "dt_s"), ({"dt_s": -0.1}, "dt_s"),
+    ({"dt_s": float("nan")}, "dt_s"), ({"i_max_a": -1.0}, "i_max_a"),
+])
+def test_bad_options_refused(tmp_path, synthetic_model, kw, words):
+    with pytest.raises(InputError, match=words):
+        generate_c(synthetic_model, tmp_path / "out", **kw)
+    assert not (tmp_path / "out").exists()
+
+
+def test_single_point_tables_and_effects_note(synthetic_model):
+    from dataclasses import replace
+
+    from ecmgen.model import RcTable
+
+    one = RcTable(soc=np.array([0.5]), r0_ohm=np.array([0.02]), r_fast_ohm=np.array([0.01]),
+                  tau_fast_s=np.array([2.0]), r_slow_ohm=np.array([0.01]),
+                  tau_slow_s=np.array([50.0]), fit_error=np.zeros(1), converged=np.ones(1, bool))
+    m = replace(synthetic_model, charge=one)
+    spec = prepare(m, numeric="float")
+    assert spec.dirs[1].grid.n == 2 and np.all(spec.dirs[1].r0 == np.float32(0.02))
+
+
+def test_build_c_outputs_for_the_pipeline(tmp_path, synthetic_model):
+    """What pipeline._write_c calls: C per numeric under c/<numeric>/, and the "c" block."""
+    from types import SimpleNamespace
+
+    from ecmgen.codegen import build_c_outputs
+    from ecmgen.measure import TimeSeries
+    from ecmgen.simulate import simulate, validate
+
+    t = np.arange(4000) * 0.1
+    cur = np.where((t % 60) < 30, -3.0, 1.0)
+    v = simulate(synthetic_model, t, cur, 0.9).voltage_v + 0.002
+    val = validate(synthetic_model, TimeSeries(t, cur, v, source="cycle.csv"), soc0=0.9)
+    result = SimpleNamespace(models={"curve": synthetic_model}, best="curve",
+                             validations={"curve": {"cycle.csv": val}})
+    for dt_s in (None, 0.1):
+        cfg = SimpleNamespace(c_prefix="pk", c_numeric=("float", "fixed"), c_dt_s=dt_s)
+        out = tmp_path / f"out{dt_s}"
+        block = build_c_outputs(cfg, result, out)
+        assert set(block) == {"float", "fixed"}
+        for n, r in block.items():
+            assert r["bit_exact_vs_reference"] and r["cycle"] == "cycle.csv"
+            assert abs(r["mae_v"] - 0.002) < 2e-4 and r["max_abs_diff_vs_python_v"] < 1e-4
+            assert r["dir"] == f"c/{n}" and "c/" + n + "/pk_ecm.c" in r["files"]
+            rep = (out / "c" / n / "pk_ecm_report.md").read_text()
+            assert "| yes |" in rep
+        json.dumps(block)

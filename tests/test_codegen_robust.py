@@ -1,0 +1,255 @@
+"""Robustness of the generated C: SOC outside [0, 1], currents beyond the range, dt = 0 and
+huge dt, NaN/inf inputs, 10^7-step runs; saturation where the header says; and a build with
+-fsanitize=undefined,address (plus float-cast-overflow) driven through all of it."""
+
+from __future__ import annotations
+
+import functools
+import subprocess
+
+import numpy as np
+import pytest
+
+from ecmgen import cbuild, cref
+from ecmgen.codegen import generate_c
+from test_codegen_helpers import realistic_model
+
+VARIANTS = [("float", None), ("float", 0.1), ("fixed", None), ("fixed", 0.1)]
+VARIANT_IDS = ["float-vdt", "float-dt0.1", "fixed-vdt", "fixed-dt0.1"]
+
+
+@functools.lru_cache(maxsize=None)
+def _model():
+    return realistic_model(n_rc=20, seed=3)
+
+
+@functools.lru_cache(maxsize=None)
+def _cm(numeric, dt_s):
+    return cbuild.build(_model(), numeric=numeric, dt_s=dt_s, prefix="rb")
+
+
+@pytest.mark.parametrize("numeric,dt_s,n", [("float", None, 10**7), ("fixed", None, 10**7),
+                                            ("float", 0.1, 10**6), ("fixed", 0.1, 10**6)],
+                         ids=VARIANT_IDS)
+def test_long_random_runs_stay_finite_and_bounded(numeric, dt_s, n):
+    """Pseudo-random currents over the whole input range (float: up to 4x the limit and the
+    odd 1e30 A), random dt up to 10 s, n steps in a C loop."""
+    cm = _cm(numeric, dt_s)
+    r = cm.stress(n, seed=12345, soc0=None, dt_max=10.0)
+    assert r["bad"] == 0
+    v_lim = 2.0 ** (31 - cm.spec.q["Q_V"]) if numeric == "fixed" else 50.0
+    assert -v_lim <= r["v_min"] <= r["v_max"] <= v_lim
+    assert -2.0 <= r["soc_min"] <= r["soc_max"] <= 2.0
+    # the current saturates, so |v - ocv| <= i_lim * (r0 + r_fast + r_slow) at most
+    m = _model()
+    rmax = sum(max(np.max(getattr(t, k)) for t in (m.charge, m.discharge))
+               for k in ("r0_ohm", "r_fast_ohm", "r_slow_ohm"))
+    bound = cm.spec.i_lim_a * rmax * 1.001
+    assert r["v_max"] <= m.ocv.ocv_v[-1] + bound and r["v_min"] >= m.ocv.ocv_v[0] - bound
+
+
+@pytest.mark.parametrize("numeric,dt_s", VARIANTS, ids=VARIANT_IDS)
+def test_soc_saturates_where_the_header_says(numeric, dt_s):
+    cm = _cm(numeric, dt_s)
+    n = 200000
+    for sign in (1.0, -1.0):
+        cur = np.full(n, sign * 1000.0)            # beyond the current limit too
+        dts = np.full(n, 10.0)
+        i_n, dt_n, s0 = cm.native_inputs(cur, dts if dt_s is None else None, 0.5)
+        got = cm.trace_native(i_n, dt_n, s0)
+        if numeric == "float":
+            assert got.soc[-1] == np.float32(2.0 * sign)
+            assert np.all(np.isfinite(got.v))
+        else:
+            assert got.soc[-1] == (2**31 - 1 if sign > 0 else -(2**31))
+        assert np.all(np.diff(got.soc.astype(np.float64)) * sign >= 0)   # monotonic: no wrap
+        # the table ends hold beyond SOC 1 / 0: constant voltage once the RC states settle
+        assert got.v[-1] == got.v[-2]
+
+
+def test_float_input_sanitising():
+    cm = _cm("float", None)
+    lim = np.float32(cm.spec.i_lim_a)
+    base = np.array([-3.0, -3.0, 5.0, 0.0, -10.0], np.float32)
+    dts = np.full(5, 0.1, np.float32)
+
+    def run(i, dt, soc0=0.7):
+        return cm.trace_native(np.asarray(i, np.float32), np.asarray(dt, np.float32), soc0)
+
+    ref = run(base, dts)
+    nan_i = base.copy()
+    nan_i[3] = np.nan
+    assert np.array_equal(run(nan_i, dts).v, ref.v)                  # NaN A counts as 0 A
+    big = base.copy()
+    big[2] = np.inf
+    lim_i = base.copy()
+    lim_i[2] = lim
+    assert np.array_equal(run(big, dts).v, run(lim_i, dts).v)         # saturated at the limit
+    for bad_dt in (np.nan, -1.0, -np.inf):
+        d = dts.copy()
+        d[2] = bad_dt
+        z = dts.copy()
+        z[2] = 0.0
+        assert np.array_equal(run(base, d).v, run(base, z).v)         # counts as dt = 0
+    d = dts.copy()
+    d[2] = np.inf
+    m = dts.copy()
+    m[2] = 32767.0
+    assert np.array_equal(run(base, d).v, run(base, m).v)             # saturated dt
+    assert np.all(np.isfinite(run(base, dts, soc0=float("nan")).v))
+    d0 = dts.copy()
+    d0[0] = 0.0
+    assert run(base, d0, soc0=1e30).soc[0] == np.float32(2.0)        # soc0 saturated too
+    assert run(base, d0, soc0=float("nan")).soc[0] == np.float32(0.0)
+
+
+@pytest.mark.parametrize("numeric", ["float", "fixed"])
+def test_dt_zero_changes_nothing_but_the_direction(numeric):
+    cm = _cm(numeric, None)
+    cur = np.array([-5.0, -5.0, 3.0, 3.0, 0.0])
+    dts = np.array([0.0, 1.0, 0.0, 0.0, 0.0])
+    i_n, dt_n, s0 = cm.native_inputs(cur, dts, 0.5)
+    got = cm.trace_native(i_n, dt_n, s0)
+    assert got.u_fast[0] == 0 and got.u_slow[0] == 0 and got.soc[0] == s0
+    assert got.soc[1] != got.soc[0] and got.soc[1] == got.soc[2] == got.soc[3] == got.soc[4]
+    assert got.u_fast[2] == got.u_fast[1] and got.u_slow[4] == got.u_slow[1]
+    assert got.charging.tolist() == [0, 0, 1, 1, 1]
+
+
+def test_huge_dt_reaches_steady_state():
+    m = _model()
+    for numeric in ("float", "fixed"):
+        cm = _cm(numeric, None)
+        i_n, dt_n, s0 = cm.native_inputs([-4.0, -4.0], [0.0, 30000.0], 0.5)
+        got = cm.trace_native(i_n, dt_n, s0)
+        soc = float(got.soc[-1]) / (2**30 if numeric == "fixed" else 1.0)
+        p = m.discharge.at(soc)
+        scale = 2.0 ** -cm.spec.q["Q_V"] if numeric == "fixed" else 1.0
+        assert abs(got.u_fast[-1] * scale - p["r_fast_ohm"] * -4.0) < 2e-6
+        assert abs(got.u_slow[-1] * scale - p["r_slow_ohm"] * -4.0) < 2e-6
+
+
+@pytest.mark.parametrize("numeric", ["float", "fixed"])
+@pytest.mark.parametrize("soc0", [-0.3, 1.25])
+def test_soc_outside_table_matches_clamped_python(numeric, soc0):
+    cm = _cm(numeric, None)
+    rng = np.random.default_rng(4)
+    cur = rng.uniform(-3, 3, 3000)
+    t = np.arange(3000) * 0.1
+    v = cm.simulate(cur, cref.dt_from_time(t), soc0)
+    v64 = cbuild.python_voltage(_model(), t, cur, soc0)
+    assert np.max(np.abs(v - v64)) < (0.5e-3 if numeric == "float" else 2e-3)
+
+
+def test_currents_beyond_limit_equal_python_on_the_saturated_current():
+    for numeric in ("float", "fixed"):
+        cm = _cm(numeric, None)
+        lim = cm.spec.i_lim_a
+        cur = np.array([-3 * lim, -lim * 1.5, 2 * lim, 0.0, -lim])
+        t = np.arange(cur.size) * 0.01
+        v = cm.simulate(cur, cref.dt_from_time(t), 0.5)
+        v64 = cbuild.python_voltage(_model(), t, np.clip(cur, -lim, lim), 0.5)
+        assert np.max(np.abs(v - v64)) < 2e-3, numeric
+
+
+# --- sanitizer build ---------------------------------------------------------------------
+
+SAN_MAIN = r"""
+#include <stdio.h>
+#include <stdint.h>
+#include <float.h>
+#include "fv_ecm.h"
+#include "fd_ecm.h"
+#include "qv_ecm.h"
+#include "qd_ecm.h"
+
+static uint32_t rnd(uint32_t *x) { *x ^= *x << 13; *x ^= *x >> 17; *x ^= *x << 5; return *x; }
+static int bad_f(float v) { return !(v == v) || v > 1e6f || v < -1e6f; }
+static long fails = 0;
+
+int main(int argc, char **argv)
+{
+    static const float cur[] = {0.0f, 1e30f, -1e30f, FLT_MAX, -FLT_MAX, 1e-45f, -1e-45f,
+                                127.0f, -500.0f, 3.0f, -3.0f};
+    static const float dts[] = {0.0f, -1.0f, 1e-45f, 0.1f, 1e30f, FLT_MAX, 32767.0f};
+    static const float socs[] = {-1e30f, -2.5f, 0.0f, 0.5f, 1.0f, 3.0f, 1e30f};
+    static const int32_t qcur[] = {INT32_MIN, INT32_MAX, 0, 1, -1, 486539, -486539, 1 << 24};
+    static const int32_t qdts[] = {INT32_MIN, -1, 0, 1, 6554, INT32_MAX};
+    static const int32_t qsocs[] = {INT32_MIN, -1, 0, 1 << 29, 1 << 30, INT32_MAX};
+    const float nan = 0.0f / (argc > 99 ? 1.0f : 0.0f);   /* NaN without a constant fold warning */
+    const float inf = 1.0f / (argc > 99 ? 1.0f : 0.0f);
+    long n = argc > 1 ? atol(argv[1]) : 1000000L;
+    size_t a, b, c;
+    long k;
+    uint32_t x = 2463534242u;
+    int32_t lo = INT32_MAX, hi = INT32_MIN;
+    (void)argv;
+    for (a = 0; a < sizeof socs / sizeof socs[0]; a++)
+        for (b = 0; b < sizeof cur / sizeof cur[0]; b++)
+            for (c = 0; c < sizeof dts / sizeof dts[0]; c++) {
+                fv_state_t s; fd_state_t t;
+                int r;
+                fv_init(&s, socs[a]); fd_init(&t, socs[a]);
+                for (r = 0; r < 20; r++) {
+                    fails += bad_f(fv_step(&s, r % 3 ? cur[b] : -cur[b], dts[c]));
+                    fails += bad_f(fv_step(&s, nan, nan)) + bad_f(fv_step(&s, inf, inf));
+                    fails += bad_f(fv_step(&s, -inf, -inf));
+                    fails += bad_f(fd_step(&t, cur[b])) + bad_f(fd_step(&t, nan));
+                    fails += bad_f(fd_step(&t, -inf));
+                }
+            }
+    for (a = 0; a < sizeof qsocs / sizeof qsocs[0]; a++)
+        for (b = 0; b < sizeof qcur / sizeof qcur[0]; b++)
+            for (c = 0; c < sizeof qdts / sizeof qdts[0]; c++) {
+                qv_state_t s; qd_state_t t;
+                int r;
+                qv_init(&s, qsocs[a]); qd_init(&t, qsocs[a]);
+                for (r = 0; r < 20; r++) {
+                    int32_t v = qv_step(&s, r % 2 ? qcur[b] : -(qcur[b] + 1), qdts[c]);
+                    int32_t w = qd_step(&t, qcur[b]);
+                    if (v < lo) lo = v;
+                    if (v > hi) hi = v;
+                    (void)w;
+                }
+            }
+    {
+        fv_state_t s; fd_state_t t; qv_state_t q; qd_state_t u;
+        fv_init(&s, 0.5f); fd_init(&t, 0.5f); qv_init(&q, 1 << 29); qd_init(&u, 1 << 29);
+        for (k = 0; k < n; k++) {
+            const uint32_t r1 = rnd(&x), r2 = rnd(&x);
+            const float fi = (float)(int32_t)r1 * (1.0f / 8388608.0f);     /* +-256 A */
+            const float fdt = (float)(r2 >> 8) * (1.0f / 1677721.6f);     /* 0..10 s */
+            fails += bad_f(fv_step(&s, fi, fdt)) + bad_f(fd_step(&t, fi));
+            (void)qv_step(&q, (int32_t)r1, (int32_t)(r2 >> 13));
+            (void)qd_step(&u, (int32_t)r2);
+        }
+        printf("soc %g %g %ld %ld\n", (double)s.soc, (double)t.soc, (long)q.soc, (long)u.soc);
+    }
+    printf("fails %ld range %ld %ld\n", fails, (long)lo, (long)hi);
+    return fails != 0;
+}
+"""
+
+
+def test_sanitized_build_has_no_undefined_behaviour(tmp_path):
+    cc = cbuild.host_cc()
+    probe = subprocess.run([*cc, *cbuild.SANITIZE_FLAGS, "-x", "c", "-", "-o", tmp_path / "probe"],
+                           input="int main(void){return 0;}\n", capture_output=True, text=True)
+    if probe.returncode != 0:
+        pytest.skip(f"compiler cannot build with sanitizers: {probe.stderr.strip()[:200]}")
+    srcs = []
+    for prefix, (numeric, dt_s) in zip(("fv", "fd", "qv", "qd"), VARIANTS):
+        generate_c(_model(), tmp_path, prefix=prefix, numeric=numeric, dt_s=dt_s)
+        srcs.append(tmp_path / f"{prefix}_ecm.c")
+    (tmp_path / "main.c").write_text(SAN_MAIN.replace("#include <stdio.h>",
+                                                      "#include <stdio.h>\n#include <stdlib.h>"))
+    exe = tmp_path / "san"
+    flags = [f for f in cbuild.STRICT_CFLAGS if f != "-Werror"]
+    proc = subprocess.run([*cc, *flags, *cbuild.SANITIZE_FLAGS, "-O1", "-I", str(tmp_path),
+                           *map(str, srcs), str(tmp_path / "main.c"), "-o", str(exe)],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    run = subprocess.run([str(exe), "10000000"], capture_output=True, text=True, timeout=300)
+    assert "runtime error" not in run.stderr and "AddressSanitizer" not in run.stderr, run.stderr
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "fails 0" in run.stdout

@@ -1,0 +1,173 @@
+"""diagnose: the casadi model vs the simulator, the statistics, and small synthetic runs.
+
+The statistical sweep (10 random cells per effect) is bench/sweep_diagnose_synthetic.py;
+one cell per effect runs in test_diagnose_synthetic.py (marked slow)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from ecmgen import effects as fx
+from ecmgen.diagnose import (DiagnoseResult, _Problem, _specs, block_bootstrap_low, decimate,
+                             diagnose, noise_std, write_diagnose_outputs)
+from ecmgen.measure import TimeSeries
+from ecmgen.model import load_model
+from ecmgen.simulate import simulate
+from ecmgen.synthcell import random_cell
+
+
+def _cycle(seed=3, n=2500):
+    rng = np.random.default_rng(seed)
+    t = np.cumsum(np.where(rng.uniform(size=n) < 0.2, 0.5, 1.0))
+    t -= t[0]
+    i = np.repeat(rng.normal(-1.0, 3.0, n // 25), 25)[:n]
+    i[600:800] = 0.0
+    i[1200:1500] = 1.5
+    temp = 25.0 + 5.0 * t / t[-1]
+    return t, i, temp
+
+
+def test_casadi_model_equals_the_simulator_and_its_jacobian(synthetic_model):
+    """The fit's casadi model (forward sensitivities) is the simulator, exactly."""
+    t, i, temp = _cycle()
+    effects = [
+        fx.ExtraRc(r_ohm=0.01, tau_s=500.0),
+        fx.Hysteresis(m_v=0.02, decay_ah=0.1, m0_v=0.003, ocv_table_state=0.2,
+                      initial_state=0.4),
+        fx.CurrentDependentResistance(scale_at_zero=1.2, i0_a=2.5),
+        fx.CapacityError(capacity_scale=0.95),
+        fx.TemperatureDependence(activation_k=3000.0, t_ref_c=25.0),
+    ]
+    series = TimeSeries(t, i, np.zeros_like(t), temp, None, "x")
+    ctx = {"r_total_ohm": 0.04, "tau_min_s": 60.0, "tau_max_s": 5000.0}
+    layout = []
+    for e in effects:
+        specs = _specs(e.name, synthetic_model, ctx)
+        layout.append((e.name, e.params(), specs))
+    prob = _Problem(synthetic_model, series, 0.8, layout)
+    z = prob.z0()
+    v, jac = prob.simulate(z)
+    ref = simulate(synthetic_model.with_effects(effects), t, i, 0.8, temp).voltage_v
+    assert np.max(np.abs(v - ref)) < 1e-10
+    assert jac.shape == (t.size, len(prob.free))
+    for col in range(z.size):
+        h = 1e-6 * max(1.0, abs(z[col]))
+        zp, zm = z.copy(), z.copy()
+        zp[col] += h
+        zm[col] -= h
+        fd = (prob.simulate(zp)[0] - prob.simulate(zm)[0]) / (2 * h)
+        scale = max(np.max(np.abs(fd)), 1e-9)
+        assert np.max(np.abs(fd - jac[:, col])) < 1e-4 * scale + 1e-9, prob.free[col][1]
+
+
+def test_block_bootstrap_separates_a_real_gain_from_noise():
+    rng = np.random.default_rng(0)
+    noise = rng.normal(0, 1e-3, 5000)
+    assert block_bootstrap_low(noise, 100, 0.99) < 0
+    assert block_bootstrap_low(noise + 5e-4, 100, 0.99) > 0
+
+
+def test_decimate_keeps_the_charge():
+    t, i, temp = _cycle(n=2000)
+    s = TimeSeries(t, i, 3.7 + 0.01 * i, temp, None, "x")
+    d = decimate(s, 4)
+    assert len(d) == 500
+    dt = np.diff(t, prepend=t[0])
+    ddt = np.diff(d.time_s, prepend=0.0)
+    ddt[0] = t[3] - t[0]
+    assert np.sum(d.current_a * ddt) == pytest.approx(np.sum(i * dt), rel=1e-12)
+    assert d.time_s[-1] == t[-1]
+
+
+def test_noise_estimate():
+    rng = np.random.default_rng(1)
+    t = np.arange(4000.0)
+    i = np.where((t // 500) % 2 == 0, 0.0, -2.0)
+    v = 3.7 + rng.normal(0, 1e-3, t.size)
+    s = TimeSeries(t, i, v, None, None, "x")
+    assert noise_std(s, 0.03) == pytest.approx(1e-3, rel=0.15)
+    # quantised to 2 mV: the MAD of the steps is 0, the estimate must not be
+    q = TimeSeries(t, i, np.round(v / 0.002) * 0.002, None, None, "x")
+    assert 2e-4 < noise_std(q, 0.03) < 3e-3
+
+
+@pytest.fixture(scope="module")
+def extra_rc_run():
+    cell = random_cell(21, "extra_rc")
+    return cell, diagnose(cell.base_model(), cell.drive_cycle())
+
+
+def test_names_a_hidden_slow_rc_and_the_held_out_error_falls(extra_rc_run):
+    cell, r = extra_rc_run
+    assert isinstance(r, DiagnoseResult)
+    assert r.effects and r.effects[0] == "extra_rc"
+    assert r.mae_after_v <= 0.6 * r.mae_before_v
+    st = r.steps[0]
+    assert st.mae_before_v == r.mae_before_v and st.mae_after_v < st.mae_before_v
+    assert st.ci_low_v > 0
+    hidden = cell.hidden.effects[0]
+    found = r.model.effects[0]
+    assert found.tau_s == pytest.approx(hidden.tau_s, rel=0.5)
+    # the held-out MAE is what validate-style simulation of the augmented model gives
+    j = r.judge_series
+    sim = simulate(r.model, j.time_s, j.current_a, r.judge_soc0, j.temperature_c)
+    e = sim.voltage_v[r.judge_start:] - j.voltage_v[r.judge_start:]
+    assert np.mean(np.abs(e)) == pytest.approx(r.mae_after_v, rel=1e-9)
+
+
+def test_outputs(extra_rc_run, tmp_path):
+    _, r = extra_rc_run
+    files = write_diagnose_outputs(r, tmp_path / "out")
+    names = {f.name for f in files}
+    assert {"model.json", "report.md", "diagnose.json", "diagnose-signatures.png",
+            "diagnose-comparison.png"} <= names
+    m = load_model(tmp_path / "out" / "model.json")
+    assert [e.name for e in m.effects] == list(r.effects)
+    d = json.loads((tmp_path / "out" / "diagnose.json").read_text())
+    assert d["effects"][0]["name"] == "extra_rc"
+    assert {"name", "mae_before_v", "mae_after_v"} <= set(d["effects"][0])
+    assert d["mae_after_v"] < d["mae_before_v"]
+    assert d["model"].endswith("model.json")
+    text = (tmp_path / "out" / "report.md").read_text()
+    assert "extra_rc" in text and "Held-out MAE" in text
+    for png in ("diagnose-signatures.png", "diagnose-comparison.png"):
+        assert (tmp_path / "out" / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    json.dumps(r.to_json_dict("m.json"), allow_nan=False)
+
+
+def test_a_cell_without_hidden_effect_gets_nothing(tmp_path):
+    cell = random_cell(5, None)
+    r = diagnose(cell.base_model(), cell.drive_cycle())
+    assert r.effects == ()
+    assert r.mae_after_v == r.mae_before_v
+    assert r.model.effects == ()
+    d = r.to_json_dict()
+    assert d["effects"] == [] and d["mae_before_v"] == d["mae_after_v"]
+    write_diagnose_outputs(r, tmp_path, plots=False)
+    assert "Nothing is missing" in (tmp_path / "report.md").read_text()
+
+
+def test_second_cycle_as_judge_and_given_soc():
+    cell = random_cell(8, "hysteresis")
+    base = cell.base_model()
+    fit = cell.drive_cycle(seed=1)
+    judge = cell.drive_cycle(seed=2, soc_start=0.9)
+    r = diagnose(base, fit, judge, soc0=0.95, judge_soc0=0.9)
+    assert r.effects[:1] == ("hysteresis",)
+    assert r.judge_start == 0 and r.fit_stop == len(fit)
+    assert r.mae_after_v < 0.6 * r.mae_before_v
+    assert "all of" in r.split
+
+
+def test_candidates_can_be_restricted_and_bad_names_fail(synthetic_model):
+    cell = random_cell(9, "capacity_error")
+    base = cell.base_model()
+    cyc = cell.drive_cycle()
+    r = diagnose(base, cyc, candidates=("extra_rc", "capacity_error"))
+    assert {c.name for c in r.candidates} <= {"extra_rc", "capacity_error"}
+    assert r.effects[:1] == ("capacity_error",)
+    with pytest.raises(ValueError, match="unknown effect"):
+        diagnose(base, cyc, candidates=("bogus",))

@@ -1,0 +1,89 @@
+"""diagnose on the real data in ../shared/data (skipped when it is not there)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import CALCE, PANASONIC, need
+from ecmgen.diagnose import diagnose
+from ecmgen.measure import read_timeseries
+from ecmgen.model import EcmModel, RcTable
+from ecmgen.simulate import validate
+
+pytestmark = pytest.mark.slow
+
+
+def _flat_table(r0, rf, tf, rs, ts) -> RcTable:
+    soc = np.array([0.0, 1.0])
+    return RcTable(soc=soc, r0_ohm=np.full(2, r0), r_fast_ohm=np.full(2, rf),
+                   tau_fast_s=np.full(2, tf), r_slow_ohm=np.full(2, rs),
+                   tau_slow_s=np.full(2, ts), fit_error=np.zeros(2), converged=np.ones(2, bool))
+
+
+def test_lfp_names_hysteresis():
+    """A123 LFP (CALCE): OCV from the charge branch of the C/22 test (another cell), 2RC
+    from rough values. The LFP charge/discharge hysteresis is what the model misses."""
+    from ecmgen.ocv import ocv_from_low_rate
+
+    data = need(CALCE)
+    cycle = read_timeseries(data / "dynamics-dst-us06-fuds.csv", capacity_ah=1.1)
+    low = read_timeseries(data / "ocv-charge-c22.csv", capacity_ah=1.1)
+    q = float(low.coulomb_ah()[-1])                  # 1.05 Ah charged from 2.59 to 3.60 V
+    ocv, _ = ocv_from_low_rate(low, q, branch="charge")
+    # Rough 2RC: least squares on the sample-to-sample voltage changes of the DST part
+    # (differences cancel OCV and hysteresis offsets): r0 0.170, r_fast 0.005 (1.6 s),
+    # r_slow 0.041 ohm (32 s); constant over SOC.
+    table = _flat_table(0.170, 0.005, 1.6, 0.041, 32.0)
+    base = EcmModel(capacity_ah=q, ocv=ocv, charge=table, discharge=table, method="rough",
+                    direction_deadband_a=0.01 * q)
+    # the record starts rested and its first 1 C discharge ends at the 2.0 V cut-off (empty)
+    ah = cycle.coulomb_ah()
+    soc0 = float(-ah[:400].min() / q)
+    r = diagnose(base, cycle, soc0=soc0)
+    print(r.to_json_dict())
+    assert r.effects[:1] == ("hysteresis",)
+    assert r.mae_after_v < 0.6 * r.mae_before_v
+    h = r.model.effects[0]
+    assert h.m_v > 0.01                               # tens of mV, as LFP shows
+    assert h.ocv_table_state > 0.5                    # the OCV table is the charge branch
+
+
+def _panasonic_base(tmp_path):
+    """The 10 s-pulse model: pipeline whole-curve fit limited to the 10 s pulses, OCV from
+    the discharge branch of the C/20 test (its charge branch was logged months later)."""
+    from ecmgen.config import load_config
+    from ecmgen.pipeline import fit_models, prepare
+
+    data = need(PANASONIC)
+    cfg = tmp_path / "cell.toml"
+    cfg.write_text(f"""
+[cell]
+capacity_ah = 2.9
+[data]
+pulses = "{data / 'hppc.mat'}"
+ocv = "{data / 'ocv-c20.mat'}"
+ocv_branch = "discharge"
+cycle = "{data / 'us06.mat'}"
+[fit]
+methods = ["curve"]
+relax_s = 10.0
+""")
+    c = load_config(cfg)
+    models, _ = fit_models(c, prepare(c))
+    return models["curve"]
+
+
+def test_panasonic_us06_judged_on_hwfet(tmp_path):
+    base = _panasonic_base(tmp_path)
+    us06 = read_timeseries(PANASONIC / "us06.mat", capacity_ah=2.9)
+    hwfet = read_timeseries(PANASONIC / "hwfet-a.mat", capacity_ah=2.9)
+    r = diagnose(base, us06, hwfet)
+    d = r.to_json_dict()
+    print({k: d[k] for k in ("effects", "mae_before_v", "mae_after_v")})
+    assert r.mae_before_v > 0.025                    # the 10 s-pulse model: ~40 mV
+    assert r.effects, "nothing found"
+    assert "extra_rc" in r.effects                   # minutes-long polarisation
+    assert r.mae_after_v <= 0.015
+    # validate gives the same number on the augmented model
+    assert validate(r.model, hwfet).overall.mae_v == pytest.approx(r.mae_after_v, rel=1e-9)

@@ -1,0 +1,112 @@
+"""Generated C on Cortex-M: strict cross-compilation, size, no floating point in the fixed
+variant, and bit-for-bit equality with the host under QEMU on a real drive cycle.
+
+Needs gcc-arm-none-eabi, libnewlib-arm-none-eabi and qemu-system-arm (installed by .ci/run);
+without them every test here is skipped with the reason and the install command."""
+
+from __future__ import annotations
+
+import functools
+
+import pytest
+
+from ecmgen import target
+from ecmgen.codegen import prepare
+from test_codegen_helpers import cycle, panasonic_model, realistic_model, soc0_of
+
+pytestmark = pytest.mark.target
+
+VARIANTS = [("float", None), ("float", 0.1), ("fixed", None), ("fixed", 0.1)]
+VARIANT_IDS = ["float-vdt", "float-dt0.1", "fixed-vdt", "fixed-dt0.1"]
+
+
+def _need(qemu: bool = False):
+    reason = target.skip_reason(qemu=qemu)
+    if reason:
+        pytest.skip(reason)
+
+
+@functools.lru_cache(maxsize=None)
+def _model20():
+    """The bench's table size: 20 RC breakpoints per direction."""
+    return realistic_model(n_rc=20, seed=3)
+
+
+def test_skip_message_names_the_install_command(monkeypatch):
+    import shutil
+
+    monkeypatch.setattr(shutil, "which", lambda name: None)
+    msg = target.skip_reason()
+    assert "arm-none-eabi-gcc" in msg and "qemu-system-arm" in msg
+    assert "apt-get install gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm" in msg
+
+
+@pytest.mark.parametrize("numeric,dt_s", VARIANTS, ids=VARIANT_IDS)
+@pytest.mark.parametrize("opt", ["-Os", "-O2"])
+def test_cortex_m4f_strict_build_without_warnings(tmp_path, numeric, dt_s, opt):
+    _need()
+    obj = target.cross_compile(prepare(_model20(), numeric=numeric, dt_s=dt_s), tmp_path,
+                               cpu="m4f", opt=opt)
+    assert obj.warnings == ""
+    sz = target.sizes(obj.obj)
+    assert sz["code"] < 2048, sz                       # target: < 2 KiB of code
+    assert sz["data"] == 0 and sz["bss"] == 0, sz      # no mutable globals: RAM is the caller's
+    undefined = target.undefined_symbols(obj.obj)
+    if numeric == "float":
+        assert undefined == []                          # no libm, no soft-float helper
+        assert target.float_instructions(obj.obj)       # ... because the FPU does the work
+    else:
+        assert target.float_instructions(obj.obj) == []
+        assert target.float_helpers(obj.obj) == []
+        assert set(undefined) <= {"__aeabi_ldivmod", "__aeabi_uldivmod", "__aeabi_lmul"}
+
+
+@pytest.mark.parametrize("cpu", ["m0", "m3"])
+@pytest.mark.parametrize("dt_s", [None, 0.1], ids=["vdt", "dt0.1"])
+def test_soft_float_cores_fixed_point_has_no_float(tmp_path, cpu, dt_s):
+    _need()
+    obj = target.cross_compile(prepare(_model20(), numeric="fixed", dt_s=dt_s), tmp_path, cpu=cpu)
+    assert obj.warnings == ""
+    assert target.float_helpers(obj.obj) == [], "soft-float routines referenced"
+    assert target.float_instructions(obj.obj) == []
+    sz = target.sizes(obj.obj)
+    assert sz["code"] < 2048 and sz["data"] == 0 and sz["bss"] == 0, sz
+
+
+def test_float_variant_on_soft_float_core_would_need_helpers(tmp_path):
+    """Sanity check of the detector: float code on an M0 calls the soft-float library."""
+    _need()
+    obj = target.cross_compile(prepare(_model20(), numeric="float"), tmp_path, cpu="m0")
+    assert target.float_helpers(obj.obj)
+
+
+@pytest.mark.slow
+def test_qemu_cortex_m4_bit_exact_on_real_cycle(tmp_path):
+    """>= 10 000 steps of the US06 record on an emulated Cortex-M4F: the four variants (linked
+    together into one image) give the host's outputs and SOC bit for bit."""
+    _need(qemu=True)
+    model = panasonic_model()
+    s = cycle("us06.mat")
+    soc0 = soc0_of(model, s)
+    a, b = 0, 12000
+    # start at the record's beginning so soc0 (from the rested first sample) holds
+    res = target.qemu_equivalence(model, s.time_s[a:b], s.current_a[a:b], soc0, cpu="m4f",
+                                  out_dir=tmp_path)
+    print("\n", res)
+    assert set(res["variants"]) == {"float/variable-dt", "float/dt=0.1", "fixed/variable-dt",
+                                    "fixed/dt=0.1"}
+    for name, r in res["variants"].items():
+        assert r["steps"] >= 10000 and r["bit_exact"], (name, r)
+
+
+@pytest.mark.slow
+def test_qemu_cortex_m3_soft_float_fixed_bit_exact(tmp_path):
+    _need(qemu=True)
+    model = panasonic_model()
+    s = cycle("hwfet-a.mat")
+    soc0 = soc0_of(model, s)
+    res = target.qemu_equivalence(model, s.time_s[:10000], s.current_a[:10000], soc0, cpu="m3",
+                                  out_dir=tmp_path)
+    assert set(res["variants"]) == {"fixed/variable-dt", "fixed/dt=0.1"}
+    for name, r in res["variants"].items():
+        assert r["steps"] == 10000 and r["bit_exact"], (name, r)
