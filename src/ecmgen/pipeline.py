@@ -96,9 +96,12 @@ def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
         if soc0 is None and ocv is not None:
             from .simulate import rested_soc
 
-            soc0 = rested_soc(ocv, q, series)
-            notes.append(f"pulse test start SOC {soc0:.3f} from the OCV of its first rested "
-                         "voltage (set data.pulses_soc0 to override)")
+            try:
+                soc0 = rested_soc(ocv, q, series)
+                notes.append(f"pulse test start SOC {soc0:.3f} from the OCV of its first "
+                             "rested voltage (set data.pulses_soc0 to override)")
+            except InputError:
+                soc0 = 1.0  # a record that never rests has no pulses: find_pulses says so
         elif soc0 is None:
             soc0 = 1.0
             notes.append("pulse test assumed to start at SOC 1.0 (set data.pulses_soc0)")
