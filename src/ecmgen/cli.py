@@ -102,9 +102,26 @@ def cmd_validate(args) -> int:
 
 
 def cmd_diagnose(args) -> int:
-    from .diagnose_cli import run_diagnose
+    from .config import load_config
+    from .pipeline import run_diagnose
 
-    return run_diagnose(args)
+    cfg = load_config(args.config)
+    out = Path(args.out) if args.out else cfg.path.parent / "ecmgen-diagnose"
+    result, out_dir, files = run_diagnose(cfg, out, _progress(not args.quiet),
+                                          plots=not args.no_plots)
+    if args.json:
+        print(json.dumps(result.to_json_dict(out_dir / "model.json"), indent=1))
+    else:
+        if result.steps:
+            for s in result.steps:
+                print(f"added {s.name}: held-out MAE {s.mae_before_v * 1e3:.2f} -> "
+                      f"{s.mae_after_v * 1e3:.2f} mV")
+        else:
+            print("nothing is missing: no effect lowered the held-out error by more than "
+                  "noise can explain")
+        print(f"held-out MAE {result.mae_before_v * 1e3:.2f} mV -> "
+              f"{result.mae_after_v * 1e3:.2f} mV; wrote {len(files)} files to {out_dir}")
+    return 0
 
 
 def parser() -> argparse.ArgumentParser:
@@ -149,6 +166,7 @@ def parser() -> argparse.ArgumentParser:
     g.add_argument("--out")
     g.add_argument("--json", action="store_true")
     g.add_argument("--quiet", action="store_true")
+    g.add_argument("--no-plots", action="store_true")
     g.set_defaults(func=cmd_diagnose)
     return p
 

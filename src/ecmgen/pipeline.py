@@ -312,3 +312,48 @@ def _commit(staging: Path, out_dir: Path, given: set[Path]) -> list[Path]:
         dst.parent.mkdir(parents=True, exist_ok=True)
         shutil.move(str(src), str(dst))
     return targets
+
+
+def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
+                 plots: bool = True):
+    """`diagnose` from a build config: fit the base model (method ``fit.best``), look for
+    missing effects on ``data.cycle`` (judged on ``[diagnose] judge`` or on the held-out
+    end of the cycle), and write the augmented model, plots and report into out_dir."""
+    from .diagnose import diagnose, diagnose_options, write_diagnose_outputs
+
+    options = diagnose_options(cfg.raw.get("diagnose"), cfg.path)
+    judge_name = options.pop("judge")
+    if cfg.cycle is None:
+        raise InputError(cfg.path, "diagnose needs data.cycle (the record to diagnose on)")
+    judge_path = None
+    if judge_name is not None:
+        judge_path = (cfg.path.resolve().parent / judge_name).resolve()
+        if not judge_path.is_file():
+            raise InputError(cfg.path, f"diagnose.judge names a missing file: {judge_name}")
+    out_dir = Path(out_dir).resolve()
+    given = {p.resolve() for p in (cfg.path, cfg.pulses, cfg.dcir, cfg.ocv, cfg.cycle,
+                                   judge_path, *cfg.extra_cycles) if p is not None}
+    inputs = prepare(cfg, progress)
+    fit_cfg = cfg if cfg.methods == (cfg.best,) else _only_method(cfg, cfg.best)
+    models, _ = fit_models(fit_cfg, inputs, progress)
+    base = models[cfg.best]
+    fit_series = read_series(cfg, cfg.cycle)
+    judge = read_series(cfg, judge_path) if judge_path is not None else None
+    result = diagnose(base, fit_series, judge, soc0=cfg.soc0, progress=progress, **options)
+
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=".ecmgen-staging-", dir=out_dir.parent))
+    try:
+        base.save(staging / "model-base.json")
+        write_diagnose_outputs(result, staging, plots=plots)
+        files = _commit(staging, out_dir, given)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return result, out_dir, files
+
+
+def _only_method(cfg: BuildConfig, method: str) -> BuildConfig:
+    from dataclasses import replace
+
+    # LM starts from the GA result, so it needs the GA too
+    return replace(cfg, methods=("ga", "lm") if method == "lm" else (method,))
