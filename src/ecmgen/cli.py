@@ -64,8 +64,7 @@ def cmd_fit(args) -> int:
 
     cfg = load_config(args.config)
     if args.method:
-        cfg = replace(cfg, methods=(args.method,) if args.method != "lm" else ("ga", "lm"),
-                      best=args.method)
+        cfg = replace(cfg, methods=(args.method,), best=args.method)
     progress = _progress(not args.quiet)
     models, _ = fit_models(cfg, prepare(cfg, progress), progress)
     out = Path(args.out)

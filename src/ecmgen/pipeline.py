@@ -200,11 +200,14 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
         rows, n = point_rows(inputs.dcir, cfg.c_rate)
         raw["point_table"] = rows
         fits = {}
-        progress(f"GA fit of {len(rows)} table cells (seed {cfg.seed})")
-        fits["ga"] = fit_points.fit_ga(rows.t_s, rows.r_ohm, seed=cfg.seed)
+        if "ga" in point_methods:
+            progress(f"GA fit of {len(rows)} table cells (seed {cfg.seed})")
+            fits["ga"] = fit_points.fit_ga(rows.t_s, rows.r_ohm, seed=cfg.seed)
         if "lm" in point_methods:
-            progress("Levenberg-Marquardt fit (casadi Jacobian), started from the GA result")
-            fits["lm"] = fit_points.fit_lm(rows.t_s, rows.r_ohm, x0=fits["ga"])
+            # on its own (multi-start), as the paper compares the two methods; started
+            # from the GA it would keep the GA's Eq.-5 optimum (fit_lm's guarantee)
+            progress("Levenberg-Marquardt fit (casadi Jacobian, multi-start)")
+            fits["lm"] = fit_points.fit_lm(rows.t_s, rows.r_ohm)
         for m in point_methods:
             f = fits[m]
             cols = {k: getattr(f, k) for k in ("r0_ohm", "r_fast_ohm", "tau_fast_s",
@@ -355,5 +358,4 @@ def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _qu
 def _only_method(cfg: BuildConfig, method: str) -> BuildConfig:
     from dataclasses import replace
 
-    # LM starts from the GA result, so it needs the GA too
-    return replace(cfg, methods=("ga", "lm") if method == "lm" else (method,))
+    return replace(cfg, methods=(method,))
