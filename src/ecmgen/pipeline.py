@@ -10,6 +10,7 @@ from __future__ import annotations
 import shutil
 import sys
 import tempfile
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -270,9 +271,7 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
                          point_table=raw.get("point_table"))
     result.validations = validate_all(cfg, models, progress)
 
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=".ecmgen-staging-", dir=out_dir.parent))
-    try:
+    with _staged(out_dir, given) as (staging, files):
         inputs.dcir.write_csv(staging / "dcir.csv")
         for m, model in models.items():
             model.save(staging / f"model-{m}.json")
@@ -287,9 +286,7 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
         from .report import write_build_report
 
         write_build_report(cfg, result, staging)
-        result.files = _commit(staging, out_dir, given)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
+    result.files = files
     result.out_dir = out_dir
     return result
 
@@ -301,6 +298,20 @@ def _write_c(cfg: BuildConfig, result: BuildResult, staging: Path, progress: Pro
     except ImportError:
         return None
     return codegen.build_c_outputs(cfg, result, staging, progress)
+
+
+@contextmanager
+def _staged(out_dir: Path, given: set[Path]):
+    """Yield (staging folder, list of final paths); on success the staged files move into
+    out_dir (the list is filled), on any error nothing reaches out_dir."""
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=".ecmgen-staging-", dir=out_dir.parent))
+    files: list[Path] = []
+    try:
+        yield staging, files
+        files.extend(_commit(staging, out_dir, given))
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
 
 
 def _commit(staging: Path, out_dir: Path, given: set[Path]) -> list[Path]:
@@ -344,14 +355,9 @@ def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _qu
     judge = read_series(cfg, judge_path) if judge_path is not None else None
     result = diagnose(base, fit_series, judge, soc0=cfg.soc0, progress=progress, **options)
 
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=".ecmgen-staging-", dir=out_dir.parent))
-    try:
+    with _staged(out_dir, given) as (staging, files):
         base.save(staging / "model-base.json")
         write_diagnose_outputs(result, staging, plots=plots)
-        files = _commit(staging, out_dir, given)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
     return result, out_dir, files
 
 
