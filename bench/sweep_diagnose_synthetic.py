@@ -74,8 +74,8 @@ def main(argv=None) -> int:
         for r in rs:
             wrong = (r["named"] != [] if e is None else (not r["named"] or r["named"][0] != e))
             if wrong or (e is not None and r["drop"] < 0.4):
-                print(f"    seed {r['seed']}: named {r['named']} MAE {1e3 * r['mae_before_v']:.2f} -> "
-                      f"{1e3 * r['mae_after_v']:.2f} mV")
+                print(f"    seed {r['seed']}: named {r['named']} MAE "
+                      f"{1e3 * r['mae_before_v']:.2f} -> {1e3 * r['mae_after_v']:.2f} mV")
     print(f"total {time.perf_counter() - t0:.0f} s for {len(rows)} cells")
     if args.json:
         with open(args.json, "w") as fh:

@@ -171,3 +171,21 @@ def test_candidates_can_be_restricted_and_bad_names_fail(synthetic_model):
     assert r.effects[:1] == ("capacity_error",)
     with pytest.raises(ValueError, match="unknown effect"):
         diagnose(base, cyc, candidates=("bogus",))
+
+
+def test_config_section_options():
+    from ecmgen.diagnose import diagnose_options
+    from ecmgen.errors import InputError
+
+    assert diagnose_options(None) == {"judge": None}
+    o = diagnose_options({"judge": "hwfet-a.mat", "split": 0.5, "effects": ["extra_rc"],
+                          "max_effects": 2, "confidence": 0.95, "judge_soc0": 1.0,
+                          "min_rel_gain": 0.1}, "c.toml")
+    assert o == {"judge": "hwfet-a.mat", "split": 0.5, "candidates": ("extra_rc",),
+                 "max_effects": 2, "confidence": 0.95, "judge_soc0": 1.0, "min_rel_gain": 0.1}
+    for bad, words in (({"splitt": 0.5}, "unknown key"), ({"split": 2.0}, "diagnose.split"),
+                       ({"effects": ["x"]}, "diagnose.effects"),
+                       ({"max_effects": 1.5}, "integer"), ({"judge": 3}, "file name")):
+        with pytest.raises(InputError, match=words) as err:
+            diagnose_options(bad, "c.toml")
+        assert str(err.value).startswith("c.toml: ")

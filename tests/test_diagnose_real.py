@@ -49,33 +49,25 @@ def test_lfp_names_hysteresis():
     assert h.ocv_table_state > 0.5                    # the OCV table is the charge branch
 
 
-def _panasonic_base(tmp_path):
-    """The 10 s-pulse model: pipeline whole-curve fit limited to the 10 s pulses, OCV from
-    the discharge branch of the C/20 test (its charge branch was logged months later)."""
-    from ecmgen.config import load_config
-    from ecmgen.pipeline import fit_models, prepare
+def _panasonic_base():
+    """A 10 s-pulse model: each HPPC pulse fitted with 10 s of relaxation
+    (ecmgen.synthcell.fit_pulses), parameters averaged over the C-rates of a pulse set;
+    OCV from the discharge branch of the C/20 test (its charge branch was logged months
+    later and is off by tens of mV)."""
+    from ecmgen.ocv import ocv_from_low_rate
+    from ecmgen.synthcell import fit_pulses
 
     data = need(PANASONIC)
-    cfg = tmp_path / "cell.toml"
-    cfg.write_text(f"""
-[cell]
-capacity_ah = 2.9
-[data]
-pulses = "{data / 'hppc.mat'}"
-ocv = "{data / 'ocv-c20.mat'}"
-ocv_branch = "discharge"
-cycle = "{data / 'us06.mat'}"
-[fit]
-methods = ["curve"]
-relax_s = 10.0
-""")
-    c = load_config(cfg)
-    models, _ = fit_models(c, prepare(c))
-    return models["curve"]
+    hppc = read_timeseries(data / "hppc.mat", capacity_ah=2.9)
+    low = read_timeseries(data / "ocv-c20.mat", capacity_ah=2.9)
+    ocv, _ = ocv_from_low_rate(low, 2.9, branch="discharge")
+    charge, discharge = fit_pulses(hppc, ocv, 2.9, relax_s=10.0)
+    return EcmModel(capacity_ah=2.9, ocv=ocv, charge=charge, discharge=discharge,
+                    method="pulses-10s", direction_deadband_a=0.029)
 
 
-def test_panasonic_us06_judged_on_hwfet(tmp_path):
-    base = _panasonic_base(tmp_path)
+def test_panasonic_us06_judged_on_hwfet():
+    base = _panasonic_base()
     us06 = read_timeseries(PANASONIC / "us06.mat", capacity_ah=2.9)
     hwfet = read_timeseries(PANASONIC / "hwfet-a.mat", capacity_ah=2.9)
     r = diagnose(base, us06, hwfet)

@@ -10,14 +10,19 @@
    ``current_dependent_resistance``, against low-pass-filtered current for ``extra_rc``,
    against Ah throughput for ``capacity_error``, against temperature for
    ``temperature_dependence``);
-3. greedily, one effect at a time: add each remaining candidate, refit the parameters of
-   all added effects on the fit part (casadi forward sensitivities of the discrete step
-   of :mod:`ecmgen.effects`, trust-region Gauss-Newton), and judge every candidate on
+3. greedily, one effect at a time: add each remaining candidate, fit its parameters on
+   the fit part (least squares on the voltage time series with a soft-L1 loss; casadi
+   forward sensitivities of the discrete step of :mod:`ecmgen.effects` give the exact
+   Jacobian, scipy's bounded trust-region Gauss-Newton the steps; a few starts from
+   the signature regressions for the nonconvex shape parameters), and judge every candidate on
    the held-out part, simulated at full resolution with :func:`ecmgen.simulate.simulate`.
-   The best candidate is kept only if the held-out MAE falls by at least
-   ``min_rel_gain`` and by more than noise explains (the lower ``confidence`` bound of a
-   circular block bootstrap of the per-sample gain |e_before| - |e_after| must be above
-   ``min_gain_v``); otherwise the search stops.
+   A candidate passes when the held-out MAE falls by at least ``min_rel_gain`` (relative),
+   by at least ``min_gain_noise`` times the voltage noise (estimated from the rests) and
+   by more than noise explains: the lower ``confidence`` bound of a circular block
+   bootstrap of the per-sample gain |e_before| - |e_after| must be positive. Of the
+   passing candidates the one with the lowest MAE over all the data (fit and held-out
+   parts) is added, and all added effects are refitted jointly; when none passes, the
+   search stops and nothing more is named.
 
 The held-out part is ``judge_series`` when given (a second cycle), else the last
 ``1 - split`` of the fit cycle's duration (the model is simulated over the whole cycle;
@@ -438,8 +443,9 @@ class _Problem:
             cols["soc"] = soc
             cols["d_ocv"] = _interp_slope(soc, m.ocv.soc, m.ocv.ocv_v)
             for k in RC_KEYS:
-                cols["d_" + k] = np.where(ch, _interp_slope(soc, m.charge.soc, getattr(m.charge, k)),
-                                          _interp_slope(soc, m.discharge.soc, getattr(m.discharge, k)))
+                dc = _interp_slope(soc, m.charge.soc, getattr(m.charge, k))
+                dd = _interp_slope(soc, m.discharge.soc, getattr(m.discharge, k))
+                cols["d_" + k] = np.where(ch, dc, dd)
         if self.has_temp:
             cols["temp"] = self.temp
         return np.vstack([cols[r] for r in self.rows])
@@ -642,18 +648,33 @@ def _mae(e: np.ndarray) -> float:
     return float(np.mean(np.abs(e))) if e.size else float("nan")
 
 
-def diagnose(base_model: EcmModel, fit_series: TimeSeries, judge_series: TimeSeries | None = None,
-             soc0: float | None = None, judge_soc0: float | None = None, *,
-             split: float = 0.6, candidates=fx.EFFECT_NAMES, max_effects: int = 4,
-             min_rel_gain: float = 0.08, min_gain_noise: float = 1.0, min_gain_v: float = 2e-4,
-             confidence: float = 0.99,
+def diagnose(base_model: EcmModel, fit_series: TimeSeries,
+             judge_series: TimeSeries | None = None, soc0: float | None = None,
+             judge_soc0: float | None = None, *, split: float = 0.6,
+             candidates=fx.EFFECT_NAMES, max_effects: int = 4, min_rel_gain: float = 0.08,
+             min_gain_noise: float = 1.0, min_gain_v: float = 2e-4, confidence: float = 0.99,
              block_s: float | None = None, max_fit_samples: int = 12000, max_nfev: int = 40,
-             loss_scale_v: float | None = None, seed: int = 0, progress: Callable[[str], None] | None = None) -> DiagnoseResult:
+             loss_scale_v: float | None = None, seed: int = 0,
+             progress: Callable[[str], None] | None = None) -> DiagnoseResult:
     """Find the effects missing from ``base_model`` on ``fit_series`` (see module doc).
 
-    soc0 / judge_soc0: start SOC of the cycles (default: from the OCV of the first rested
-    voltage, :func:`ecmgen.simulate.initial_soc`). ``split``: fraction of the fit cycle's
-    duration that is fitted when no judge series is given."""
+    judge_series     a second cycle to judge on; None: the last ``1 - split`` of the
+                     fit cycle's duration is held out
+    soc0, judge_soc0 start SOC of the cycles (default: from the OCV of the first rested
+                     voltage, :func:`ecmgen.simulate.initial_soc`)
+    candidates       effect names to try (default all five); effects already in
+                     ``base_model`` are kept as they are and not tried again
+    max_effects      at most this many effects are added
+    min_rel_gain, min_gain_noise, min_gain_v, confidence
+                     the held-out test (module doc); ``block_s`` is the bootstrap block
+                     length (default: 1/20 of the held-out duration, at least 60 s)
+    max_fit_samples  longer fit parts are block-averaged to this many samples for the
+                     parameter fits (judging is always at full resolution)
+    max_nfev         Gauss-Newton iterations per fit
+    loss_scale_v     scale of the soft-L1 loss of the fits (default: max(3 x noise,
+                     half the base MAE on the fit part, 1 mV))
+    progress         called with one line of text per step
+    Raises ValueError for unknown candidates, a bad split or too short records."""
     t_start = _time.perf_counter()
     say = progress or (lambda _m: None)
     unknown = [c for c in candidates if c not in fx.EFFECT_TYPES]
@@ -671,8 +692,9 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries, judge_series: TimeSer
         judge_start = fit_stop
         judge = fit_series
         judge_soc0 = soc0
-        split_words = (f"the last {100 * (1 - split):.0f} % of {Path(fit_series.source).name or 'the cycle'}"
-                       f" (from t = {t[fit_stop]:.0f} s; the first {100 * split:.0f} % was fitted)")
+        name = Path(fit_series.source).name or "the cycle"
+        split_words = (f"the last {100 * (1 - split):.0f} % of {name} (from t = "
+                       f"{t[fit_stop]:.0f} s; the first {100 * split:.0f} % was fitted)")
     else:
         fit_stop = len(fit_series)
         judge_start = 0
@@ -711,8 +733,7 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries, judge_series: TimeSer
         f"noise {noise * 1e3:.2f} mV")
 
     ctx = _context(base_model, fit_series, fit_stop)
-    rows_full = np.arange(fit_stop)
-    sigs = signatures(base_model, fit_series, base_fit_sim, rows_full, ctx)
+    sigs = signatures(base_model, fit_series, base_fit_sim, np.arange(fit_stop), ctx)
     existing = {e.name for e in base_model.effects}
     order = [n for n in sorted(sigs, key=lambda n: -sigs[n].r2)
              if n in candidates and sigs[n].applicable and n not in existing]
@@ -724,7 +745,8 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries, judge_series: TimeSer
     factor = max(1, int(math.ceil(fit_stop / max_fit_samples)))
     fit_data = decimate(fit_part, factor)
     rows = np.arange(len(fit_data))
-    f_scale = loss_scale_v if loss_scale_v is not None else max(3.0 * noise, 0.5 * fit_mae0, 1e-3)
+    f_scale = (loss_scale_v if loss_scale_v is not None
+               else max(3.0 * noise, 0.5 * fit_mae0, 1e-3))
 
     # effects already in the base model stay as they are (fixed parameters)
     fixed_effects = [(e.name, e.params(), {}) for e in base_model.effects]
@@ -737,6 +759,7 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries, judge_series: TimeSer
     judge_sim = base_judge_sim
     fit_mae_cur = fit_mae0
     rnd = 0
+
     def judged(effects):
         model = base_model.with_effects(effects)
         sj = sim_judge(model)
@@ -796,14 +819,19 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries, judge_series: TimeSer
             new = effects[-1]
             cands.append(Candidate(rnd, name, new, fit_mae1, mae1, gain, rel, low, ok,
                                    _time.perf_counter() - t0, why))
-            say(f"round {rnd} {name}: held-out MAE {mae1 * 1e3:.2f} mV (gain {gain * 1e3:.2f} mV, "
-                f"{100 * rel:.1f} %, lower bound {low * 1e3:.2f} mV) fit MAE {fit_mae1 * 1e3:.2f} mV"
-                f" [{_time.perf_counter() - t0:.1f} s] {new.summary()}")
+            say(f"round {rnd} {name}: held-out MAE {mae1 * 1e3:.2f} mV (gain "
+                f"{gain * 1e3:.2f} mV, {100 * rel:.1f} %, lower bound {low * 1e3:.2f} mV), "
+                f"fit MAE {fit_mae1 * 1e3:.2f} mV [{_time.perf_counter() - t0:.1f} s] "
+                f"{new.summary()}")
             tried.append((ok, mae1, name, vals, specs, model, sj, e1, low, fit_mae1))
         passing = [c for c in tried if c[0]]
         if not passing:
             break
-        _, mae1, name, vals, specs, model, sj, e1, low, fit_mae1 = min(passing, key=lambda c: c[1])
+        # of the candidates that pass the held-out test, the one with the lowest MAE over
+        # all the data (fit part and held-out part, weighted by their samples)
+        n_fit, n_judge = fit_stop, len(vj)
+        _, mae1, name, vals, specs, model, sj, e1, low, fit_mae1 = min(
+            passing, key=lambda c: (n_judge * c[1] + n_fit * c[9]) / (n_judge + n_fit))
         n_fixed = len(fixed_effects)
         new_added = [(n, v, sp) for (n, _, sp), v in
                      zip(added + [(name, None, specs)], vals[n_fixed:])]
@@ -838,7 +866,70 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries, judge_series: TimeSer
         judge_series=judge, fit_stop=fit_stop, judge_start=judge_start, soc0=soc0,
         judge_soc0=judge_soc0, base_fit_sim=base_fit_sim, base_judge_sim=base_judge_sim,
         judge_sim=judge_sim, seconds=_time.perf_counter() - t_start,
-        notes=(f"fit on {len(fit_data)} samples (block averages of {factor})",) if factor > 1 else ())
+        notes=(f"fit on {len(fit_data)} samples (block averages of {factor})",)
+        if factor > 1 else ())
+
+
+# -- the [diagnose] section of the build config ----------------------------------------------
+
+def diagnose_options(table, path=None) -> dict:
+    """Check the optional ``[diagnose]`` table of a build config and turn it into keyword
+    arguments of :func:`diagnose` (plus ``"judge"``: the judge cycle's file name as
+    written, relative to the config, or None). Unknown keys or bad values raise
+    InputError naming ``path``::
+
+        [diagnose]
+        judge = "hwfet-a.mat"     # a second cycle to judge on (default: the last part of
+                                  # data.cycle, see split)
+        judge_soc0 = 1.0          # its start SOC (default: from its first rested voltage)
+        split = 0.6               # fraction of data.cycle that is fitted without a judge
+        effects = ["hysteresis", "extra_rc"]   # candidates (default: all five)
+        max_effects = 4
+        min_rel_gain = 0.08       # held-out MAE must fall by at least this fraction
+        confidence = 0.99         # of the block-bootstrap bound on the held-out gain
+    """
+    from .errors import InputError
+
+    table = {} if table is None else table
+    if not isinstance(table, dict):
+        raise InputError(path, "[diagnose] must be a table")
+    known = {"judge", "judge_soc0", "split", "effects", "max_effects", "min_rel_gain",
+             "confidence"}
+    unknown = sorted(set(table) - known)
+    if unknown:
+        raise InputError(path, f"unknown key(s) in [diagnose]: {', '.join(unknown)}; "
+                               f"known: {', '.join(sorted(known))}")
+
+    def number(key, lo, hi, integer=False):
+        v = table[key]
+        ok = isinstance(v, int) if integer else isinstance(v, (int, float))
+        if isinstance(v, bool) or not ok or not (lo <= v <= hi):
+            kind = "an integer" if integer else "a number"
+            raise InputError(path, f"diagnose.{key} must be {kind} in [{lo}, {hi}], got {v!r}")
+        return int(v) if integer else float(v)
+
+    out: dict = {"judge": None}
+    if "judge" in table:
+        if not isinstance(table["judge"], str) or not table["judge"]:
+            raise InputError(path, "diagnose.judge must be a file name")
+        out["judge"] = table["judge"]
+    if "judge_soc0" in table:
+        out["judge_soc0"] = number("judge_soc0", 0.0, 1.0)
+    if "split" in table:
+        out["split"] = number("split", 0.1, 0.9)
+    if "effects" in table:
+        eff = table["effects"]
+        if not isinstance(eff, list) or not eff or any(e not in fx.EFFECT_TYPES for e in eff):
+            raise InputError(path, f"diagnose.effects must be a non-empty list from "
+                                   f"{list(fx.EFFECT_NAMES)}, got {eff!r}")
+        out["candidates"] = tuple(eff)
+    if "max_effects" in table:
+        out["max_effects"] = number("max_effects", 1, len(fx.EFFECT_NAMES), integer=True)
+    if "min_rel_gain" in table:
+        out["min_rel_gain"] = number("min_rel_gain", 0.0, 0.9)
+    if "confidence" in table:
+        out["confidence"] = number("confidence", 0.5, 0.9999)
+    return out
 
 
 # -- outputs: model.json, plots, report.md ---------------------------------------------------
@@ -914,6 +1005,8 @@ def plot_signatures(result: DiagnoseResult, path: Path) -> Path:
         if x is None:
             ax.text(0.5, 0.5, sig.detail, ha="center", va="center", transform=ax.transAxes,
                     fontsize=9, wrap=True)
+            ax.set_xticks([])
+            ax.set_yticks([])
         else:
             ax.plot(x[pick], res[pick], ".", ms=2, alpha=0.25, color="0.5")
             bx, by = _binned(x, res)

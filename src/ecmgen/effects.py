@@ -36,6 +36,14 @@ held over (t_{k-1}, t_k], the base step of :mod:`ecmgen.simulate` becomes:
 
 Every effect may appear at most once in a model written by diagnose; if a hand-made
 model repeats one, the factors multiply and the voltages add (as defined above).
+
+For C code generation: every parameter is one scalar double. Extra state per instance:
+``hysteresis`` one float h (initialised to initial_state), ``extra_rc`` one float u
+(initialised to 0); the others are stateless. ``capacity_error`` only changes the
+constant 1/(3600 * Q_eff); ``current_dependent_resistance`` needs one asinh per step,
+``temperature_dependence`` one exp per step and a temperature input (1/(t_ref_c +
+273.15) is a constant). The hysteresis direction s_k is the model's own direction
+state (deadband ``direction_deadband_a``), not sign(i_k).
 """
 
 from __future__ import annotations
@@ -99,7 +107,8 @@ class Hysteresis(_Effect):
     ocv_table_state  the state h at which the model's OCV table was measured: 0 = the
                    mean of the charge and discharge branches, +1 = charge branch,
                    -1 = discharge branch (in [-1, 1])
-    initial_state  h before the first sample (in [-1, 1])
+    initial_state  h before the first sample (in [-1, 1]; +1 after a full charge; diagnose
+                   fits it on the fit cycle)
     """
 
     m_v: float
@@ -142,7 +151,8 @@ class CurrentDependentResistance(_Effect):
     i0_a: float
     name: ClassVar[str] = "current_dependent_resistance"
     kind: ClassVar[str] = "parameter"
-    description: ClassVar[str] = "series/charge-transfer resistance falling with |I| (Butler-Volmer)"
+    description: ClassVar[str] = ("series and charge-transfer resistance falling with |I| "
+                                  "(Butler-Volmer)")
 
     def __post_init__(self):
         _finite(scale_at_zero=self.scale_at_zero, i0_a=self.i0_a)

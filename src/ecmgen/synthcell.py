@@ -17,7 +17,7 @@ relaxation), and the nominal capacity. What the base model misses is the hidden 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -26,7 +26,6 @@ from .measure import TimeSeries
 from .model import EcmModel, OcvTable, RcTable
 from .simulate import rc_recurrence, simulate
 
-EFFECTS = fx.EFFECT_NAMES
 SOC_GRID = np.linspace(0.0, 1.0, 101)
 
 
@@ -241,14 +240,15 @@ def fit_pulses(series: TimeSeries, ocv: OcvTable, capacity_ah: float, relax_s: f
                min_a: float | None = None, soc0: float = 1.0) -> tuple[RcTable, RcTable]:
     """2RC tables from a pulse test, the common DC-IR practice: each pulse (with
     ``relax_s`` of relaxation) is fitted on its own, and the parameters of the pulses of
-    one SOC level and direction are averaged over their C-rates. A direction without
-    pulses gets the other direction's table. The test starts at ``soc0``."""
+    one pulse set (same direction, consecutive, within 4 % SOC) are averaged over their
+    C-rates. A direction without pulses gets the other direction's table. The test
+    starts at ``soc0``; SOC from the logged Ah where the record has it."""
     t, i, v = series.time_s, series.current_a, series.voltage_v
     min_a = 0.1 * capacity_ah if min_a is None else min_a
     on = np.abs(i) > min_a
     edges = np.flatnonzero(on[1:] & ~on[:-1]) + 1
-    soc_all = soc0 + series.coulomb_ah() / capacity_ah     # the logged Ah where there is one
-    fits: dict[tuple[str, int], list] = {}
+    soc_all = soc0 + series.coulomb_ah() / capacity_ah
+    sets: list[tuple[str, float, list]] = []
     for e in edges:
         end = e
         while end < i.size and on[end]:
@@ -256,17 +256,18 @@ def fit_pulses(series: TimeSeries, ocv: OcvTable, capacity_ah: float, relax_s: f
         if t[end - 1] - t[e] > 60.0:            # an SOC move, not a pulse
             continue
         stop = int(np.searchsorted(t, t[end - 1] + relax_s, side="right"))
+        stop = min(stop, int(edges[edges > e][0]) if np.any(edges > e) else stop)
         a = e - 1
         w_dt = np.diff(t[a:stop] - t[a], prepend=0.0)
         w_i = np.where(np.abs(i[a:stop]) > min_a, i[a:stop], 0.0)
         soc = soc_all[a] + np.cumsum(w_i * w_dt) / 3600.0 / capacity_ah
         target = v[a:stop] - v[a] - (ocv.ocv_at(soc) - ocv.ocv_at(soc_all[a]))
         direction = "charge" if i[e] > 0 else "discharge"
-        level = int(round(soc_all[a] * 40))           # one level within 2.5 % SOC
-        fits.setdefault((direction, level), []).append(
-            (soc_all[a],) + _fit_pulse(w_dt, w_i, target))
+        if not sets or sets[-1][0] != direction or abs(sets[-1][1] - soc_all[a]) > 0.04:
+            sets.append((direction, float(soc_all[a]), []))
+        sets[-1][2].append((float(soc_all[a]),) + _fit_pulse(w_dt, w_i, target))
     rows: dict[str, list] = {"charge": [], "discharge": []}
-    for (direction, _), f in sorted(fits.items()):
+    for direction, _, f in sets:
         x = np.array([r[1] for r in f])
         rows[direction].append((float(np.mean([r[0] for r in f])), *np.mean(x, axis=0),
                                 float(np.mean([r[2] for r in f])), all(r[3] for r in f)))
@@ -288,25 +289,36 @@ def fit_pulses(series: TimeSeries, ocv: OcvTable, capacity_ah: float, relax_s: f
 
 
 def _fit_pulse(dt: np.ndarray, i: np.ndarray, target: np.ndarray):
-    """(r0, r_fast, tau_fast, r_slow, tau_slow), rms error, success for one pulse window
-    (least squares in log parameters, two starts)."""
-    from scipy.optimize import least_squares
+    """(r0, r_fast, tau_fast, r_slow, tau_slow), rms error, success for one pulse window:
+    variable projection (non-negative resistances by NNLS for given time constants; the
+    two time constants from a log grid, refined by least squares)."""
+    from scipy.optimize import least_squares, nnls
 
-    def res(x):
-        r0, rf, tf, rs, ts = np.exp(x)
+    def solve(x):
+        tf, ts = np.exp(x)
         af, as_ = np.exp(-dt / tf), np.exp(-dt / ts)
-        return (r0 * i + rc_recurrence(af, rf * (1 - af) * i)
-                + rc_recurrence(as_, rs * (1 - as_) * i) - target)
+        X = np.column_stack([i, rc_recurrence(af, (1 - af) * i), rc_recurrence(as_, (1 - as_) * i)])
+        r, _ = nnls(X, target)
+        return r, X @ r - target
 
-    lo = np.log([1e-4, 1e-5, 0.05, 1e-5, 2.0])
-    hi = np.log([1.0, 1.0, 5.0, 1.0, 200.0])
     best = None
-    for tf0, ts0 in ((0.5, 10.0), (2.0, 30.0)):
-        sol = least_squares(res, np.log([0.02, 0.01, tf0, 0.01, ts0]), bounds=(lo, hi),
-                            method="trf")
-        if best is None or sol.cost < best.cost:
-            best = sol
-    return np.exp(best.x), math.sqrt(2 * best.cost / target.size), bool(best.success)
+    for tf in np.geomspace(0.05, 5.0, 6):
+        for ts in np.geomspace(2.0, 200.0, 6):
+            if ts < 2 * tf:
+                continue
+            x = np.log([tf, ts])
+            c = float(np.sum(solve(x)[1] ** 2))
+            if best is None or c < best[0]:
+                best = (c, x)
+    lo, hi = np.log([0.02, 1.0]), np.log([10.0, 300.0])
+    sol = least_squares(lambda x: solve(x)[1], np.clip(best[1], lo + 1e-9, hi - 1e-9),
+                        bounds=(lo, hi), method="trf", max_nfev=40)
+    r, res = solve(sol.x)
+    tf, ts = np.exp(sol.x)
+    if tf > ts:
+        tf, ts, r = ts, tf, r[[0, 2, 1]]
+    params = np.array([max(r[0], 1e-6), max(r[1], 1e-7), tf, max(r[2], 1e-7), ts])
+    return params, math.sqrt(float(np.mean(res ** 2))), bool(sol.status > 0)
 
 
 def random_base(rng: np.random.Generator, capacity_ah: float | None = None) -> EcmModel:
