@@ -1,6 +1,5 @@
 """Whole-curve fit: known truth from a synthetic pulse test with 1 mV noise."""
 
-import numpy as np
 import pytest
 
 from conftest import make_pulse_test, synthetic_nca_model

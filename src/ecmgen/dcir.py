@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import csv
 import io
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -186,13 +186,8 @@ def find_pulses(series: TimeSeries, capacity_ah: float, *, soc0: float,
     for p in pulses:
         sib = [q.duration_s for q in pulses if q.c_rate == p.c_rate and q.direction == p.direction]
         typical = float(np.median(sib))
-        flagged.append(_replace_cut(p, p.duration_s < 0.95 * typical))
+        flagged.append(replace(p, cut_short=bool(p.duration_s < 0.95 * typical)))
     return flagged
-
-
-def _replace_cut(p: Pulse, cut: bool) -> Pulse:
-    from dataclasses import replace
-    return replace(p, cut_short=bool(cut))
 
 
 def extract_dcir(series: TimeSeries, pulses: list[Pulse],
