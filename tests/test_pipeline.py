@@ -159,3 +159,28 @@ def test_output_never_overwrites_an_input(synthetic_project):
     assert res.returncode != 0
     assert (folder / "dcir.csv").read_bytes() == before
     assert not (folder / "model.json").exists()
+
+
+def test_another_cyclers_csv_with_ma_and_discharge_positive(synthetic_project):
+    """A pulse test exported by another cycler: its own column names, mA, current
+    positive on discharge, time in minutes; mapped per file role in the config."""
+    folder, cfg, truth = synthetic_project
+    from ecmgen.measure import read_timeseries
+
+    s = read_timeseries(folder / "pulses.csv")
+    rows = ["Zeit_min;Strom_mA;Spannung_V;Ladung_mAh"] + [
+        f"{float(t) / 60!r};{float(-i) * 1000!r};{float(v)!r};{float(-q) * 1000!r}"
+        for t, i, v, q in zip(s.time_s, s.current_a, s.voltage_v, s.charge_ah)]
+    (folder / "pulses-other.csv").write_text("\n".join(rows) + "\n")
+    text = cfg.read_text().replace('pulses = "pulses.csv"', 'pulses = "pulses-other.csv"\n'
+                                   'pulses_soc0 = 1.0')
+    text += ('[data.columns.pulses]\ntime = "Zeit_min"\ntime_unit = "min"\ncurrent = "Strom_mA"\n'
+             'current_unit = "mA"\ncurrent_sign = "discharge_positive"\nvoltage = "Spannung_V"\n'
+             'charge = "Ladung_mAh"\ncharge_unit = "mAh"\n')
+    cfg.write_text(text)
+    res = run_cli("build", cfg, "--out", folder / "out2", "--json", "--no-plots", "--quiet")
+    assert res.returncode == 0, res.stderr
+    doc = json.loads(res.stdout)
+    # same cell, same answer as from the canonical file
+    assert doc["validation"]["curve"]["mae_v"] < 0.002
+    assert "pulses-other.csv" in (folder / "out2" / "model.json").read_text()

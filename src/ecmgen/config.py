@@ -12,6 +12,7 @@
     extra_cycles = ["hwfet-a.mat"]   # optional further validation cycles
     [data.columns]             # optional column mapping for CSV files from other cyclers
     time = "Test_Time(s)"  current = "Current(A)"  voltage = "Voltage(V)"
+    [data.columns.pulses]      # or one mapping per file role (see COLUMN_ROLES)
     [dcir]   times_s = [0.1, 1, 3, 6, 10]   c_rate = "max" | "all" | 2.0
     [fit]    methods = ["ga", "lm", "curve"]   seed = 0   relax_s = 1800   best = "curve"
     [c]      prefix = "ecm"   numeric = ["float", "fixed"]   dt_s = 0.1
@@ -28,6 +29,8 @@ from typing import Any
 from .errors import InputError
 
 METHODS = ("ga", "lm", "curve")
+# [data.columns.<role>] maps the CSV columns of one file of the config
+COLUMN_ROLES = ("pulses", "ocv", "cycle", "extra_cycles", "judge")
 
 
 @dataclass(frozen=True)
@@ -135,6 +138,10 @@ def load_config(path: str | Path) -> BuildConfig:
     columns = data.get("columns")
     if columns is not None and not isinstance(columns, dict):
         raise InputError(path, "[data.columns] must be a table")
+    for key, value in (columns or {}).items():
+        if isinstance(value, dict) and key not in COLUMN_ROLES:
+            raise InputError(path, f"[data.columns.{key}]: {key!r} is not a file role "
+                                   f"(one of {', '.join(COLUMN_ROLES)})")
 
     times = dcir_t.get("times_s", [0.1, 1.0, 3.0, 6.0, 10.0])
     if (not isinstance(times, list) or len(times) < 4 or

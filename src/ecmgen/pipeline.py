@@ -65,10 +65,17 @@ class BuildResult:
     c_report: dict | None = None
 
 
-def read_series(cfg: BuildConfig, path: Path) -> TimeSeries:
-    # [data.columns] names CSV columns from another cycler; .mat files carry their own names
-    mapped = cfg.columns and path.suffix.lower() != ".mat"
-    columns = ColumnMap.from_table(cfg.columns, cfg.path) if mapped else None
+def read_series(cfg: BuildConfig, path: Path, role: str = "") -> TimeSeries:
+    """Read a measurement file of the config. ``[data.columns]`` maps CSV columns from
+    another cycler, for every CSV, or per file role as ``[data.columns.cycle]`` etc.;
+    .mat files carry their own names."""
+    columns = None
+    table = cfg.columns or {}
+    if role in table and isinstance(table[role], dict):
+        columns = ColumnMap.from_table(table[role], cfg.path, f"[data.columns.{role}]")
+    elif table and not any(isinstance(v, dict) for v in table.values()) and \
+            path.suffix.lower() != ".mat":
+        columns = ColumnMap.from_table(table, cfg.path)
     return read_timeseries(path, columns, capacity_ah=cfg.capacity_ah)
 
 
@@ -83,7 +90,7 @@ def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
         records.append(InputRecord("ocv", cfg.ocv.name, file_sha256(cfg.ocv)))
     elif cfg.ocv is not None:
         progress(f"reading low-rate OCV test {cfg.ocv.name}")
-        low = read_series(cfg, cfg.ocv)
+        low = read_series(cfg, cfg.ocv, "ocv")
         records.append(InputRecord("ocv", cfg.ocv.name, file_sha256(cfg.ocv)))
         ocv, n = ocv_from_low_rate(low, q, cfg.ocv_soc0, branch=cfg.ocv_branch)
         notes.extend(n)
@@ -91,7 +98,7 @@ def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
     series, pulses = None, ()
     if cfg.pulses is not None:
         progress(f"reading pulse test {cfg.pulses.name}")
-        series = read_series(cfg, cfg.pulses)
+        series = read_series(cfg, cfg.pulses, "pulses")
         records.append(InputRecord("pulses", cfg.pulses.name, file_sha256(cfg.pulses)))
         soc0 = cfg.pulses_soc0
         if soc0 is None and ocv is not None:
@@ -248,11 +255,12 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
 def validate_all(cfg: BuildConfig, models: dict[str, EcmModel], progress: Progress = _quiet
                  ) -> dict[str, dict[str, Validation]]:
     """Each model on the config's validation cycle(s); ``soc0`` applies to every cycle."""
-    cycles = ([cfg.cycle] if cfg.cycle else []) + list(cfg.extra_cycles)
+    cycles = ([(cfg.cycle, "cycle")] if cfg.cycle else []) + \
+        [(p, "extra_cycles") for p in cfg.extra_cycles]
     out: dict[str, dict[str, Validation]] = {m: {} for m in models}
-    for path in cycles:
+    for path, role in cycles:
         progress(f"validating on {path.name}")
-        series = read_series(cfg, path)
+        series = read_series(cfg, path, role)
         for m, model in models.items():
             out[m][path.name] = validate(model, series, cfg.soc0)
     return out
@@ -351,8 +359,8 @@ def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _qu
     fit_cfg = cfg if cfg.methods == (cfg.best,) else _only_method(cfg, cfg.best)
     models, _ = fit_models(fit_cfg, inputs, progress)
     base = models[cfg.best]
-    fit_series = read_series(cfg, cfg.cycle)
-    judge = read_series(cfg, judge_path) if judge_path is not None else None
+    fit_series = read_series(cfg, cfg.cycle, "cycle")
+    judge = read_series(cfg, judge_path, "judge") if judge_path is not None else None
     result = diagnose(base, fit_series, judge, soc0=cfg.soc0, progress=progress, **options)
 
     with _staged(out_dir, given) as (staging, files):
