@@ -40,3 +40,24 @@ def test_five_point_curves_cannot_see_minutes_but_the_relaxation_can():
     r_slow = float(truth.discharge.at(0.6)["r_slow_ohm"])
     assert full.r_slow_ohm[0] == pytest.approx(r_slow, rel=0.01)
     assert abs(short.r_slow_ohm[0] - r_slow) > 0.05 * r_slow
+
+
+def test_charge_and_discharge_pulses_give_their_own_tables():
+    from ecmgen.pipeline import _rc_tables
+
+    truth = synthetic_nca_model(tau_fast_s=2.0, tau_slow_s=60.0)
+    series, soc0 = make_pulse_test(truth, soc_levels=(0.8, 0.5, 0.2), c_rates=(2.0,),
+                                   direction=(-1, 1))
+    pulses = find_pulses(series, truth.capacity_ah, soc0=soc0)
+    assert [p.direction for p in pulses[:2]] == ["discharge", "charge"]
+    fit = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, relax_s=1200.0)
+    assert sorted(set(fit.direction)) == ["charge", "discharge"]
+    cols = {k: getattr(fit, k) for k in ("r0_ohm", "r_fast_ohm", "tau_fast_s", "r_slow_ohm",
+                                         "tau_slow_s")}
+    charge, discharge, notes = _rc_tables(fit.soc, fit.direction, cols, fit.rms_error_v,
+                                          fit.converged)
+    assert notes == []
+    # the synthetic cell's charge resistances are 0.9 x its discharge resistances
+    for table, truth_table in ((charge, truth.charge), (discharge, truth.discharge)):
+        for k, soc in enumerate(table.soc):
+            assert table.r0_ohm[k] == pytest.approx(float(truth_table.at(soc)["r0_ohm"]), rel=0.02)
