@@ -85,7 +85,17 @@ def run_cc(args: list[str], cwd: Path | None = None) -> subprocess.CompletedProc
 # --------------------------------------------------------------------------------------
 
 def _types(spec: CSpec) -> tuple[str, str]:
-    return ("int32_t", "ecmrt_q_state_t") if spec.fixed else ("float", "ecmrt_f32_state_t")
+    sfx = "_fx" if spec.has_fx else ""
+    return ("int32_t", f"ecmrt_q{sfx}_state_t") if spec.fixed else ("float", f"ecmrt_f32{sfx}_state_t")
+
+
+def _fx_trace_args(spec: CSpec) -> tuple[str, str, str]:
+    """(extra trace parameters, extra trace body, extra declaration) for models with effects:
+    the states h and u_x are recorded too."""
+    if not spec.has_fx:
+        return "", "", ""
+    t, _ = _types(spec)
+    return (f", {t} *h, {t} *ux", "        h[k] = s->h;\n        ux[k] = s->u_x;\n", "")
 
 
 def harness_source(spec: CSpec) -> str:
@@ -94,6 +104,7 @@ def harness_source(spec: CSpec) -> str:
     vdt = spec.variable_dt
     call = f"{p}_step(s, i[k], dt[k])" if vdt else f"{p}_step(s, i[k])"
     dt_arg = f"const {t} *dt, " if vdt else ""
+    fx_args, fx_body, _ = _fx_trace_args(spec)
     if spec.fixed:
         stress_body = f"""
         int32_t i = (int32_t)(ecmh_rand(&x) >> 1) - (int32_t)(ecmh_rand(&x) >> 1);
@@ -141,7 +152,7 @@ size_t ecmh_state_size(void)
 }}
 
 void ecmh_trace({p}_state_t *s, const {t} *i, {dt_arg}{t} *v, {t} *soc, {t} *uf, {t} *us,
-                uint8_t *chg, size_t n)
+                uint8_t *chg{fx_args}, size_t n)
 {{
     size_t k;
     for (k = 0u; k < n; k++) {{
@@ -150,7 +161,7 @@ void ecmh_trace({p}_state_t *s, const {t} *i, {dt_arg}{t} *v, {t} *soc, {t} *uf,
         uf[k] = s->u_fast;
         us[k] = s->u_slow;
         chg[k] = s->charging;
-    }}
+{fx_body}    }}
 }}
 
 static uint32_t ecmh_rand(uint32_t *x)
@@ -179,6 +190,7 @@ def harness_header(spec: CSpec) -> str:
     p = spec.prefix
     t, _ = _types(spec)
     dt_arg = f"const {t} *dt, " if spec.variable_dt else ""
+    fx_args, _, _ = _fx_trace_args(spec)
     if spec.fixed:
         stress = (f"void ecmh_stress({p}_state_t *s, uint32_t seed, size_t n, int32_t dt_max, "
                   "int32_t *lo, int32_t *hi, uint32_t *bad);")
@@ -189,7 +201,7 @@ def harness_header(spec: CSpec) -> str:
 #define ECMH_HARNESS_H
 #include "{p}_ecm.h"
 void ecmh_trace({p}_state_t *s, const {t} *i, {dt_arg}{t} *v, {t} *soc, {t} *uf, {t} *us,
-                uint8_t *chg, size_t n);
+                uint8_t *chg{fx_args}, size_t n);
 {stress}
 size_t ecmh_state_size(void);
 #endif
@@ -201,9 +213,11 @@ def _cdef(spec: CSpec) -> str:
     t, _ = _types(spec)
     vdt = spec.variable_dt
     head = "int64_t soc_rem; int32_t soc;" if spec.fixed else "float soc; float soc_c;"
+    tail = f" {t} h; {t} u_x;" if spec.has_fx else ""
     state = (f"typedef struct {{ {head} {t} u_fast; {t} u_slow; uint8_t charging; "
-             f"uint8_t k_ocv; uint8_t k_dir[2]; }} {p}_state_t;")
+             f"uint8_t k_ocv; uint8_t k_dir[2];{tail} }} {p}_state_t;")
     dt_arg = f"const {t} *dt, " if vdt else ""
+    fx_args, _, _ = _fx_trace_args(spec)
     if spec.fixed:
         stress = (f"void ecmh_stress({p}_state_t *s, uint32_t seed, size_t n, int32_t dt_max, "
                   "int32_t *lo, int32_t *hi, uint32_t *bad);")
@@ -216,7 +230,7 @@ def _cdef(spec: CSpec) -> str:
         f"{t} {p}_step({p}_state_t *s, {t} i, {t} dt);" if vdt else f"{t} {p}_step({p}_state_t *s, {t} i);",
         f"void {p}_run({p}_state_t *s, const {t} *i, {dt_arg}{t} *v, size_t n);",
         f"void ecmh_trace({p}_state_t *s, const {t} *i, {dt_arg}{t} *v, {t} *soc, {t} *uf, "
-        f"{t} *us, uint8_t *chg, size_t n);",
+        f"{t} *us, uint8_t *chg{fx_args}, size_t n);",
         stress,
         "size_t ecmh_state_size(void);",
     ])
@@ -253,7 +267,7 @@ def write_sources(spec: CSpec, out_dir: Path, harness: bool = True) -> list[Path
     out_dir.mkdir(parents=True, exist_ok=True)
     for name, text in render(spec).items():
         (out_dir / name).write_text(text)
-    srcs = [out_dir / file_names(spec.prefix, spec.numeric)["source"]]
+    srcs = [out_dir / file_names(spec.prefix, spec.numeric, spec.has_fx)["source"]]
     if harness:
         (out_dir / "ecmh_harness.h").write_text(harness_header(spec))
         (out_dir / "ecmh_harness.c").write_text(harness_source(spec))
@@ -345,9 +359,13 @@ class CModel:
                 raise ValueError("current and dt differ in length")
             args.append(self._buf(dt))
         args += [self._buf(a) for a in (v, soc, uf, us)]
-        args += [self.ffi.from_buffer("uint8_t[]", chg), n]
-        self.lib.ecmh_trace(*args)
-        return cref.RefResult(v, soc, uf, us, chg)
+        args += [self.ffi.from_buffer("uint8_t[]", chg)]
+        h = ux = None
+        if self.spec.has_fx:
+            h, ux = np.empty(n, dtype=t), np.empty(n, dtype=t)
+            args += [self._buf(h), self._buf(ux)]
+        self.lib.ecmh_trace(*args, n)
+        return cref.RefResult(v, soc, uf, us, chg, h, ux)
 
     def run_native(self, i, dt=None, soc0=None) -> np.ndarray:
         """Voltages only, through the generated <prefix>_run loop."""
@@ -428,17 +446,16 @@ def _bits_equal(a: np.ndarray, b: np.ndarray) -> bool:
 
 
 def python_voltage(model, time_s, current_a, soc0: float, dt_s: float | None = None) -> np.ndarray:
-    """The float64 model (simulate.py, without diagnose effects) the C is compared with.
+    """The float64 model (simulate.py, with the model's diagnose effects, all of which the C
+    implements: prepare() refuses the others) the C is compared with.
 
     dt_s None: on the record's own time stamps (dt_0 = 0, as the variable-dt C).
     dt_s given (fixed-dt C, whose every step lasts dt_s, the first one included): on the
     uniform time line t_0 + k dt_s, preceded by one rested sample so that Python's step k
     is the C's step k (simulate.py gives its first sample dt = 0)."""
-    from dataclasses import replace
-
     from .simulate import simulate
 
-    base = replace(model, effects=()) if getattr(model, "effects", ()) else model
+    base = model
     current_a = np.asarray(current_a, dtype=np.float64)
     if dt_s is None:
         return simulate(base, np.asarray(time_s, dtype=np.float64), current_a, soc0).voltage_v
@@ -448,15 +465,15 @@ def python_voltage(model, time_s, current_a, soc0: float, dt_s: float | None = N
 
 def compare(model, cm: CModel, time_s, current_a, soc0: float, measured_v=None) -> dict:
     """Drive the compiled model and its reference over (time, current) and compare with the
-    float64 Python model (simulate.py, without diagnose effects) and the measurement."""
+    float64 Python model (simulate.py, with the model's effects) and the measurement."""
     time_s = np.asarray(time_s, dtype=np.float64)
     current_a = np.asarray(current_a, dtype=np.float64)
     dt = cref.dt_from_time(time_s)
     i_n, dt_n, s0 = cm.native_inputs(current_a, dt if cm.spec.variable_dt else None, soc0)
     got = cm.trace_native(i_n, dt_n, s0)
     ref = cm.reference(current_a, dt, soc0)
-    exact = all(_bits_equal(getattr(got, f), getattr(ref, f))
-                for f in ("v", "soc", "u_fast", "u_slow", "charging"))
+    fields = ("v", "soc", "u_fast", "u_slow", "charging") + (("h", "u_x") if cm.spec.has_fx else ())
+    exact = all(_bits_equal(getattr(got, f), getattr(ref, f)) for f in fields)
     if cm.spec.fixed:
         v_c, v_ref = cref.volts(cm.spec, got.v), cref.volts(cm.spec, ref.v)
     else:

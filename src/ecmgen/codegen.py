@@ -41,6 +41,12 @@ from .model import DIRECTIONS, RC_FIELDS, EcmModel, load_model, write_atomic
 
 NUMERICS = ("float", "fixed")
 RUNTIME_FILES = {"float": ("ecmrt.h", "ecmrt_f32.h"), "fixed": ("ecmrt.h", "ecmrt_q.h")}
+# extra runtime headers of a model that carries diagnose effects (the last one is included)
+RUNTIME_FX_FILES = {"float": ("ecmrt_fx.h", "ecmrt_f32_fx.h"), "fixed": ("ecmrt_fx.h", "ecmrt_q_fx.h")}
+# effects (ecmgen.effects) the generated C implements, per numeric
+C_EFFECTS = {"float": ("hysteresis", "extra_rc", "current_dependent_resistance", "capacity_error"),
+             "fixed": ("hysteresis", "extra_rc", "capacity_error")}
+CDR_X_MAX = 1e9             # largest |i| / i0_a the float asinh handles (x^2 must stay finite)
 MAX_POINTS = 255            # segment hints are uint8_t
 Q30 = 30
 Q_D = 16                    # dt input of the variable-dt fixed-point step
@@ -123,10 +129,16 @@ class CSpec:
     tool_version: str = __version__
     capacity_ah: float = 0.0
     notes: tuple[str, ...] = ()
+    fx: dict = field(default_factory=dict)   # effects: {} for a plain 2RC model, else
+                                             # "hyst"/"xrc"/"cdr" flags + their constants
 
     @property
     def fixed(self) -> bool:
         return self.numeric == "fixed"
+
+    @property
+    def has_fx(self) -> bool:
+        return bool(self.fx)
 
 
 # --------------------------------------------------------------------------------------
@@ -153,6 +165,30 @@ def check_options(prefix: str, numeric: str, dt_s, i_max_a) -> None:
     if i_max_a is not None:
         if not isinstance(i_max_a, (int, float)) or not math.isfinite(i_max_a) or not 0 < i_max_a <= 1e5:
             raise InputError(None, f"[c] i_max_a must be a current in (0, 1e5] A, got {i_max_a!r}")
+
+
+def check_effects(model: EcmModel, numeric: str, i_lim_a: float | None = None) -> None:
+    """Refuse, with one clear line, an effect the C of ``numeric`` does not implement."""
+    seen = set()
+    for e in getattr(model, "effects", ()) or ():
+        name = e.name
+        if name == "temperature_dependence":
+            raise InputError(None, "[c] effect temperature_dependence is not supported in the "
+                                   "generated C (it needs a cell temperature input the C step "
+                                   "does not have); remove it from the model to generate C")
+        if name not in C_EFFECTS.get(numeric, ()):
+            other = [n for n in NUMERICS if name in C_EFFECTS[n]]
+            hint = f"; use numeric=\"{other[0]}\"" if other else ""
+            raise InputError(None, f"[c] effect {name} is not supported in numeric={numeric!r} "
+                                   f"yet{hint}")
+        if name in seen and name != "capacity_error":
+            raise InputError(None, f"[c] effect {name} appears more than once; the C supports "
+                                   "each effect once")
+        seen.add(name)
+        if name == "current_dependent_resistance" and i_lim_a is not None \
+                and i_lim_a / e.i0_a > CDR_X_MAX:
+            raise InputError(None, f"[c] effect current_dependent_resistance: i0_a = {e.i0_a:g} A "
+                                   f"is too small for the current range {i_lim_a:g} A")
 
 
 def validate_for_c(model: EcmModel, path=None) -> None:
@@ -249,6 +285,85 @@ def _inv_coef(dt_s: float, tau: np.ndarray) -> np.ndarray:
     return 1.0 / _coef(dt_s, tau)
 
 
+# fields of ecmrt_f32_fx_model_t / ecmrt_q_fx_model_t after the base model, in order
+FX_FLOAT_KEYS = ("h_init", "h_k", "h_m", "h_m0", "h_ref", "x_r", "x_k", "g_scale", "g_inv_i0")
+FX_FIXED_KEYS = ("h_init", "h_k", "h_m", "h_m0", "h_ref", "x_r", "x_k")
+
+
+def _fx_float(effects, by_name: dict, dt_s: float | None) -> dict:
+    """Constants of ecmrt_f32_fx_model_t ({} when the model has no effects)."""
+    if not any(e.name in ("hysteresis", "extra_rc", "current_dependent_resistance") for e in effects):
+        return {}                   # capacity_error alone is only a different k_soc
+    z = np.float32(0.0)
+    fx = {"hyst": 0, "xrc": 0, "cdr": 0, "h_init": z, "h_k": z, "h_m": z, "h_m0": z,
+          "h_ref": z, "x_r": z, "x_k": z, "g_scale": z, "g_inv_i0": z}
+    h = by_name.get("hysteresis")
+    if h is not None:
+        k = 1.0 / (3600.0 * h.decay_ah) if dt_s is None else dt_s / (3600.0 * h.decay_ah)
+        fx.update(hyst=1, h_init=np.float32(h.initial_state), h_k=_f32(k, "hysteresis decay_ah"),
+                  h_m=np.float32(h.m_v), h_m0=np.float32(h.m0_v), h_ref=np.float32(h.ocv_table_state))
+    x = by_name.get("extra_rc")
+    if x is not None:
+        k = x.tau_s if dt_s is None else float(_inv_coef(dt_s, np.array([x.tau_s]))[0])
+        k32 = _f32(k, "extra_rc tau_s")
+        if not k32 > 0:
+            raise InputError(None, "[c] effect extra_rc: tau_s underflows float32")
+        fx.update(xrc=1, x_r=np.float32(x.r_ohm), x_k=k32)
+    g = by_name.get("current_dependent_resistance")
+    if g is not None:
+        fx.update(cdr=1, g_scale=np.float32(g.scale_at_zero), g_inv_i0=_f32(1.0 / g.i0_a, "1/i0_a"))
+    return fx
+
+
+def _fx_fixed(hyst, xrc, q: dict, dt_s: float | None, i_lim: float) -> dict:
+    """Constants (raw integers) and shifts of ecmrt_q_fx_model_t; see ecmrt_q_fx.h."""
+    q_i, q_v = q["Q_I"], q["Q_V"]
+    fx = {"hyst": 0, "xrc": 0, "cdr": 0, "h_init": 0, "h_k": 0, "h_m": 0, "h_m0": 0, "h_ref": 0,
+          "x_r": 0, "x_k": 0}
+
+    def one(v, qf):
+        return int(quantize([v], qf)[0])
+
+    if hyst is not None:
+        k = 1.0 / (3600.0 * hyst.decay_ah) if dt_s is None else dt_s / (3600.0 * hyst.decay_ah)
+        q_hk = _q_fit(k)
+        if dt_s is None:
+            q_hr = _q_fit(i_lim * k * 1.001)
+            fx["SH_HR"] = q_i + q_hk - q_hr
+            fx["SH_HX"] = q_hr + Q_D - 26
+        else:
+            fx["SH_HX"] = q_i + q_hk - 26
+        vm = max(hyst.m_v, hyst.m0_v)
+        q_hm = min(_q_fit(vm), 40) if vm > 0 else 30
+        fx["SH_HM"] = q_hm + Q30 - q_v
+        for name in ("SH_HR", "SH_HX", "SH_HM"):
+            if name in fx and not 1 <= fx[name] <= 62:
+                raise InputError(None, f"[c] effect hysteresis (decay_ah = {hyst.decay_ah:g} Ah) does "
+                                       f"not fit the fixed-point formats ({name} = {fx[name]}); "
+                                       "use numeric=\"float\"")
+        fx.update(hyst=1, h_init=one(hyst.initial_state, Q30), h_k=one(k, q_hk),
+                  h_m=one(hyst.m_v, q_hm), h_m0=one(hyst.m0_v, q_hm),
+                  h_ref=one(hyst.ocv_table_state, Q30), Q_HK=q_hk, Q_HM=q_hm)
+        if fx["h_k"] <= 0:
+            raise InputError(None, "[c] effect hysteresis: decay_ah too large for fixed point; "
+                                   "use numeric=\"float\"")
+    if xrc is not None:
+        q_xr = min(_q_fit(xrc.r_ohm), 62 - q_i + q_v, 40 if xrc.r_ohm == 0 else 62)
+        fx["SH_XR"] = q_xr + q_i - q_v
+        if not 1 <= fx["SH_XR"] <= 62:
+            raise InputError(None, f"[c] effect extra_rc: r_ohm = {xrc.r_ohm:g} does not fit the "
+                                   "fixed-point formats; use numeric=\"float\"")
+        if dt_s is None:
+            x_k = one(xrc.tau_s, q["Q_T"])
+        else:
+            x_k = int(quantize(_coef(dt_s, np.array([xrc.tau_s])), Q30)[0])
+        if x_k <= 0:
+            raise InputError(None, f"[c] effect extra_rc: tau_s = {xrc.tau_s:g} s does not fit the "
+                                   "fixed-point formats; use numeric=\"float\"")
+        fx.update(xrc=1, x_r=one(xrc.r_ohm, q_xr), x_k=x_k, Q_XR=q_xr)
+    return fx
+
+
 def prepare(model, numeric: str = "float", dt_s: float | None = None, prefix: str = "ecm",
             i_max_a: float | None = None) -> CSpec:
     """The tables and constants the C will hold (see :class:`CSpec`). Raises InputError
@@ -264,9 +379,13 @@ def prepare(model, numeric: str = "float", dt_s: float | None = None, prefix: st
     q_i = int(min(30, max(0, 31 - math.ceil(math.log2(i_max_a)))))
     i_lim = math.ldexp(1.0, 31 - q_i)
     notes = []
-    if model.effects:
-        notes.append(f"the model's {len(model.effects)} diagnose effect(s) are not in the C "
-                     "(the C is the plain 2RC model)")
+    check_effects(model, numeric, i_lim)
+    effects = tuple(getattr(model, "effects", ()) or ())
+    by_name = {e.name: e for e in effects}
+    cap_scale = 1.0
+    for e in effects:
+        if e.name == "capacity_error":
+            cap_scale *= float(e.capacity_scale)
 
     ocv_soc, (ocv_v,) = _expand(np.asarray(model.ocv.soc, float), [np.asarray(model.ocv.ocv_v, float)])
     raw_dirs = []
@@ -282,7 +401,11 @@ def prepare(model, numeric: str = "float", dt_s: float | None = None, prefix: st
 
     common = dict(prefix=prefix, numeric=numeric, variable_dt=variable_dt, dt_s=dt_s,
                   i_lim_a=i_lim, model_sha256=model.sha256(), capacity_ah=cap)
-    k_soc64 = 1.0 / (3600.0 * cap) if variable_dt else dt_s / (3600.0 * cap)
+    q_eff = cap * cap_scale if cap_scale != 1.0 else cap
+    if cap_scale != 1.0:
+        notes.append(f"effect capacity_error: the SOC counts against capacity_ah * {cap_scale:.6g} "
+                     f"= {q_eff:.6g} Ah")
+    k_soc64 = 1.0 / (3600.0 * q_eff) if variable_dt else dt_s / (3600.0 * q_eff)
 
     if numeric == "float":
         def fgrid(x, name):
@@ -303,7 +426,7 @@ def prepare(model, numeric: str = "float", dt_s: float | None = None, prefix: st
                              _f32(cols["r_slow_ohm"], name), ks32))
         return CSpec(ocv_grid=fgrid(ocv_soc, "ocv.soc"), ocv=_f32(ocv_v, "ocv_v"), dirs=tuple(dirs),
                      deadband=np.float32(model.direction_deadband_a), k_soc=np.float32(k_soc64),
-                     q={}, notes=tuple(notes), **common)
+                     q={}, notes=tuple(notes), fx=_fx_float(effects, by_name, dt_s), **common)
 
     # ---- fixed point: formats from the value ranges --------------------------------
     def vmax(key):
@@ -311,6 +434,11 @@ def prepare(model, numeric: str = "float", dt_s: float | None = None, prefix: st
 
     q = {"Q_I": q_i}
     v_bound = float(np.max(ocv_v)) + i_lim * (vmax("r0_ohm") + vmax("r_fast_ohm") + vmax("r_slow_ohm"))
+    hyst, xrc = by_name.get("hysteresis"), by_name.get("extra_rc")
+    if hyst is not None:
+        v_bound += 2.0 * (hyst.m_v + hyst.m0_v)
+    if xrc is not None:
+        v_bound += i_lim * xrc.r_ohm
     q["Q_V"] = min(30, _q_fit(v_bound * 1.001))
     for key, name in (("r0_ohm", "Q_R0"), ("r_fast_ohm", "Q_RF"), ("r_slow_ohm", "Q_RS")):
         q[name] = min(_q_fit(vmax(key)), 62 - q_i + q["Q_V"], 40 if vmax(key) == 0 else 62)
@@ -332,7 +460,7 @@ def prepare(model, numeric: str = "float", dt_s: float | None = None, prefix: st
         return CGrid(xq, np.floor(np.ldexp(1.0, 30 + g) / dx + 0.5).astype(np.int64))
 
     if variable_dt:
-        tau_max = max(vmax("tau_fast_s"), vmax("tau_slow_s"))
+        tau_max = max(vmax("tau_fast_s"), vmax("tau_slow_s"), xrc.tau_s if xrc is not None else 0.0)
         q["Q_T"] = min(21, _q_fit(tau_max))
         if q["Q_T"] < -10:
             raise InputError(None, "time constants too large for the fixed-point format")
@@ -373,8 +501,9 @@ def prepare(model, numeric: str = "float", dt_s: float | None = None, prefix: st
                          quantize(cols["r_fast_ohm"], q["Q_RF"]), kfq,
                          quantize(cols["r_slow_ohm"], q["Q_RS"]), ksq))
     db = int(quantize([model.direction_deadband_a], q_i)[0])
+    fx = _fx_fixed(hyst, xrc, q, dt_s, i_lim) if (hyst is not None or xrc is not None) else {}
     return CSpec(ocv_grid=qgrid(xs[0]), ocv=quantize(ocv_v, q["Q_V"]), dirs=tuple(dirs),
-                 deadband=db, k_soc=k_soc, q=q, notes=tuple(notes), **common)
+                 deadband=db, k_soc=k_soc, q=q, notes=tuple(notes), fx=fx, **common)
 
 
 # --------------------------------------------------------------------------------------
@@ -451,6 +580,19 @@ def _ranges(spec: CSpec) -> list[dict]:
         rows.append(row("c_fast (run time)", q["Q_CF"], "1/D_fast", "(0, 1]"))
         rows.append(row("c_slow (run time)", q["Q_CS"], "1/D_slow", "(0, 1]"))
         rows.append(row("k_soc", q["Q_K"], "dt/(3600 Q) per A", "-"))
+    fx = spec.fx
+    if fx.get("hyst"):
+        rows.append(row("h, h_init, h_ref", Q30, "hysteresis state", "[-1, 1]"))
+        rows.append(row("h_k", fx["Q_HK"], "1/(3600 decay_ah)" + (" per A s" if spec.variable_dt
+                                                                  else " * dt per A"), "-"))
+        rows.append(row("m, m0", fx["Q_HM"], "V, hysteresis amplitudes", "-"))
+        rows.append(row("x (run time)", 26, "|i| dt / (3600 decay_ah)", "[0, 21.5]"))
+    if fx.get("xrc"):
+        rows.append(row("r_x", fx["Q_XR"], "ohm, extra RC pair (u_x in Q_V)", "-"))
+        if spec.variable_dt:
+            rows.append(row("tau_x", q["Q_T"], "s, extra RC pair", "-"))
+        else:
+            rows.append(row("c_x", Q30, "1 - exp(-dt/tau_x), extra RC pair", "(0, 1]"))
     return rows
 
 
@@ -492,10 +634,23 @@ def _context(spec: CSpec) -> dict:
         "dirs": dirs, "scalars": scalars, "q": spec.q, "ranges": _ranges(spec) if fixed else [],
         "i_lim": f"{spec.i_lim_a:g}", "n_ocv": spec.ocv_grid.n,
         "n_dis": spec.dirs[0].grid.n, "n_chg": spec.dirs[1].grid.n,
-        "runtime": RUNTIME_FILES[spec.numeric][1], "notes": spec.notes,
-        "rt": "ecmrt_q" if fixed else "ecmrt_f32",
+        "runtime": (RUNTIME_FX_FILES if spec.has_fx else RUNTIME_FILES)[spec.numeric][-1],
+        "notes": spec.notes,
+        "rt": ("ecmrt_q" if fixed else "ecmrt_f32") + ("_fx" if spec.has_fx else ""),
         "vt": "int32_t" if fixed else "float",
+        "fx": _fx_context(spec) if spec.has_fx else None,
     }
+
+
+def _fx_context(spec: CSpec) -> dict:
+    """Effect constants as C text, in the order of the runtime's fx model struct."""
+    fx = spec.fx
+    fmt = (lambda v: str(int(v))) if spec.fixed else c_float
+    out = {"hyst": int(fx["hyst"]), "xrc": int(fx["xrc"]), "cdr": int(fx["cdr"])}
+    keys = FX_FIXED_KEYS if spec.fixed else FX_FLOAT_KEYS
+    out["values"] = [(k, fmt(fx[k])) for k in keys]
+    out["q"] = {k: v for k, v in fx.items() if k.startswith("SH_")}
+    return out
 
 
 def _env():
@@ -506,10 +661,13 @@ def _env():
                               trim_blocks=True, lstrip_blocks=True, autoescape=False)
 
 
-def file_names(prefix: str, numeric: str) -> dict[str, str]:
+def file_names(prefix: str, numeric: str, effects: bool = False) -> dict[str, str]:
+    """Names of the generated files; ``effects``: the model carries effects in the C
+    (CSpec.has_fx), which adds the effect runtime headers."""
+    rt = list(RUNTIME_FILES[numeric]) + (list(RUNTIME_FX_FILES[numeric]) if effects else [])
     return {"header": f"{prefix}_ecm.h", "source": f"{prefix}_ecm.c",
             "filelist": f"{prefix}_ecm_files.mk", "report": f"{prefix}_ecm_report.md",
-            "runtime": list(RUNTIME_FILES[numeric])}
+            "runtime": rt}
 
 
 def _equivalence_rows(eq: dict | None) -> list[dict]:
@@ -534,7 +692,7 @@ def render(spec: CSpec, equivalence: dict | None = None) -> dict[str, str]:
     env = _env()
     ctx = _context(spec)
     ctx["equivalence"] = _equivalence_rows(equivalence)
-    names = file_names(spec.prefix, spec.numeric)
+    names = file_names(spec.prefix, spec.numeric, spec.has_fx)
     ctx["files"] = names
     out = {names["header"]: env.get_template("ecm.h.j2").render(ctx),
            names["source"]: env.get_template("ecm.c.j2").render(ctx)}

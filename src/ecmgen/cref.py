@@ -52,6 +52,8 @@ class RefResult:
     u_fast: np.ndarray
     u_slow: np.ndarray
     charging: np.ndarray
+    h: np.ndarray | None = None        # hysteresis state (models with effects only)
+    u_x: np.ndarray | None = None      # extra RC pair voltage (models with effects only)
 
 
 def dt_from_time(time_s) -> np.ndarray:
@@ -97,6 +99,60 @@ def one_minus_exp_neg_f32(x) -> np.ndarray:
     return np.where(x > 0, out, F32(0.0)).astype(F32)
 
 
+# --- effects (ecmrt_f32_fx.h) -------------------------------------------------------------
+F_SQRT_MAGIC = np.uint32(0x1FBD1DF5)
+F_LOG1P_SPLIT = F32("0.414213568")
+F_SQRT2 = F32("1.41421354")
+F_ATANH = tuple(F32(s) for s in ("0.0769230798", "0.0909090936", "0.111111112", "0.142857149",
+                                 "0.200000003", "0.333333343"))
+F_X_MIN = F32("1.0e-12")
+
+
+def sqrt_f32(w) -> np.ndarray:
+    """ecmrt_f32_fx_sqrt: bit-trick start and four Newton steps, for 1 <= w."""
+    w = np.asarray(w, dtype=F32)
+    r = ((w.view(np.uint32) >> np.uint32(1)) + F_SQRT_MAGIC).astype(np.uint32).view(F32)
+    half = F32(0.5)
+    for _ in range(4):
+        r = half * (r + w / r)
+    return r.astype(F32)
+
+
+def log1p_f32(y) -> np.ndarray:
+    """ecmrt_f32_fx_log1p: log(1 + y) for y >= 0."""
+    y = np.atleast_1d(np.asarray(y, dtype=F32))
+    z = (F32(1.0) + y).astype(F32)
+    zb = z.view(np.uint32)
+    n = ((zb >> np.uint32(23)) & np.uint32(0xFF)).astype(np.int32) - 127
+    m = ((zb & np.uint32(0x007FFFFF)) | np.uint32(0x3F800000)).astype(np.uint32).view(F32)
+    big = m > F_SQRT2
+    m = np.where(big, m * F32(0.5), m).astype(F32)
+    n = np.where(big, n + 1, n)
+    f = (m - F32(1.0)).astype(F32)
+    small = y < F_LOG1P_SPLIT
+    f = np.where(small, y, f).astype(F32)
+    n = np.where(small, 0, n).astype(np.int32)
+    t = f / (F32(2.0) + f)
+    t2 = t * t
+    p = np.full_like(t, F_ATANH[0])
+    for c in F_ATANH[1:]:
+        p = c + t2 * p
+    tt = F32(2.0) * t
+    p = tt + tt * (t2 * p)
+    fn = n.astype(F32)
+    big_out = (fn * F_LN2_HI + p) + fn * F_LN2_LO
+    return np.where(n == 0, p, big_out).astype(F32)
+
+
+def cdr_factor_f32(ai, g_scale, g_inv_i0) -> np.ndarray:
+    """ecmrt_f32_fx_cdr_factor: scale * asinh(x) / x, x = max(|i| / i0, 1e-12)."""
+    x = np.asarray(ai, dtype=F32) * F32(g_inv_i0)
+    x = np.where(x > F_X_MIN, x, F_X_MIN).astype(F32)
+    x2 = x * x
+    y = x + x2 / (sqrt_f32(x2 + F32(1.0)) + F32(1.0))
+    return ((F32(g_scale) * log1p_f32(y)) / x).astype(F32)
+
+
 def _lerp_f32(y, k, w):
     return y[k] + (y[k + 1] - y[k]) * w
 
@@ -127,10 +183,10 @@ def _soc_f32(soc0: np.float32, d: np.ndarray) -> np.ndarray:
     return out
 
 
-def _rc_f32(c: np.ndarray, t: np.ndarray, divide: bool = False) -> np.ndarray:
+def _rc_f32(c: np.ndarray, t: np.ndarray, divide: bool = False, u0=0.0) -> np.ndarray:
     """u += c (t - u), or u += (t - u) / D with divide=True (fixed-dt tables hold D)."""
     out = np.empty_like(t)
-    u = F32(0.0)
+    u = F32(u0)
     if divide:
         for k, (dk, tk) in enumerate(zip(c, t)):  # numpy float32 scalars: f32 arithmetic
             u = u + (tk - u) / dk
@@ -172,6 +228,12 @@ def simulate_f32(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0) -> RefRes
         p = {name: _lerp_f32(getattr(d, name), k, w) for name in PARAMS}
         per_dir.append(p)
     p = {name: np.where(chg == 1, per_dir[1][name], per_dir[0][name]).astype(F32) for name in per_dir[0]}
+    fx = spec.fx
+    ai = np.abs(i).astype(F32)
+    if fx and fx["cdr"]:
+        g = cdr_factor_f32(ai, fx["g_scale"], fx["g_inv_i0"])
+        p["r0"] = (p["r0"] * g).astype(F32)
+        p["r_fast"] = (p["r_fast"] * g).astype(F32)
     if spec.variable_dt:
         with np.errstate(all="ignore"):
             cf = one_minus_exp_neg_f32(dt / p["k_fast"])
@@ -184,7 +246,31 @@ def simulate_f32(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0) -> RefRes
     k, w = _weight_f32(spec.ocv_grid, soc)
     ocv = _lerp_f32(spec.ocv, k, w)
     v = ((ocv + p["r0"] * i) + uf) + us
-    return RefResult(v.astype(F32), soc, uf, us, chg)
+    if not fx:
+        return RefResult(v.astype(F32), soc, uf, us, chg)
+    n = i.size
+    h = np.full(n, F32(fx["h_init"]), dtype=F32)
+    ux = np.zeros(n, dtype=F32)
+    if fx["hyst"]:
+        sg = np.where(chg == 1, F32(1.0), F32(-1.0)).astype(F32)
+        x = (ai * dt) * F32(fx["h_k"]) if spec.variable_dt else ai * F32(fx["h_k"])
+        ch = one_minus_exp_neg_f32(x)
+        h = _rc_f32(ch, sg, u0=fx["h_init"])
+        vh = F32(fx["h_m"]) * (h - F32(fx["h_ref"])) + F32(fx["h_m0"]) * (sg - F32(fx["h_ref"]))
+    if fx["xrc"]:
+        t = F32(fx["x_r"]) * i
+        if spec.variable_dt:
+            with np.errstate(all="ignore"):
+                ux = _rc_f32(one_minus_exp_neg_f32(dt / F32(fx["x_k"])), t)
+        else:
+            ux = _rc_f32(np.full(n, F32(fx["x_k"]), dtype=F32), t, divide=True)
+    if fx["hyst"] and fx["xrc"]:
+        v = v + (vh + ux)
+    elif fx["hyst"]:
+        v = v + vh
+    else:
+        v = v + ux
+    return RefResult(v.astype(F32), soc, uf, us, chg, h.astype(F32), ux.astype(F32))
 
 
 # =====================================================================================
@@ -222,6 +308,36 @@ def one_minus_exp_neg_q(dt_raw, tau_raw, q_t: int) -> np.ndarray:
     e = np.where(n > 0, (e + (np.int64(1) << np.maximum(n - 1, 0))) >> n, e)
     c = ONE30 - e
     return np.where(zero, 0, np.where(big, ONE30, c)).astype(np.int64)
+
+
+def one_minus_exp_neg_q26(x_raw) -> np.ndarray:
+    """ecmrt_q_fx_one_minus_exp_neg_q26: 1 - exp(-x) in Q30 for x in Q26 (int64)."""
+    x = np.asarray(x_raw, dtype=np.int64)
+    zero = x <= 0
+    big = x >= Q_XMAX26
+    x = np.where(zero | big, 0, x)
+    y = _rshr(x * Q_LOG2E, 30)
+    n = y >> 26
+    j = (y >> 23) & 7
+    f = y & 0x7FFFFF
+    r = _rshr(f * Q_LN2, 26)
+    p = np.full_like(r, Q_POLY[6])
+    for c in Q_POLY[5::-1]:
+        p = c + _rshr(r * p, 30)
+    e = _rshr(np.asarray(Q_EXP2_TAB, dtype=np.int64)[j] * p, 30)
+    e = np.where(n > 0, (e + (np.int64(1) << np.maximum(n - 1, 0))) >> n, e)
+    return np.where(zero, 0, np.where(big, ONE30, ONE30 - e)).astype(np.int64)
+
+
+def _rc_q_fx(c: np.ndarray, t: np.ndarray, u0: int = 0) -> np.ndarray:
+    """ECMRT_Q_RC with Q30 coefficients from u0 (c and t arrays of Python ints)."""
+    out = np.empty(len(t), dtype=np.int64)
+    u = int(u0)
+    half = 1 << 29
+    for k, (ck, tk) in enumerate(zip(c.tolist(), t.tolist())):
+        u = min(INT32_MAX, max(INT32_MIN, u + (((tk - u) * ck + half) >> 30)))
+        out[k] = u
+    return out
 
 
 def _weight_q(grid, soc, g: int):
@@ -305,8 +421,32 @@ def simulate_fixed_raw(spec: CSpec, i_raw, dt_raw=None, soc0_raw: int = ONE30) -
     r0i = _rshr(p["r0"] * i, q["Q_R0"] + q_i - q_v)
     k, w = _weight_q(spec.ocv_grid, soc, q["Q_G"])
     ocv = _lerp_q(spec.ocv, k, w)
-    v = _sat32(((ocv + r0i) + uf) + us)
-    return RefResult(v.astype(np.int64), soc, uf, us, chg)
+    v = ((ocv + r0i) + uf) + us
+    fx = spec.fx
+    if not fx:
+        return RefResult(_sat32(v).astype(np.int64), soc, uf, us, chg)
+    n = i.size
+    h = np.full(n, fx["h_init"], dtype=np.int64)
+    ux = np.zeros(n, dtype=np.int64)
+    if fx["hyst"]:
+        ai = np.abs(i)
+        sg = np.where(chg == 1, ONE30, -ONE30).astype(np.int64)
+        if spec.variable_dt:
+            x = _rshr(_sat32(_rshr(ai * fx["h_k"], fx["SH_HR"])) * dt, fx["SH_HX"])
+        else:
+            x = _rshr(ai * fx["h_k"], fx["SH_HX"])
+        h = _rc_q_fx(one_minus_exp_neg_q26(x), sg, fx["h_init"])
+        vh = (_rshr(fx["h_m"] * (h - fx["h_ref"]), fx["SH_HM"])
+              + _rshr(fx["h_m0"] * (sg - fx["h_ref"]), fx["SH_HM"]))
+        v = v + vh
+    if fx["xrc"]:
+        if spec.variable_dt:
+            cx = one_minus_exp_neg_q(dt, np.full(n, fx["x_k"], dtype=np.int64), q["Q_T"])
+        else:
+            cx = np.full(n, fx["x_k"], dtype=np.int64)
+        ux = _rc_q_fx(cx, _rshr(np.int64(fx["x_r"]) * i, fx["SH_XR"]))
+        v = v + ux
+    return RefResult(_sat32(v).astype(np.int64), soc, uf, us, chg, h, ux)
 
 
 # --- conversions between SI values and the fixed-point API ----------------------------
