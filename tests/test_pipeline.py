@@ -204,3 +204,19 @@ def test_diagnose_cli_on_the_bundled_example(tmp_path):
     res2 = run_cli("validate", doc["model"], REPO / "examples" / "panasonic-25degC" / "hwfet-a.mat",
                    "--soc0", "1.0", "--json")
     assert json.loads(res2.stdout)["mae_v"] == pytest.approx(doc["mae_after_v"], rel=1e-9)
+
+
+def test_codegen_cli_writes_c_for_a_model_and_refuses_bad_ones(tmp_path):
+    from ecmgen.effects import make_effect
+
+    model = synthetic_nca_model().with_effects([make_effect("extra_rc", r_ohm=0.01, tau_s=600.0)])
+    path = model.save(tmp_path / "model.json")
+    res = run_cli("codegen", path, "--out", tmp_path / "c", "--prefix", "cell1")
+    assert res.returncode == 0, res.stderr
+    assert (tmp_path / "c" / "cell1_ecm.h").exists() and (tmp_path / "c" / "cell1_ecm.c").exists()
+    assert "extra_rc" in (tmp_path / "c" / "cell1_ecm.h").read_text()
+    bad = tmp_path / "bad.json"
+    bad.write_text(path.read_text().replace('"schema_version": 1', '"schema_version": 99'))
+    err = _fails(["codegen", bad, "--out", tmp_path / "c2"], "bad.json", "schema_version")
+    assert "99" in err
+    assert not (tmp_path / "c2").exists()

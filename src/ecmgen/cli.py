@@ -100,6 +100,19 @@ def cmd_validate(args) -> int:
     return 0
 
 
+def cmd_codegen(args) -> int:
+    from .codegen import generate_c
+    from .model import load_model
+
+    # the files are named <prefix>_ecm.* and ecmrt*.h, never a model.json
+    files = generate_c(load_model(args.model), Path(args.out), prefix=args.prefix,
+                       numeric=args.numeric, dt_s=args.dt_s)
+    if not args.quiet:
+        for f in files:
+            print(f)
+    return 0
+
+
 def cmd_diagnose(args) -> int:
     from .config import load_config
     from .pipeline import run_diagnose
@@ -159,6 +172,15 @@ def parser() -> argparse.ArgumentParser:
     v.add_argument("--json", action="store_true")
     v.add_argument("--plot", help="write measured vs simulated PNG here")
     v.set_defaults(func=cmd_validate)
+
+    c = sub.add_parser("codegen", help="write the C of a model.json (e.g. an augmented one)")
+    c.add_argument("model")
+    c.add_argument("--out", required=True, help="folder for the .h/.c and runtime headers")
+    c.add_argument("--prefix", default="ecm", help="C symbol prefix")
+    c.add_argument("--numeric", choices=["float", "fixed"], default="float")
+    c.add_argument("--dt-s", type=float, help="fixed step in s (default: variable dt)")
+    c.add_argument("--quiet", action="store_true", help="do not list the files written")
+    c.set_defaults(func=cmd_codegen)
 
     g = sub.add_parser("diagnose", help="find, add and check missing model effects")
     g.add_argument("config")
