@@ -117,3 +117,28 @@ def test_a_dynamic_profile_is_not_a_pulse_test():
     series = TimeSeries(t, i, 3.7 + 0.02 * i, source="dst.csv")
     with pytest.raises(InputError, match="dst.csv: no pulses found.*not a pulse test"):
         find_pulses(series, 2.9, soc0=1.0)
+
+
+def test_usabc_hppc_discharge_then_regen_after_40_s():
+    """A 10 s discharge pulse, 40 s rest, a 10 s regen pulse: both are pulses."""
+    m = flat(synthetic_nca_model())
+    from ecmgen.simulate import simulate
+
+    t = np.arange(0, 700.0, 0.1)
+    i = np.zeros_like(t)
+    i[(t > 300) & (t <= 310)] = -14.5
+    i[(t > 350) & (t <= 360)] = 10.9
+    sim = simulate(m, t, i, 0.5)
+    series = TimeSeries(t, i, sim.voltage_v, source="hppc.csv")
+    pulses = find_pulses(series, 2.9, soc0=0.5)
+    assert [p.direction for p in pulses] == ["discharge", "charge"]
+    table = extract_dcir(series, pulses)
+    for k, tab in enumerate((m.discharge, m.charge)):
+        p = tab.at(0.5)
+        # R(0.1 s): R0, what both RC pairs reach in 0.1 s and the OCV's move with the
+        # charge passed; the regen pulse starts while the slow pair still relaxes from
+        # the discharge (a few micro-ohm)
+        docv_dq = (m.ocv.ocv_at(0.51) - m.ocv.ocv_at(0.49)) / 0.02 / (3600 * 2.9)
+        r01 = (p["r0_ohm"] + p["r_fast_ohm"] * -np.expm1(-0.1 / p["tau_fast_s"])
+               + p["r_slow_ohm"] * -np.expm1(-0.1 / p["tau_slow_s"]) + docv_dq * 0.1)
+        assert table.r_ohm[k, 0] == pytest.approx(float(r01), abs=5e-6)

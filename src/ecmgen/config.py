@@ -14,6 +14,7 @@
     time = "Test_Time(s)"  current = "Current(A)"  voltage = "Voltage(V)"
     [data.columns.pulses]      # or one mapping per file role (see COLUMN_ROLES)
     [dcir]   times_s = [0.1, 1, 3, 6, 10]   c_rate = "max" | "all" | 2.0
+             min_rest_s = 30   max_pulse_s = 120   (what counts as a pulse from rest)
     [fit]    methods = ["ga", "lm", "curve"]   seed = 0   relax_s = 1800   best = "curve"
     [c]      prefix = "ecm"   numeric = ["float", "fixed"]   dt_s = 0.1
 """
@@ -49,6 +50,8 @@ class BuildConfig:
     columns: dict[str, Any] | None     # raw [data.columns] table, parsed by measure
     times_s: tuple[float, ...]
     c_rate: str | float           # "max", "all" or a C-rate
+    min_rest_s: float             # a pulse follows at least this much rest
+    max_pulse_s: float            # and lasts at most this long
     methods: tuple[str, ...]
     seed: int
     relax_s: float
@@ -184,6 +187,8 @@ def load_config(path: str | Path) -> BuildConfig:
         soc0=_number(data, "soc0", path, "data", unit_interval=True),
         extra_cycles=extra_paths, columns=columns, times_s=tuple(float(t) for t in times),
         c_rate=c_rate if isinstance(c_rate, str) else float(c_rate),
+        min_rest_s=_number(dcir_t, "min_rest_s", path, "dcir", 30.0),
+        max_pulse_s=_number(dcir_t, "max_pulse_s", path, "dcir", 120.0, positive=True),
         methods=tuple(methods), seed=seed,
         relax_s=_number(fit, "relax_s", path, "fit", 1800.0, positive=True),
         best=best, c_prefix=prefix, c_numeric=tuple(numeric),

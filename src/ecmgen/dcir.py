@@ -128,11 +128,12 @@ def read_dcir_csv(path: str | Path) -> DcirTable:
 
 def find_pulses(series: TimeSeries, capacity_ah: float, *, soc0: float,
                 rest_current_a: float | None = None, max_pulse_s: float = 120.0,
-                min_rest_s: float = 60.0) -> list[Pulse]:
+                min_rest_s: float = 30.0) -> list[Pulse]:
     """Find the current steps from rest in a pulse test.
 
     A pulse must follow at least ``min_rest_s`` of rest (else the voltage it starts
-    from is not a rested one) and last at most ``max_pulse_s``.
+    from is not a rested one; 30 s admits the 40 s rest between the discharge and the
+    regen pulse of a USABC-style HPPC) and last at most ``max_pulse_s``.
 
     SOC at each pulse comes from ``soc0`` plus the record's cumulative charge (its Ah
     column where it has one, which is right even when the file leaves out the

@@ -113,7 +113,8 @@ def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
         elif soc0 is None:
             soc0 = 1.0
             notes.append("pulse test assumed to start at SOC 1.0 (set data.pulses_soc0)")
-        pulses = tuple(dcir_mod.find_pulses(series, q, soc0=soc0))
+        pulses = tuple(dcir_mod.find_pulses(series, q, soc0=soc0, min_rest_s=cfg.min_rest_s,
+                                            max_pulse_s=cfg.max_pulse_s))
         table = dcir_mod.extract_dcir(series, list(pulses), cfg.times_s)
         notes.extend(table.notes)
         progress(f"{len(pulses)} pulses, {len(table)} DC-IR rows")
