@@ -220,3 +220,24 @@ def test_codegen_cli_writes_c_for_a_model_and_refuses_bad_ones(tmp_path):
     err = _fails(["codegen", bad, "--out", tmp_path / "c2"], "bad.json", "schema_version")
     assert "99" in err
     assert not (tmp_path / "c2").exists()
+
+
+def test_validate_reads_another_cyclers_csv_through_the_config(synthetic_project):
+    folder, cfg, _ = synthetic_project
+    assert main(["build", str(cfg), "--out", str(folder / "out"), "--quiet", "--no-plots"]) == 0
+    from ecmgen.measure import read_timeseries
+
+    s = read_timeseries(folder / "cycle.csv")
+    rows = ["t [h],I [mA],U [V]"] + [f"{float(t) / 3600!r},{float(-i) * 1000!r},{float(v)!r}"
+                                    for t, i, v in zip(s.time_s, s.current_a, s.voltage_v)]
+    (folder / "cycle-other.csv").write_text("\n".join(rows) + "\n")
+    cfg.write_text(cfg.read_text() + '[data.columns.cycle]\ntime = "t [h]"\ntime_unit = "h"\n'
+                   'current = "I [mA]"\ncurrent_unit = "mA"\ncurrent_sign = "discharge_positive"\n'
+                   'voltage = "U [V]"\n')
+    a = run_cli("validate", folder / "out" / "model.json", folder / "cycle.csv", "--json")
+    b = run_cli("validate", folder / "out" / "model.json", folder / "cycle-other.csv",
+                "--config", cfg, "--json")
+    assert b.returncode == 0, b.stderr
+    assert json.loads(b.stdout)["mae_v"] == pytest.approx(json.loads(a.stdout)["mae_v"], rel=1e-6)
+    _fails(["validate", folder / "out" / "model.json", folder / "cycle-other.csv"],
+           "cycle-other.csv", "columns not recognised")

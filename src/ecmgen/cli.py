@@ -43,7 +43,7 @@ def cmd_dcir(args) -> int:
     series = read_timeseries(args.pulses, capacity_ah=args.capacity_ah)
     pulses = find_pulses(series, args.capacity_ah, soc0=args.soc0)
     table = extract_dcir(series, pulses, args.times)
-    for n in table.notes:
+    for n in () if args.quiet else table.notes:
         print(f"note: {n}", file=sys.stderr)
     if args.out:
         out = Path(args.out)
@@ -82,7 +82,14 @@ def cmd_validate(args) -> int:
     from .simulate import validate
 
     model = load_model(args.model)
-    series = read_timeseries(args.cycle, capacity_ah=model.capacity_ah)
+    if args.config:
+        # a CSV from another cycler: the config's [data.columns] (or [data.columns.cycle])
+        from .config import load_config
+        from .pipeline import read_series
+
+        series = read_series(load_config(args.config), Path(args.cycle), "cycle")
+    else:
+        series = read_timeseries(args.cycle, capacity_ah=model.capacity_ah)
     val = validate(model, series, args.soc0)
     if args.plot:
         from .plots import plot_validation
@@ -156,6 +163,7 @@ def parser() -> argparse.ArgumentParser:
     d.add_argument("--soc0", type=float, default=1.0, help="SOC at the start of the test")
     d.add_argument("--times", type=float, nargs="+", default=[0.1, 1.0, 3.0, 6.0, 10.0])
     d.add_argument("--out", help="CSV path (default: stdout)")
+    d.add_argument("--quiet", action="store_true", help="no notes on stderr")
     d.set_defaults(func=cmd_dcir)
 
     f = sub.add_parser("fit", help="fit a model.json from a config file")
@@ -171,6 +179,8 @@ def parser() -> argparse.ArgumentParser:
     v.add_argument("--soc0", type=float, help="start SOC (default: from the OCV)")
     v.add_argument("--json", action="store_true")
     v.add_argument("--plot", help="write measured vs simulated PNG here")
+    v.add_argument("--config", help="a build config whose [data.columns] maps the cycle's CSV")
+    v.add_argument("--quiet", action="store_true", help="(no progress is shown anyway)")
     v.set_defaults(func=cmd_validate)
 
     c = sub.add_parser("codegen", help="write the C of a model.json (e.g. an augmented one)")
