@@ -253,3 +253,251 @@ def test_sanitized_build_has_no_undefined_behaviour(tmp_path):
     assert "runtime error" not in run.stderr and "AddressSanitizer" not in run.stderr, run.stderr
     assert run.returncode == 0, run.stdout + run.stderr
     assert "fails 0" in run.stdout
+
+
+# --- models with effects -----------------------------------------------------------------------
+# Every effect each numeric mode carries (float: hysteresis, extra_rc,
+# current_dependent_resistance, capacity_error; fixed: all but current_dependent_resistance),
+# with the parameters of test_codegen_effects, on the 20-breakpoint model above.
+
+FX_DT = {None: None, 0.1: 0.1}
+
+
+def _fx_model(numeric):
+    from test_codegen_effects import EFFECTS
+
+    from ecmgen.codegen import C_EFFECTS
+
+    return _model().with_effects([e for n, e in EFFECTS.items() if n in C_EFFECTS[numeric]])
+
+
+@functools.lru_cache(maxsize=None)
+def _fx_cm(numeric, dt_s):
+    cm = cbuild.build(_fx_model(numeric), numeric=numeric, dt_s=dt_s, prefix="rbx")
+    assert cm.spec.has_fx
+    return cm
+
+
+def _fx_v_bound(numeric, i_lim):
+    """max |v - ocv| of the effect model with the current saturated at i_lim: the resistances
+    (r0 and r_fast times the current-dependent factor, <= scale_at_zero), the extra RC pair and
+    the hysteresis terms at |h| = |s| = 1."""
+    by = {e.name: e for e in _fx_model(numeric).effects}
+    m = _model()
+    big = {k: max(np.max(getattr(t, k)) for t in (m.charge, m.discharge))
+           for k in ("r0_ohm", "r_fast_ohm", "r_slow_ohm")}
+    g = by["current_dependent_resistance"].scale_at_zero if numeric == "float" else 1.0
+    h = by["hysteresis"]
+    r = g * (big["r0_ohm"] + big["r_fast_ohm"]) + big["r_slow_ohm"] + by["extra_rc"].r_ohm
+    return i_lim * r + (abs(h.m_v) + abs(h.m0_v)) * (1.0 + abs(h.ocv_table_state))
+
+
+@pytest.mark.parametrize("numeric,dt_s,n", [("float", None, 2 * 10**6), ("fixed", None, 2 * 10**6),
+                                            ("float", 0.1, 10**6), ("fixed", 0.1, 10**6)],
+                         ids=VARIANT_IDS)
+def test_effects_long_random_runs_stay_finite_and_bounded(numeric, dt_s, n):
+    """n pseudo-random steps in C (float: currents up to 4x the limit and the odd 1e30 A; dt
+    up to 10 s) through the model with all effects: finite, SOC within its saturation, the
+    voltage within what the saturated current can produce."""
+    cm = _fx_cm(numeric, dt_s)
+    r = cm.stress(n, seed=777, soc0=None, dt_max=10.0)
+    assert r["bad"] == 0, r
+    assert -2.0 <= r["soc_min"] <= r["soc_max"] <= 2.0, r
+    m = _model()
+    bound = _fx_v_bound(numeric, cm.spec.i_lim_a) * 1.001 + 1e-6
+    assert r["v_max"] <= m.ocv.ocv_v[-1] + bound and r["v_min"] >= m.ocv.ocv_v[0] - bound, r
+    fin = r["final"]
+    if numeric == "float":
+        assert all(np.isfinite(float(fin[k])) for k in fin), fin
+
+
+@pytest.mark.parametrize("numeric,dt_s", VARIANTS, ids=VARIANT_IDS)
+def test_effects_soc_and_hysteresis_saturate(numeric, dt_s):
+    """±1000 A (beyond the limit) for 200 000 steps of 10 s: SOC runs into its saturation at
+    ±2 and stays there (no wrap), h stays in [-1, 1] and ends at the direction's ±1, u_x
+    settles at r_x * i_lim, the voltage is finite and constant at the end."""
+    cm = _fx_cm(numeric, dt_s)
+    by = {e.name: e for e in _fx_model(numeric).effects}
+    one = float(cref.ONE30) if numeric == "fixed" else 1.0
+    vscale = 2.0 ** -cm.spec.q["Q_V"] if numeric == "fixed" else 1.0
+    n = 200000
+    for sign in (1.0, -1.0):
+        cur = np.full(n, sign * 1000.0)
+        i_n, dt_n, s0 = cm.native_inputs(cur, np.full(n, 10.0) if dt_s is None else None, 0.5)
+        got = cm.trace_native(i_n, dt_n, s0)
+        if numeric == "float":
+            assert got.soc[-1] == np.float32(2.0 * sign)
+            for f in ("v", "u_fast", "u_slow", "h", "u_x"):
+                assert np.all(np.isfinite(getattr(got, f))), f
+        else:
+            assert got.soc[-1] == (2**31 - 1 if sign > 0 else -(2**31))
+        assert np.all(np.diff(got.soc.astype(np.float64)) * sign >= 0)     # monotonic: no wrap
+        h = got.h.astype(np.float64) / one
+        assert np.all(np.abs(h) <= 1.0)
+        # float32 h += c_h (s - h) stops within ~2^-25 / c_h of s (c_h ~ 0.025 at dt 0.1 s):
+        # 1.25e-6 here, i.e. m_v * 1.25e-6 = 25 nV
+        assert abs(h[-1] - sign) < 1e-4
+        ux = got.u_x[-1] * vscale
+        assert abs(ux - by["extra_rc"].r_ohm * sign * cm.spec.i_lim_a) < 1e-3 * abs(ux) + 1e-6
+        assert got.v[-1] == got.v[-2]
+
+
+def test_effects_float_input_sanitising():
+    """NaN A counts as 0 A, ±inf A as the limit, NaN/negative dt as 0, +inf dt as 32767 s - on
+    every output and state, effect states included; NaN / huge soc0 saturate."""
+    cm = _fx_cm("float", None)
+    lim = np.float32(cm.spec.i_lim_a)
+    base = np.array([-3.0, -3.0, 5.0, 0.0, -10.0, 2.0], np.float32)
+    dts = np.full(base.size, 0.1, np.float32)
+    fields = ("v", "soc", "u_fast", "u_slow", "charging", "h", "u_x")
+
+    def run(i, dt, soc0=0.7):
+        return cm.trace_native(np.asarray(i, np.float32), np.asarray(dt, np.float32), soc0)
+
+    def same(a, b):
+        for f in fields:
+            x, y = getattr(a, f), getattr(b, f)
+            assert np.array_equal(x.view(np.uint32) if x.dtype == np.float32 else x,
+                                  y.view(np.uint32) if y.dtype == np.float32 else y), f
+
+    def with_(a, k, val):
+        a = a.copy()
+        a[k] = val
+        return a
+
+    same(run(with_(base, 3, np.nan), dts), run(base, dts))                     # base[3] = 0 A
+    same(run(with_(base, 2, np.inf), dts), run(with_(base, 2, lim), dts))
+    same(run(with_(base, 4, -np.inf), dts), run(with_(base, 4, -lim), dts))
+    same(run(with_(base, 4, -1e30), dts), run(with_(base, 4, -lim), dts))
+    for bad_dt in (np.nan, -1.0, -np.inf):
+        same(run(base, with_(dts, 2, bad_dt)), run(base, with_(dts, 2, 0.0)))
+    same(run(base, with_(dts, 2, np.inf)), run(base, with_(dts, 2, 32767.0)))
+    for s0, want in ((float("nan"), 0.0), (1e30, 2.0), (-1e30, -2.0)):
+        got = run(base, with_(dts, 0, 0.0), soc0=s0)
+        assert got.soc[0] == np.float32(want)
+        for f in ("v", "h", "u_x"):
+            assert np.all(np.isfinite(getattr(got, f))), (s0, f)
+    # dt = 0 moves no state but the direction (and the hysteresis' instantaneous term with it)
+    z = run(np.array([-5.0, 3.0, 3.0], np.float32), np.array([1.0, 0.0, 0.0], np.float32))
+    assert z.h[1] == z.h[0] and z.u_x[1] == z.u_x[0] and z.soc[1] == z.soc[0]
+    assert z.charging.tolist() == [0, 1, 1] and z.v[1] == z.v[2]
+
+
+SAN_FX_MAIN = r"""
+#include <stdio.h>
+#include <stdlib.h>
+#include <stdint.h>
+#include <float.h>
+#include "fv_ecm.h"
+#include "fd_ecm.h"
+#include "qv_ecm.h"
+#include "qd_ecm.h"
+
+static uint32_t rnd(uint32_t *x) { *x ^= *x << 13; *x ^= *x >> 17; *x ^= *x << 5; return *x; }
+static long fails = 0, qfails = 0;
+static int bad_f(float v) { return !(v == v) || v > 1e6f || v < -1e6f; }
+/* float state: every field finite, SOC in [-2, 2], h in [-1, 1] */
+#define BAD_FS(s) (bad_f((s).soc) || bad_f((s).u_fast) || bad_f((s).u_slow) || bad_f((s).u_x) || \
+                   !((s).soc >= -2.0f && (s).soc <= 2.0f) || !((s).h >= -1.0f && (s).h <= 1.0f))
+/* fixed state: h in Q30 [-1, 1] */
+#define BAD_QS(s) ((s).h < -(1 << 30) || (s).h > (1 << 30))
+
+int main(int argc, char **argv)
+{
+    static const float cur[] = {0.0f, 1e30f, -1e30f, FLT_MAX, -FLT_MAX, 1e-45f, -1e-45f,
+                                127.0f, -500.0f, 3.0f, -3.0f, 0.02f};
+    static const float dts[] = {0.0f, -1.0f, 1e-45f, 0.1f, 1e30f, FLT_MAX, 32767.0f};
+    static const float socs[] = {-1e30f, -2.5f, 0.0f, 0.5f, 1.0f, 3.0f, 1e30f};
+    static const int32_t qcur[] = {INT32_MIN, INT32_MAX, 0, 1, -1, 486539, -486539, 1 << 24};
+    static const int32_t qdts[] = {INT32_MIN, -1, 0, 1, 6554, INT32_MAX};
+    static const int32_t qsocs[] = {INT32_MIN, -1, 0, 1 << 29, 1 << 30, INT32_MAX};
+    const float nan = 0.0f / (argc > 99 ? 1.0f : 0.0f);   /* NaN without a constant fold warning */
+    const float inf = 1.0f / (argc > 99 ? 1.0f : 0.0f);
+    long n = argc > 1 ? atol(argv[1]) : 1000000L;
+    size_t a, b, c;
+    long k;
+    uint32_t x = 2463534242u;
+    for (a = 0; a < sizeof socs / sizeof socs[0]; a++)
+        for (b = 0; b < sizeof cur / sizeof cur[0]; b++)
+            for (c = 0; c < sizeof dts / sizeof dts[0]; c++) {
+                fv_state_t s; fd_state_t t;
+                int r;
+                fv_init(&s, socs[a]); fd_init(&t, socs[a]);
+                for (r = 0; r < 20; r++) {
+                    fails += bad_f(fv_step(&s, r % 3 ? cur[b] : -cur[b], dts[c]));
+                    fails += bad_f(fv_step(&s, nan, nan)) + bad_f(fv_step(&s, inf, inf));
+                    fails += bad_f(fv_step(&s, -inf, -inf)) + bad_f(fv_step(&s, nan, inf));
+                    fails += bad_f(fd_step(&t, r % 3 ? cur[b] : -cur[b])) + bad_f(fd_step(&t, nan));
+                    fails += bad_f(fd_step(&t, -inf)) + bad_f(fd_step(&t, inf));
+                    fails += BAD_FS(s) + BAD_FS(t);
+                }
+            }
+    for (a = 0; a < sizeof qsocs / sizeof qsocs[0]; a++)
+        for (b = 0; b < sizeof qcur / sizeof qcur[0]; b++)
+            for (c = 0; c < sizeof qdts / sizeof qdts[0]; c++) {
+                qv_state_t s; qd_state_t t;
+                int r;
+                qv_init(&s, qsocs[a]); qd_init(&t, qsocs[a]);
+                for (r = 0; r < 20; r++) {
+                    (void)qv_step(&s, r % 2 ? qcur[b] : -(qcur[b] + 1), qdts[c]);
+                    (void)qd_step(&t, r % 2 ? qcur[b] : -(qcur[b] + 1));
+                    qfails += BAD_QS(s) + BAD_QS(t);
+                }
+            }
+    {
+        fv_state_t s; fd_state_t t; qv_state_t q; qd_state_t u;
+        fv_init(&s, 0.5f); fd_init(&t, 0.5f); qv_init(&q, 1 << 29); qd_init(&u, 1 << 29);
+        for (k = 0; k < n; k++) {
+            const uint32_t r1 = rnd(&x), r2 = rnd(&x), r3 = rnd(&x);
+            float fi = (float)(int32_t)r1 * (1.0f / 8388608.0f);          /* +-256 A */
+            float fdt = (float)(r2 >> 8) * (1.0f / 1677721.6f);          /* 0..10 s */
+            int32_t qi = (int32_t)r1;
+            if ((r3 & 1023u) == 0u) fi = (r3 & 1024u) ? nan : fi * 1e30f;  /* absurd inputs */
+            if ((r3 & 4095u) == 1u) fdt = (r3 & 4096u) ? nan : 1e30f;
+            if ((r3 & 3u) != 0u) qi >>= (r3 >> 2) % 24u;                   /* mostly moderate */
+            fails += bad_f(fv_step(&s, fi, fdt)) + bad_f(fd_step(&t, fi));
+            (void)qv_step(&q, qi, (int32_t)(r2 >> 13));
+            (void)qd_step(&u, qi);
+            if ((k & 63) == 0) {
+                fails += BAD_FS(s) + BAD_FS(t);
+                qfails += BAD_QS(q) + BAD_QS(u);
+            }
+        }
+        fails += BAD_FS(s) + BAD_FS(t);
+        qfails += BAD_QS(q) + BAD_QS(u);
+        printf("state %g %g %g %g %ld %ld %ld %ld\n", (double)s.soc, (double)s.h, (double)s.u_x,
+               (double)t.h, (long)q.soc, (long)q.h, (long)q.u_x, (long)u.h);
+    }
+    printf("fails %ld qfails %ld\n", fails, qfails);
+    return fails != 0 || qfails != 0;
+}
+"""
+
+
+def test_effects_sanitized_build_has_no_undefined_behaviour(tmp_path):
+    """ASan + UBSan (+ float-cast-overflow) build of the four variants with all effects, driven
+    through NaN/inf/extreme currents and dt, SOC far outside [0, 1], and 5*10^6 random steps:
+    no sanitizer report, no non-finite output, every state finite, h within [-1, 1]."""
+    cc = cbuild.host_cc()
+    probe = subprocess.run([*cc, *cbuild.SANITIZE_FLAGS, "-x", "c", "-", "-o", tmp_path / "probe"],
+                           input="int main(void){return 0;}\n", capture_output=True, text=True)
+    if probe.returncode != 0:
+        pytest.skip(f"compiler cannot build with sanitizers: {probe.stderr.strip()[:200]}")
+    srcs = []
+    for prefix, (numeric, dt_s) in zip(("fv", "fd", "qv", "qd"), VARIANTS):
+        generate_c(_fx_model(numeric), tmp_path, prefix=prefix, numeric=numeric, dt_s=dt_s)
+        assert "ecmrt_fx.h" in (tmp_path / f"{prefix}_ecm.h").read_text() + \
+            (tmp_path / f"{prefix}_ecm.c").read_text()
+        srcs.append(tmp_path / f"{prefix}_ecm.c")
+    (tmp_path / "main.c").write_text(SAN_FX_MAIN)
+    exe = tmp_path / "san_fx"
+    flags = [f for f in cbuild.STRICT_CFLAGS if f != "-Werror"]
+    proc = subprocess.run([*cc, *flags, *cbuild.SANITIZE_FLAGS, "-O1", "-I", str(tmp_path),
+                           *map(str, srcs), str(tmp_path / "main.c"), "-o", str(exe)],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    run = subprocess.run([str(exe), "5000000"], capture_output=True, text=True, timeout=300)
+    print("\n", run.stdout)
+    assert "runtime error" not in run.stderr and "AddressSanitizer" not in run.stderr, run.stderr
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "fails 0 qfails 0" in run.stdout

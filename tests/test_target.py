@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import functools
 
+import numpy as np
 import pytest
 
 from ecmgen import target
@@ -110,3 +111,70 @@ def test_qemu_cortex_m3_soft_float_fixed_bit_exact(tmp_path):
     assert set(res["variants"]) == {"fixed/variable-dt", "fixed/dt=0.1"}
     for name, r in res["variants"].items():
         assert r["steps"] == 10000 and r["bit_exact"], (name, r)
+
+
+# --- models with effects ---------------------------------------------------------------------
+
+def _fx_models():
+    """The Panasonic-like model with every effect each numeric mode carries (the parameters of
+    test_codegen_effects): float adds current_dependent_resistance, which fixed refuses."""
+    from test_codegen_effects import EFFECTS
+
+    from ecmgen.codegen import C_EFFECTS
+
+    base = panasonic_model()
+    return {num: base.with_effects([e for n, e in EFFECTS.items() if n in C_EFFECTS[num]])
+            for num in ("float", "fixed")}
+
+
+def _check_fx(res, names, steps):
+    assert set(res["variants"]) == set(names), res
+    for name, r in res["variants"].items():
+        assert r["steps"] >= steps, (name, r)
+        assert "hysteresis" in r["effects"] and "extra_rc" in r["effects"], (name, r)
+        assert set(r["fields"]) == {"v", "soc", "h", "u_x"}, (name, r)   # effect states compared
+        assert r["bit_exact"], (name, r)
+
+
+@pytest.mark.slow
+def test_qemu_cortex_m4_bit_exact_with_effects(tmp_path):
+    """12 000 steps of the US06 record through models with effects (float: hysteresis,
+    extra_rc, current_dependent_resistance, capacity_error; fixed: all but the
+    current-dependent resistance) on an emulated Cortex-M4F: voltage, SOC and the effect
+    states h and u_x equal the host's bit for bit, on all four variants."""
+    _need(qemu=True)
+    models = _fx_models()
+    s = cycle("us06.mat")
+    soc0 = soc0_of(models["float"], s)
+    n = 12000
+    res = target.qemu_equivalence(models, s.time_s[:n], s.current_a[:n], soc0, cpu="m4f",
+                                  out_dir=tmp_path)
+    print("\n", res)
+    _check_fx(res, {"float/variable-dt", "float/dt=0.1", "fixed/variable-dt", "fixed/dt=0.1"},
+              10000)
+    assert "current_dependent_resistance" in res["variants"]["float/variable-dt"]["effects"]
+
+
+@pytest.mark.slow
+def test_qemu_cortex_m3_soft_float_fixed_bit_exact_with_effects(tmp_path):
+    _need(qemu=True)
+    models = _fx_models()
+    s = cycle("hwfet-a.mat")
+    soc0 = soc0_of(models["fixed"], s)
+    res = target.qemu_equivalence(models, s.time_s[:10000], s.current_a[:10000], soc0, cpu="m3",
+                                  out_dir=tmp_path)
+    print("\n", res)
+    _check_fx(res, {"fixed/variable-dt", "fixed/dt=0.1"}, 10000)
+
+
+def test_firmware_records_effect_states_only_for_models_with_effects():
+    from test_codegen_effects import EFFECTS
+
+    base = _model20()
+    plain = target.TargetRun(prepare(base, numeric="float", prefix="pa"),
+                             np.zeros(3, np.float32), np.zeros(3, np.float32), 0.5)
+    fx = target.TargetRun(prepare(base.with_effects([EFFECTS["hysteresis"]]), numeric="fixed",
+                                  dt_s=0.1, prefix="fx"), np.zeros(3, np.int32), None, 1 << 29)
+    assert plain.fields == ("v", "soc") and fx.fields == ("v", "soc", "h", "u_x")
+    src = target.firmware_main([plain, fx])
+    assert "pa_out[2 * 3]" in src and "fx_out[4 * 3]" in src and "s.h;" in src and "s.u_x;" in src

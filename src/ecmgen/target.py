@@ -9,7 +9,8 @@
 * :func:`qemu_equivalence` links several generated models (distinct prefixes) into one
   bare-metal image for ``qemu-system-arm -M mps2-an386`` (Cortex-M4F) or ``mps2-an385``
   (Cortex-M3, soft float), runs them over a stretch of a real record with semihosting, and
-  compares every output and SOC with the host build bit for bit.
+  compares every output and SOC (and, for models with effects, the effect states ``h`` and
+  ``u_x``) with the host build bit for bit.
 
 Tools: Debian/Ubuntu ``apt-get install gcc-arm-none-eabi libnewlib-arm-none-eabi
 qemu-system-arm`` (``INSTALL_HINT``); :func:`missing_tools` tells what is absent.
@@ -228,6 +229,11 @@ class TargetRun:
     dt: np.ndarray | None
     soc0: float | int
 
+    @property
+    def fields(self) -> tuple[str, ...]:
+        """What the firmware records per step, in this order (n values each)."""
+        return ("v", "soc", "h", "u_x") if self.spec.has_fx else ("v", "soc")
+
 
 def _array(name: str, a: np.ndarray, fixed: bool) -> str:
     if fixed:
@@ -256,7 +262,9 @@ def firmware_main(runs: list[TargetRun]) -> str:
             parts.append(_array(f"{p}_in_dt", r.dt, fixed))
         soc0 = str(int(r.soc0)) if fixed else f"{float(np.float32(r.soc0)).hex()}f"
         dt_arg = f", {get(p + '_in_dt')}" if r.spec.variable_dt else ""
-        parts.append(f"""static {t} {p}_out[2 * {n}];
+        fx_rec = (f"        {p}_out[2u * {n}u + k] = s.h;\n"
+                  f"        {p}_out[3u * {n}u + k] = s.u_x;\n") if r.spec.has_fx else ""
+        parts.append(f"""static {t} {p}_out[{len(r.fields)} * {n}];
 static void run_{p}(void)
 {{
     {p}_state_t s;
@@ -265,7 +273,7 @@ static void run_{p}(void)
     for (k = 0; k < {n}u; k++) {{
         {p}_out[k] = {p}_step(&s, {get(p + '_in_i')}{dt_arg});
         {p}_out[{n}u + k] = s.soc;
-    }}
+{fx_rec}    }}
 }}
 """)
         calls.append((p, n))
@@ -350,8 +358,10 @@ def qemu_equivalence(model, time_s, current_a, soc0: float, cpu: str = "m4f",
                      variants=(("float", None), ("float", 0.1), ("fixed", None), ("fixed", 0.1)),
                      out_dir=None, cache=None) -> dict:
     """Run the generated models on the emulated target and on the host (cffi) over the same
-    inputs; compare voltages and SOC bit for bit. ``variants``: (numeric, dt_s) pairs; a
-    fixed-dt variant ignores the record's time stamps (each step lasts dt_s)."""
+    inputs; compare voltages and SOC (and the effect states h, u_x of a model with effects)
+    bit for bit. ``variants``: (numeric, dt_s) pairs; a fixed-dt variant ignores the record's
+    time stamps (each step lasts dt_s). ``model``: one model, or a dict numeric -> model (a
+    model with effects only the float variant carries, e.g. current_dependent_resistance)."""
     import tempfile
 
     from . import cref
@@ -360,10 +370,12 @@ def qemu_equivalence(model, time_s, current_a, soc0: float, cpu: str = "m4f",
         variants = tuple(v for v in variants if v[0] == "fixed")   # soft-float CPUs: fixed only
     t = np.asarray(time_s, dtype=np.float64)
     dt = cref.dt_from_time(t)
-    runs, host = [], []
+    runs, host, fx_names = [], [], []
     for numeric, dt_s in variants:
         prefix = f"{'f' if numeric == 'float' else 'q'}{'v' if dt_s is None else 'd'}"
-        spec = prepare(model, numeric=numeric, dt_s=dt_s, prefix=prefix)
+        mdl = model[numeric] if isinstance(model, dict) else model
+        spec = prepare(mdl, numeric=numeric, dt_s=dt_s, prefix=prefix)
+        fx_names.append([e.name for e in (getattr(mdl, "effects", ()) or ())])
         cm = compile_spec(spec, cache=cache)
         i_n, dt_n, s0 = cm.native_inputs(current_a, dt if dt_s is None else None, soc0)
         ref = cm.trace_native(i_n, dt_n, s0)
@@ -382,19 +394,24 @@ def qemu_equivalence(model, time_s, current_a, soc0: float, cpu: str = "m4f",
     res = {"cpu": CPUS[cpu]["name"], "machine": CPUS[cpu]["machine"], "steps": int(t.size),
            "variants": {}}
     off = 0
-    for r, h in zip(runs, host):
+    for r, h, names in zip(runs, host, fx_names):
         n = r.i.size
         dtype = np.int32 if r.spec.fixed else np.float32
-        arr = np.frombuffer(raw, dtype=dtype, count=2 * n, offset=off)
-        off += 8 * n
-        v_t, soc_t = arr[:n], arr[n:]
+        nf = len(r.fields)
+        if off + 4 * nf * n > len(raw):
+            raise CBuildError(f"target wrote {len(raw)} bytes, expected more than {off + 4 * nf * n}")
+        arr = np.frombuffer(raw, dtype=dtype, count=nf * n, offset=off)
+        off += 4 * nf * n
         name = f"{r.spec.numeric}/{'variable-dt' if r.spec.variable_dt else f'dt={r.spec.dt_s}'}"
-        if r.spec.fixed:
-            mism = int(np.count_nonzero(v_t != h.v) + np.count_nonzero(soc_t != h.soc))
-        else:
-            mism = int(np.count_nonzero(v_t.view(np.uint32) != h.v.view(np.uint32))
-                       + np.count_nonzero(soc_t.view(np.uint32) != h.soc.view(np.uint32)))
-        res["variants"][name] = {"steps": int(n), "mismatches": mism, "bit_exact": mism == 0}
+        per_field = {}
+        for j, f in enumerate(r.fields):
+            got = arr[j * n:(j + 1) * n].view(np.uint32 if dtype == np.float32 else np.int32)
+            ref = np.ascontiguousarray(getattr(h, f), dtype=dtype)
+            ref = ref.view(np.uint32) if dtype == np.float32 else ref
+            per_field[f] = int(np.count_nonzero(got != ref))
+        mism = sum(per_field.values())
+        res["variants"][name] = {"steps": int(n), "mismatches": mism, "bit_exact": mism == 0,
+                                 "fields": per_field, "effects": names}
     if off != len(raw):
         raise CBuildError(f"target wrote {len(raw)} bytes, expected {off}")
     return res
