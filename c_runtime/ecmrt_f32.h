@@ -47,14 +47,17 @@ typedef struct {
 
 /* Parameters of one current direction: ECMRT_NPAR values per breakpoint, row after row,
  * rows[ECMRT_NPAR * k + ECMRT_P_*], so that one base pointer serves every interpolation.
+ * Each parameter is a pair (y[k], y[k+1] - y[k]): the value and the float32 difference to
+ * the next breakpoint (the subtraction done once by the generator, in float32, so the
+ * interpolation gives the same bits as subtracting at run time; 0 in the last row).
  * ECMRT_P_KF / ECMRT_P_KS hold the time constants tau in s (ECMRT_VARIABLE_DT = 1) or
  * D = 1/(1 - exp(-dt/tau)) (ECMRT_VARIABLE_DT = 0). */
-#define ECMRT_NPAR 5u
+#define ECMRT_NPAR 10u
 #define ECMRT_P_R0 0u
-#define ECMRT_P_RF 1u
-#define ECMRT_P_KF 2u
-#define ECMRT_P_RS 3u
-#define ECMRT_P_KS 4u
+#define ECMRT_P_RF 2u
+#define ECMRT_P_KF 4u
+#define ECMRT_P_RS 6u
+#define ECMRT_P_KS 8u
 
 typedef struct {
     ecmrt_f32_grid_t g;
@@ -63,7 +66,7 @@ typedef struct {
 
 typedef struct {
     ecmrt_f32_grid_t ocv_g;
-    const float *ocv;
+    const float *ocv;         /* pairs (ocv[k], ocv[k+1] - ocv[k]), as the rows */
     ecmrt_f32_dir_t dir[2];   /* [ECMRT_DISCHARGE], [ECMRT_CHARGE] */
     float deadband_a;         /* |i| <= deadband keeps the last direction */
     float i_max_a;            /* current is saturated to [-i_max_a, i_max_a] */
@@ -73,42 +76,45 @@ typedef struct {
 /* Segment k (0 <= k <= n-2) holding soc, returned in *hint, and the weight w in [0, 1] of
  * x[k+1]; SOC outside the grid gives w = 0 at the first point or w = 1 at the last (clamped
  * interpolation). The search walks from *hint (the last step's segment): exact whatever the
- * hint, and O(1) when SOC moves little. */
+ * hint, and O(1) when SOC moves little (the usual case costs two comparisons: the table
+ * ends are only looked at when the walk reaches them). */
 static inline float ecmrt_f32_locate(const ecmrt_f32_grid_t *g, float soc, uint8_t *hint)
 {
     const float *x = g->x;
     const unsigned last = (unsigned)g->n - 2u;
-    unsigned k;
-    if (soc <= x[0]) {
-        *hint = 0u;
-        return 0.0f;
-    }
-    if (soc >= x[last + 1u]) {
-        *hint = (uint8_t)last;
-        return 1.0f;
-    }
-    k = *hint;
+    unsigned k = *hint;
     if (k > last) {
         k = last;                           /* a corrupted hint costs a longer walk only */
     }
-    while (soc < x[k]) {                    /* stops at k = 0 at the latest: soc > x[0] */
-        k--;
+    if (soc < x[k]) {
+        do {
+            if (k == 0u) {
+                *hint = 0u;                 /* soc < x[0] */
+                return 0.0f;
+            }
+            k--;
+        } while (soc < x[k]);
+    } else if (soc >= x[k + 1u]) {
+        do {
+            if (k == last) {
+                *hint = (uint8_t)last;      /* soc >= x[n-1] */
+                return 1.0f;
+            }
+            k++;
+        } while (soc >= x[k + 1u]);
     }
-    while (soc >= x[k + 1u]) {              /* stops at k = last at the latest: soc < x[n-1] */
-        k++;
-    }
-    *hint = (uint8_t)k;
+    *hint = (uint8_t)k;                     /* x[k] <= soc < x[k+1] (or soc NaN) */
     return (soc - x[k]) * g->inv_dx[k];
 }
 
-/* y[k] + (y[k+1] - y[k]) w for a table with `stride` values per breakpoint (y = &table[k]) */
-static inline float ecmrt_f32_lerp(const float *y, unsigned stride, float w)
+/* y[k] + (y[k+1] - y[k]) w from a pair (y[k], y[k+1] - y[k]) of a table */
+static inline float ecmrt_f32_lerp(const float *yd, float w)
 {
-    return y[0] + (y[stride] - y[0]) * w;
+    return yd[0] + yd[1] * w;
 }
 
 #if ECMRT_VARIABLE_DT
-/* c = 1 - exp(-x) for x = dt/tau >= 0, to < 1 ulp, from + - * and exact powers of two.
+/* c = 1 - exp(-x) for x = dt/tau >= 0, to ~1 ulp, from + - * and exact powers of two.
  * x <= 0 or NaN gives 0; x >= 87 gives 1. */
 static inline float ecmrt_f32_one_minus_exp_neg(float x)
 {
@@ -118,9 +124,19 @@ static inline float ecmrt_f32_one_minus_exp_neg(float x)
         uint32_t u;
         float f;
     } bits;
+    bits.f = x;
+    if (bits.u < 0x3D000000u) {             /* +0 <= x < 2^-5 (one unsigned compare) */
+        /* c = x (1 - x (1/2 - x (1/6 - x/24))): relative truncation error < x^4/120 <
+         * 2^-26.9; evaluated with alternating signs (q = -(1/6 - x/24), ...; negation is
+         * exact) so that each step is one multiply and one add; x = +0 gives +0 */
+        q = x * 4.16666679e-02f - 1.66666672e-01f;
+        q = 0.5f + x * q;
+        q = x * q - 1.0f;
+        return -(x * q);
+    }
     if (x < 0.346573591f) {                 /* ln2/2: no reduction needed (n = 0, r = x) */
         if (!(x > 0.0f)) {
-            return 0.0f;                    /* x <= 0 */
+            return 0.0f;                    /* x <= 0 (-0, negative) */
         }
         n = 0;
         r = x;
@@ -184,6 +200,10 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ecmrt_f32_state_t
     const float *row;
     unsigned dir;
     float soc, y, w, r0, rf, rs, uf, us, ocv;
+    union {
+        uint32_t u;
+        float f;
+    } bits;
 #if ECMRT_VARIABLE_DT
     float cf, cs;
 #else
@@ -191,18 +211,15 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ecmrt_f32_state_t
 #endif
 
     /* 0. saturate the inputs (NaN current counts as 0 A) */
-    if (i != i) {
-        i = 0.0f;
+    if (!(i >= -m->i_max_a)) {
+        i = (i == i) ? -m->i_max_a : 0.0f;  /* below the range, or NaN */
     } else if (i > m->i_max_a) {
         i = m->i_max_a;
-    } else if (i < -m->i_max_a) {
-        i = -m->i_max_a;
     }
 #if ECMRT_VARIABLE_DT
-    if (!(dt > 0.0f)) {
-        dt = 0.0f;
-    } else if (dt > ECMRT_F32_DT_MAX) {
-        dt = ECMRT_F32_DT_MAX;
+    bits.f = dt;
+    if (bits.u - 1u >= 0x46FFFE00u) {    /* not in (0, ECMRT_F32_DT_MAX] (= 0x46FFFE00) */
+        dt = (dt > 0.0f) ? ECMRT_F32_DT_MAX : 0.0f;     /* +-0, negative and NaN: 0 */
     }
 #endif
     /* 1. direction, with a deadband that keeps the last one */
@@ -221,30 +238,33 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ecmrt_f32_state_t
 #endif
     soc = s->soc + y;
     s->soc_c = (soc - s->soc) - y;
-    if (soc < ECMRT_F32_SOC_MIN) {
-        soc = ECMRT_F32_SOC_MIN;
-        s->soc_c = 0.0f;
-    } else if (soc > ECMRT_F32_SOC_MAX) {
-        soc = ECMRT_F32_SOC_MAX;
-        s->soc_c = 0.0f;
+    bits.f = soc;
+    if ((bits.u & 0x7FFFFFFFu) > 0x40000000u) {     /* |soc| > 2 = ECMRT_F32_SOC_MAX, or NaN */
+        if (soc < ECMRT_F32_SOC_MIN) {
+            soc = ECMRT_F32_SOC_MIN;
+            s->soc_c = 0.0f;
+        } else if (soc > ECMRT_F32_SOC_MAX) {
+            soc = ECMRT_F32_SOC_MAX;
+            s->soc_c = 0.0f;
+        }
     }
     s->soc = soc;
     /* 3. parameters of that direction, linear in SOC, clamped at the table ends */
     d = &m->dir[dir];
     w = ecmrt_f32_locate(&d->g, soc, &s->k_dir[dir]);
     row = d->rows + ECMRT_NPAR * (unsigned)s->k_dir[dir];
-    r0 = ecmrt_f32_lerp(row + ECMRT_P_R0, ECMRT_NPAR, w);
-    rf = ecmrt_f32_lerp(row + ECMRT_P_RF, ECMRT_NPAR, w);
-    rs = ecmrt_f32_lerp(row + ECMRT_P_RS, ECMRT_NPAR, w);
+    r0 = ecmrt_f32_lerp(row + ECMRT_P_R0, w);
+    rf = ecmrt_f32_lerp(row + ECMRT_P_RF, w);
+    rs = ecmrt_f32_lerp(row + ECMRT_P_RS, w);
 #if ECMRT_VARIABLE_DT
-    cf = ecmrt_f32_one_minus_exp_neg(dt / ecmrt_f32_lerp(row + ECMRT_P_KF, ECMRT_NPAR, w));
-    cs = ecmrt_f32_one_minus_exp_neg(dt / ecmrt_f32_lerp(row + ECMRT_P_KS, ECMRT_NPAR, w));
+    cf = ecmrt_f32_one_minus_exp_neg(dt / ecmrt_f32_lerp(row + ECMRT_P_KF, w));
+    cs = ecmrt_f32_one_minus_exp_neg(dt / ecmrt_f32_lerp(row + ECMRT_P_KS, w));
 #else
-    df = ecmrt_f32_lerp(row + ECMRT_P_KF, ECMRT_NPAR, w);
-    ds = ecmrt_f32_lerp(row + ECMRT_P_KS, ECMRT_NPAR, w);
+    df = ecmrt_f32_lerp(row + ECMRT_P_KF, w);
+    ds = ecmrt_f32_lerp(row + ECMRT_P_KS, w);
 #endif
     w = ecmrt_f32_locate(&m->ocv_g, soc, &s->k_ocv);
-    ocv = ecmrt_f32_lerp(m->ocv + s->k_ocv, 1u, w);
+    ocv = ecmrt_f32_lerp(m->ocv + 2u * (unsigned)s->k_ocv, w);
     /* 4. exact ZOH: u = a u + r (1 - a) i, written u + c (r i - u) with c = 1 - a = 1/D */
     uf = s->u_fast;
     us = s->u_slow;

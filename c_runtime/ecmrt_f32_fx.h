@@ -55,6 +55,13 @@ static inline float ecmrt_f32_fx_one_minus_exp_neg(float x)
         uint32_t u;
         float f;
     } bits;
+    bits.f = x;
+    if (bits.u < 0x3D000000u) {
+        q = x * 4.16666679e-02f - 1.66666672e-01f;
+        q = 0.5f + x * q;
+        q = x * q - 1.0f;
+        return -(x * q);
+    }
     if (x < 0.346573591f) {
         if (!(x > 0.0f)) {
             return 0.0f;
@@ -253,23 +260,23 @@ static inline float ecmrt_f32_fx_step(const ecmrt_f32_fx_model_t *fm, ecmrt_f32_
     d = &m->dir[dir];
     w = ecmrt_f32_locate(&d->g, soc, &s->k_dir[dir]);
     row = d->rows + ECMRT_NPAR * (unsigned)s->k_dir[dir];
-    r0 = ecmrt_f32_lerp(row + ECMRT_P_R0, ECMRT_NPAR, w);
-    rf = ecmrt_f32_lerp(row + ECMRT_P_RF, ECMRT_NPAR, w);
-    rs = ecmrt_f32_lerp(row + ECMRT_P_RS, ECMRT_NPAR, w);
+    r0 = ecmrt_f32_lerp(row + ECMRT_P_R0, w);
+    rf = ecmrt_f32_lerp(row + ECMRT_P_RF, w);
+    rs = ecmrt_f32_lerp(row + ECMRT_P_RS, w);
 #if ECMRT_FX_CDR
     g = ecmrt_f32_fx_cdr_factor(fm, ai);                           /* fx 3' */
     r0 = r0 * g;
     rf = rf * g;
 #endif
 #if ECMRT_VARIABLE_DT
-    cf = ecmrt_f32_one_minus_exp_neg(dt / ecmrt_f32_lerp(row + ECMRT_P_KF, ECMRT_NPAR, w));
-    cs = ecmrt_f32_one_minus_exp_neg(dt / ecmrt_f32_lerp(row + ECMRT_P_KS, ECMRT_NPAR, w));
+    cf = ecmrt_f32_one_minus_exp_neg(dt / ecmrt_f32_lerp(row + ECMRT_P_KF, w));
+    cs = ecmrt_f32_one_minus_exp_neg(dt / ecmrt_f32_lerp(row + ECMRT_P_KS, w));
 #else
-    df = ecmrt_f32_lerp(row + ECMRT_P_KF, ECMRT_NPAR, w);
-    ds = ecmrt_f32_lerp(row + ECMRT_P_KS, ECMRT_NPAR, w);
+    df = ecmrt_f32_lerp(row + ECMRT_P_KF, w);
+    ds = ecmrt_f32_lerp(row + ECMRT_P_KS, w);
 #endif
     w = ecmrt_f32_locate(&m->ocv_g, soc, &s->k_ocv);
-    ocv = ecmrt_f32_lerp(m->ocv + s->k_ocv, 1u, w);
+    ocv = ecmrt_f32_lerp(m->ocv + 2u * (unsigned)s->k_ocv, w);
     uf = s->u_fast;
     us = s->u_slow;
 #if ECMRT_VARIABLE_DT

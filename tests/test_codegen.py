@@ -214,6 +214,7 @@ def test_runtime_constants_match_python_reference():
               *cref.F_TAYLOR):
         assert c in lits, c
     assert "(x - fn * 0.693145752f) - fn * 1.42860677e-06f" in f
+    assert int(cref.F_SERIES_X.view(np.uint32)) == 0x3D000000 and "bits.u < 0x3D000000u" in f
 
 
 def test_make_file_list(tmp_path, synthetic_model):

@@ -112,8 +112,10 @@ def test_runtime_exp_f32(exp_lib):
     ffi, lib = exp_lib.ffi, exp_lib.lib
     rng = np.random.default_rng(1)
     x = np.concatenate([[0.0, -1.0, np.nan, np.inf, 1e-30, 1e-7, 0.346573591, 0.3465736, 1.0,
-                         86.99, 87.0, 1e30], 10.0 ** rng.uniform(-8, 2.2, 20000),
-                        rng.uniform(0, 1, 5000)]).astype(np.float32)
+                         86.99, 87.0, 1e30, -0.0, 1e-45, 1.2e-38, -1e-30, 0.03125, -0.03125],
+                        10.0 ** rng.uniform(-8, 2.2, 20000), rng.uniform(0, 1, 5000),
+                        rng.uniform(0, 0.04, 20000),    # the short series (x < 2^-5) and its edge
+                        np.nextafter(np.float32(0.03125), np.float32([0, 1]))]).astype(np.float32)
     out = np.empty_like(x)
     lib.t_f32(ffi.from_buffer("float[]", x), ffi.from_buffer("float[]", out), x.size)
     ref = cref.one_minus_exp_neg_f32(x)
@@ -122,6 +124,7 @@ def test_runtime_exp_f32(exp_lib):
     exact = -np.expm1(-x[ok].astype(np.float64))
     rel = np.abs(out[ok] - exact) / exact
     assert rel.max() < 2.5 * 2.0**-24          # within ~2 ulp of float32
+    assert np.signbit(out[x == 0]).sum() == 0   # -0 and +0 both give +0
     assert out[~ok & ~np.isinf(x)].tolist() == [0.0] * int(np.sum(~ok & ~np.isinf(x)))
     assert out[np.isposinf(x)][0] == 1.0
 

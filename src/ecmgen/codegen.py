@@ -610,15 +610,29 @@ def _context(spec: CSpec) -> dict:
                 "inv_dx": arrays.add(f"{tag}_inv_dx", g.inv_dx, f"{tag}: 1 / breakpoint spacing"),
                 "n": g.n}
 
+    def rows_of(cols) -> np.ndarray:
+        """Fixed point: the columns row by row. Float: each column as pairs (y[k], y[k+1] -
+        y[k]) (float32 difference, 0 in the last row): ecmrt_f32_lerp's table layout."""
+        if fixed:
+            return np.stack(cols, axis=1).reshape(-1)
+        out = []
+        for col in cols:
+            col = np.asarray(col, dtype=np.float32)
+            dy = np.zeros_like(col)
+            dy[:-1] = col[1:] - col[:-1]               # float32 subtraction, as the runtime's
+            out += [col, dy]
+        return np.stack(out, axis=1).reshape(-1)
+
+    pair = "" if fixed else " (each with the difference to the next breakpoint)"
     ocv_grid = grid(spec.ocv_grid, "ocv")
-    ocv = arrays.add("ocv_v", spec.ocv, "open-circuit voltage")
+    ocv = arrays.add("ocv_v", rows_of([spec.ocv]), "open-circuit voltage" + pair)
     dirs = []
     for d, tag in zip(spec.dirs, ("dis", "chg")):
-        rows = np.stack([d.r0, d.r_fast, d.k_fast, d.r_slow, d.k_slow], axis=1).reshape(-1)
+        rows = rows_of([d.r0, d.r_fast, d.k_fast, d.r_slow, d.k_slow])
         dirs.append({
             "g": grid(d.grid, tag),
-            "rows": arrays.add(f"{tag}_rows", rows,
-                               f"{tag}: per breakpoint r0, r_fast, {kname[0]}, r_slow, {kname[1]}"),
+            "rows": arrays.add(f"{tag}_rows", rows, f"{tag}: per breakpoint r0, r_fast, "
+                               f"{kname[0]}, r_slow, {kname[1]}" + pair),
         })
     if fixed:
         scalars = {"deadband": str(int(spec.deadband)), "k_soc": str(int(spec.k_soc))}

@@ -31,6 +31,7 @@ F_TAYLOR = tuple(F32(s) for s in ("1.98412701e-04", "1.38888892e-03", "8.3333337
                                   "4.16666679e-02", "1.66666672e-01", "0.5", "1.0"))
 F_XMAX = F32(87.0)
 F_HALF_LN2 = F32("0.346573591")
+F_SERIES_X = F32("0.03125")        # 2^-5 (bits 0x3D000000): below, a short series
 
 # --- constants of ecmrt_q.h --------------------------------------------------------------
 ONE30 = 1 << 30
@@ -94,7 +95,10 @@ def one_minus_exp_neg_f32(x) -> np.ndarray:
         q = t * q
         s = np.ldexp(F32(1.0), -n).astype(F32)
         big = (F32(1.0) - s) - s * q
+        # +0 <= x < 2^-5: x (1 - x (1/2 - x (1/6 - x/24))), alternating signs as in C
+        small = -(x * (x * (F32(0.5) + x * (x * F_TAYLOR[3] - F_TAYLOR[4])) - F32(1.0)))
     out = np.where(n == 0, -q, big)
+    out = np.where((x < F_SERIES_X) & (x >= 0), small, out)    # -0 and x < 0 give 0 below
     out = np.where(x >= F_XMAX, F32(1.0), out)
     return np.where(x > 0, out, F32(0.0)).astype(F32)
 
