@@ -300,18 +300,7 @@ def one_minus_exp_neg_q(dt_raw, tau_raw, q_t: int) -> np.ndarray:
     zero = (dt <= 0) | (tau <= 0)
     safe_tau = np.where(zero | big, 1, tau)
     x = np.where(zero | big, 0, (num + (safe_tau >> 1)) // safe_tau)
-    y = _rshr(x * Q_LOG2E, 30)
-    n = y >> 26
-    j = (y >> 23) & 7
-    f = y & 0x7FFFFF
-    r = _rshr(f * Q_LN2, 26)
-    p = np.full_like(r, Q_POLY[6])
-    for c in Q_POLY[5::-1]:
-        p = c + _rshr(r * p, 30)
-    e = _rshr(np.asarray(Q_EXP2_TAB, dtype=np.int64)[j] * p, 30)
-    e = np.where(n > 0, (e + (np.int64(1) << np.maximum(n - 1, 0))) >> n, e)
-    c = ONE30 - e
-    return np.where(zero, 0, np.where(big, ONE30, c)).astype(np.int64)
+    return _one_minus_exp_q26(x, zero, big)
 
 
 def one_minus_exp_neg_q26(x_raw) -> np.ndarray:
@@ -319,7 +308,12 @@ def one_minus_exp_neg_q26(x_raw) -> np.ndarray:
     x = np.asarray(x_raw, dtype=np.int64)
     zero = x <= 0
     big = x >= Q_XMAX26
-    x = np.where(zero | big, 0, x)
+    return _one_minus_exp_q26(np.where(zero | big, 0, x), zero, big)
+
+
+def _one_minus_exp_q26(x, zero, big) -> np.ndarray:
+    """The shared core of both C routines: 1 - exp(-x) in Q30, x in Q26 (0 where
+    zero | big), as 2^-n * table[j] * poly(r); 0 where ``zero``, 1.0 where ``big``."""
     y = _rshr(x * Q_LOG2E, 30)
     n = y >> 26
     j = (y >> 23) & 7
