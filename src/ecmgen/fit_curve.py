@@ -6,14 +6,16 @@ to the next pulse (at most ``relax_s`` after the edge) is compared with the same
 discrete 2RC the simulator runs, driven by the measured current:
 
     v_k - v_rest = ocv(soc_k) - ocv(soc_rest) + r0*i_k + r_fast*x_fast_k + r_slow*x_slow_k
+                   + u0 * (exp(-t_k/tau_slow) - 1)
 
 where x_j is the unit-resistance response (x_k = a x_{k-1} + (1 - a) i_k, a = exp(-dt/tau)).
 Given (tau_fast, tau_slow) the model is linear in the resistances, so they are solved
-by non-negative least squares (variable projection); the two time constants are found
+by bounded linear least squares, R >= 0 (variable projection); the two time constants are found
 by a log grid and refined with scipy's least_squares. Pulses of one SOC level and
-direction are fitted jointly. Each window also gets a free initial slow-state voltage,
-since a cell is rarely fully relaxed at the rest sample (exact for a 2RC: an initial
-state decays with the same time constant).
+direction are fitted jointly. Each window also gets a free initial slow-state voltage
+u0, since a cell is rarely fully relaxed at the rest sample (exact for a 2RC: an initial
+state decays with the same time constant); v_rest is the mean of the last 10 s of rest.
+Windows end at the next current flow, at ``relax_s``, or at a gap in the log.
 """
 
 from __future__ import annotations
