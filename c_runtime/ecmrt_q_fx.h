@@ -4,16 +4,23 @@
  * ecmrt_q.h (which it includes) after the ecmrt_q.h configuration macros and
  *     ECMRT_FX_HYST  1: hysteresis (state h, Q30)
  *     ECMRT_FX_XRC   1: extra_rc (state u_x, Q_V)
- *     ECMRT_FX_CDR   must be 0 (current_dependent_resistance: numeric = "float" only)
+ *     ECMRT_FX_CDR   1: current_dependent_resistance (r0 i, r_fast i scaled by g(|i|))
  * and, per effect present (value = raw / 2^Q):
  *     ECMRT_FX_SH_HR  hysteresis, variable dt: rate = |i| h_k >> SH_HR (x per second)
  *     ECMRT_FX_SH_HX  hysteresis: x in Q26 = rate dt >> SH_HX (variable dt) or
  *                     |i| h_k >> SH_HX (fixed dt)
  *     ECMRT_FX_SH_HM  hysteresis: m (h - h_ref) >> SH_HM is in Q_V (h, h_ref, s in Q30)
  *     ECMRT_FX_SH_XR  extra_rc: r_x i >> SH_XR is in Q_V
+ *     ECMRT_FX_SH_GX  current_dependent_resistance: x = |i| g_k >> SH_GX in Q(CDR_QX)
+ *     ECMRT_FX_CDR_QX current_dependent_resistance: Q of x (x < 2^(31 - CDR_QX))
+ *     ECMRT_FX_CDR_QG current_dependent_resistance: Q of g and of its table g_tab
  * (capacity_error needs no code: it is folded into k_soc by the generator.)
  *
  * Additions to ecmrt_q_step(), in this order (mirrored in ecmgen.cref.simulate_fixed_raw):
+ *   3'. current_dependent_resistance: x = sat(rshr(|i| g_k, SH_GX)) in Q(CDR_QX);
+ *       g = scale asinh(x)/x in Q(CDR_QG) by linear interpolation in g_tab (64 segments in
+ *       [0, 1) and 64 in every binade [2^b, 2^(b+1)), weight in Q30 from the bits below the
+ *       segment); r0 i and r_fast i (in Q_V, int64) become rshr(t g, CDR_QG)
  *   4'. hysteresis: s = +-2^30 (the model's direction); c_h = 1 - exp(-x) in Q30 with
  *       x = |i| dt / (3600 decay_ah) in Q26;  h = sat(h + rshr((s - h) c_h, 30));
  *       v_h = rshr(m (h - h_ref), SH_HM) + rshr(m0 (s - h_ref), SH_HM)
@@ -33,8 +40,8 @@
 #if !defined(ECMRT_FX_HYST) || !defined(ECMRT_FX_XRC) || !defined(ECMRT_FX_CDR)
 #error "define ECMRT_FX_HYST, ECMRT_FX_XRC and ECMRT_FX_CDR (0 or 1) before including ecmrt_q_fx.h"
 #endif
-#if ECMRT_FX_CDR
-#error "current_dependent_resistance is not available in fixed point (use numeric = \"float\")"
+#if ECMRT_FX_CDR && (!defined(ECMRT_FX_SH_GX) || !defined(ECMRT_FX_CDR_QX) || !defined(ECMRT_FX_CDR_QG))
+#error "current_dependent_resistance needs ECMRT_FX_SH_GX, ECMRT_FX_CDR_QX and ECMRT_FX_CDR_QG"
 #endif
 
 typedef struct {
@@ -46,6 +53,10 @@ typedef struct {
     int32_t h_ref;            /* ocv_table_state, Q30 */
     int32_t x_r;              /* extra_rc: r_ohm */
     int32_t x_k;              /* tau_s in Q_T (variable dt) or c_x = 1 - exp(-dt/tau_s) in Q30 (fixed dt) */
+#if ECMRT_FX_CDR
+    int32_t g_k;              /* current_dependent_resistance: 1/i0_a */
+    const int32_t *g_tab;     /* scale asinh(x)/x in Q(CDR_QG) at the nodes (see cdr_factor) */
+#endif
 } ecmrt_q_fx_model_t;
 
 #define ECMRT_FX_XMAX_Q26 ((int64_t)1442840576)       /* 21.5 * 2^26 */
@@ -89,6 +100,32 @@ static inline int32_t ecmrt_q_fx_one_minus_exp_neg_q26(int64_t x)
     return ECMRT_ONE30 - e;
 }
 
+#if ECMRT_FX_CDR
+#define ECMRT_FX_CDR_K 6u    /* 2^6 segments per binade */
+
+/* g = scale asinh(x)/x in Q(CDR_QG), x = |i| / i0 (ai = |i| in Q_I, 0 <= ai <= 2^31).
+ * Nodes: k / 64 for k = 0..63 (x < 1), then 2^b (1 + j / 64) for b = 0.., j = 0..63; the
+ * generator sizes the table so that every int32 current lands inside it. */
+static inline int32_t ecmrt_q_fx_cdr_factor(const ecmrt_q_fx_model_t *fm, int64_t ai)
+{
+    const uint32_t x = (uint32_t)ecmrt_q_sat32(ECMRT_RSHR(ai * fm->g_k, ECMRT_FX_SH_GX));
+    unsigned s = (unsigned)ECMRT_FX_CDR_QX - ECMRT_FX_CDR_K;
+    uint32_t idx = x >> s;
+    if (idx >= (1u << ECMRT_FX_CDR_K)) {
+        unsigned b = (unsigned)ECMRT_FX_CDR_QX;     /* 2^b <= x < 2^(b+1) */
+        while (b < 30u && (x >> (b + 1u)) != 0u) {
+            b++;
+        }
+        s = b - ECMRT_FX_CDR_K;
+        idx = ((uint32_t)(b - (unsigned)ECMRT_FX_CDR_QX) << ECMRT_FX_CDR_K) + (x >> s);
+    }
+    return ecmrt_q_lerp(fm->g_tab + idx, 1u, (int32_t)((x & ((1u << s) - 1u)) << (30u - s)));
+}
+#define ECMRT_FX_G(t) ECMRT_RSHR((t) * gq, ECMRT_FX_CDR_QG)
+#else
+#define ECMRT_FX_G(t) (t)
+#endif
+
 /* soc0 in Q30 (1.0 = 1 << 30) */
 static inline void ecmrt_q_fx_init(const ecmrt_q_fx_model_t *m, ecmrt_q_fx_state_t *s,
                                    int32_t soc0)
@@ -127,6 +164,9 @@ static inline int32_t ecmrt_q_fx_step(const ecmrt_q_fx_model_t *fm, ecmrt_q_fx_s
 #if ECMRT_FX_XRC
     int32_t ux, cx;
 #endif
+#if ECMRT_FX_CDR
+    int64_t gq;
+#endif
 
 #if ECMRT_VARIABLE_DT
     if (dt < 0) {
@@ -139,6 +179,9 @@ static inline int32_t ecmrt_q_fx_step(const ecmrt_q_fx_model_t *fm, ecmrt_q_fx_s
         s->charging = (uint8_t)ECMRT_DISCHARGE;
     }
     dir = s->charging;
+#if ECMRT_FX_CDR
+    gq = ecmrt_q_fx_cdr_factor(fm, i < 0 ? -(int64_t)i : (int64_t)i);   /* fx 3' */
+#endif
 #if ECMRT_VARIABLE_DT
     {
         const int32_t rate = ecmrt_q_sat32(ECMRT_RSHR((int64_t)i * m->k_soc, ECMRT_SH_RATE));
@@ -168,8 +211,8 @@ static inline int32_t ecmrt_q_fx_step(const ecmrt_q_fx_model_t *fm, ecmrt_q_fx_s
 #define ECMRT_QC_S ECMRT_Q_CS
 #endif
     uf = ECMRT_Q_RC(s->u_fast, cf,
-                    ECMRT_RSHR((int64_t)ecmrt_q_lerp(row + ECMRT_P_RF, ECMRT_NPAR, w) * i,
-                               ECMRT_Q_RF + ECMRT_Q_I - ECMRT_Q_V), ECMRT_QC_F);
+                    ECMRT_FX_G(ECMRT_RSHR((int64_t)ecmrt_q_lerp(row + ECMRT_P_RF, ECMRT_NPAR, w) * i,
+                                          ECMRT_Q_RF + ECMRT_Q_I - ECMRT_Q_V)), ECMRT_QC_F);
     s->u_fast = uf;
     us = ECMRT_Q_RC(s->u_slow, cs,
                     ECMRT_RSHR((int64_t)ecmrt_q_lerp(row + ECMRT_P_RS, ECMRT_NPAR, w) * i,
@@ -177,7 +220,8 @@ static inline int32_t ecmrt_q_fx_step(const ecmrt_q_fx_model_t *fm, ecmrt_q_fx_s
     s->u_slow = us;
 #undef ECMRT_QC_F
 #undef ECMRT_QC_S
-    v = ECMRT_RSHR((int64_t)ecmrt_q_lerp(row + ECMRT_P_R0, ECMRT_NPAR, w) * i, ECMRT_Q_R0 + ECMRT_Q_I - ECMRT_Q_V);
+    v = ECMRT_FX_G(ECMRT_RSHR((int64_t)ecmrt_q_lerp(row + ECMRT_P_R0, ECMRT_NPAR, w) * i,
+                              ECMRT_Q_R0 + ECMRT_Q_I - ECMRT_Q_V));
     w = ecmrt_q_locate(&m->ocv_g, soc, &s->k_ocv);
     ocv = ecmrt_q_lerp(m->ocv + s->k_ocv, 1u, w);
     v = (((int64_t)ocv + v) + uf) + us;

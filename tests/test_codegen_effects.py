@@ -16,7 +16,7 @@ from test_codegen_helpers import load_mat, realistic_model, soc0_of
 
 from ecmgen import cbuild, cref
 from ecmgen import effects as fx
-from ecmgen.codegen import C_EFFECTS, file_names, generate_c, prepare, render
+from ecmgen.codegen import C_EFFECTS, cdr_nodes, file_names, generate_c, prepare, render
 from ecmgen.errors import InputError
 
 TOL = {"float": (0.05e-3, 0.5e-3), "fixed": (0.5e-3, 2e-3)}     # |dMAE|, max |dv|
@@ -196,6 +196,59 @@ def test_asinh_factor_accuracy():
     assert np.max(np.abs(g / (np.arcsinh(x64) / x64) - 1.0)) < 1e-6
 
 
+def _cdr_model(scale, i0):
+    return _base().with_effects([fx.make_effect("current_dependent_resistance",
+                                                scale_at_zero=scale, i0_a=i0)])
+
+
+@pytest.mark.parametrize("scale,i0", [(1.2, 3.0), (0.05, 0.02), (7.5, 40.0), (100.0, 1.0),
+                                      (1.0, 0.002)])
+def test_fixed_cdr_factor_accuracy_and_format(scale, i0):
+    """The integer g(|i|) of ecmrt_q_fx_cdr_factor (cref.cdr_factor_q) against float64
+    scale asinh(x)/x over the whole int32 current range: relative error < 3e-5; its Q format
+    is the largest <= 30 that holds the table's maximum (~scale)."""
+    spec = prepare(_cdr_model(scale, i0), numeric="fixed")
+    f = spec.fx
+    assert f["CDR_QG"] == min(30, int(np.floor(np.log2((2**31 - 1) / f["g_max"]))))
+    assert int(np.max(f["g_tab"])) <= 2**31 - 1 and int(np.min(f["g_tab"])) > 0
+    q_i = spec.q["Q_I"]
+    rng = np.random.default_rng(1)
+    node = np.round(cdr_nodes(f["CDR_E"]) * i0 * 2.0**q_i).astype(np.int64)   # x at the nodes
+    ai = np.unique(np.concatenate([
+        np.arange(0, 5000), 2**31 - np.arange(0, 5000), rng.integers(0, 2**31, 200000),
+        np.round(np.logspace(0, 31, 100000, base=2.0)).astype(np.int64),
+        node - 1, node, node + 1]))
+    ai = ai[(ai >= 0) & (ai <= 2**31)]
+    g = cref.cdr_factor_q(ai, f) / 2.0**f["CDR_QG"]
+    x = np.maximum(ai / 2.0**q_i / i0, 1e-12)
+    g64 = scale * np.arcsinh(x) / x
+    err = np.max(np.abs(g / g64 - 1.0))
+    print(f"\nscale {scale} i0 {i0}: Q{f['CDR_QG']}, x < 2^{f['CDR_E']}, {f['g_tab'].size} nodes, "
+          f"max rel err {err:.2e}")
+    # interpolation < 3.5e-5 relative, plus the rounding of nodes and interpolation (1 LSB)
+    assert np.all(np.abs(g - g64) <= 3.5e-5 * g64 + 2.0**-f["CDR_QG"])
+    if f["CDR_E"] <= 8:
+        assert err < 2.5e-5
+
+
+@pytest.mark.parametrize("scale,i0", [(1.2, 3.0), (7.5, 0.4), (0.3, 200.0)])
+@pytest.mark.parametrize("dt_s", [None, 1.0], ids=["vdt", "dt1"])
+def test_fixed_cdr_table_edges_bit_exact(scale, i0, dt_s):
+    """Currents on and next to every table node and binade boundary, 0, the int32 extremes:
+    C == bit-true reference on every step and state."""
+    cm = cbuild.build(_cdr_model(scale, i0), numeric="fixed", dt_s=dt_s, prefix="cdr")
+    f = cm.spec.fx
+    node = np.round(cdr_nodes(f["CDR_E"]) * i0 * 2.0**cm.spec.q["Q_I"]).astype(np.int64)
+    raw = np.concatenate([node - 1, node, node + 1, [0, 1, 2**31 - 1, -2**31, -2**31 + 1]])
+    raw = np.clip(np.concatenate([raw, -raw]), -2**31, 2**31 - 1).astype(np.int32)
+    n = raw.size
+    dt = np.full(n, 65536 // 10, dtype=np.int32) if dt_s is None else None
+    got = cm.trace_native(raw, dt, cref.ONE30 // 2)
+    ref = cref.simulate_fixed_raw(cm.spec, raw.astype(np.int64),
+                                  None if dt is None else dt.astype(np.int64), cref.ONE30 // 2)
+    _fields_equal(got, ref)
+
+
 # --- refusals and generated files --------------------------------------------------------------
 
 @pytest.mark.parametrize("numeric", ["float", "fixed"])
@@ -207,12 +260,15 @@ def test_temperature_dependence_refused(tmp_path, numeric):
     assert not (tmp_path / "out").exists()
 
 
-def test_unsupported_in_fixed_refused_with_hint(tmp_path):
-    m = _model(("current_dependent_resistance",))
-    with pytest.raises(InputError, match=r"current_dependent_resistance is not supported in "
-                                         r"numeric='fixed'.*numeric=\"float\""):
+def test_cdr_i0_too_small_for_fixed_refused_with_hint(tmp_path):
+    """fixed point sizes its g table for |i| / i0_a < 2^16; float takes up to 1e9."""
+    m = _base().with_effects([fx.make_effect("current_dependent_resistance", scale_at_zero=1.2,
+                                             i0_a=1e-3)])
+    with pytest.raises(InputError, match=r"current_dependent_resistance: i0_a = 0.001 A is too "
+                                         r"small.*numeric=\"float\""):
         generate_c(m, tmp_path / "out", numeric="fixed")
     assert not (tmp_path / "out").exists()
+    assert prepare(m, numeric="float").fx["cdr"] == 1
 
 
 def test_repeated_effect_refused(tmp_path):

@@ -117,7 +117,8 @@ def test_qemu_cortex_m3_soft_float_fixed_bit_exact(tmp_path):
 
 def _fx_models():
     """The Panasonic-like model with every effect each numeric mode carries (the parameters of
-    test_codegen_effects): float adds current_dependent_resistance, which fixed refuses."""
+    test_codegen_effects): both carry hysteresis, extra_rc, current_dependent_resistance and
+    capacity_error."""
     from test_codegen_effects import EFFECTS
 
     from ecmgen.codegen import C_EFFECTS
@@ -138,10 +139,10 @@ def _check_fx(res, names, steps):
 
 @pytest.mark.slow
 def test_qemu_cortex_m4_bit_exact_with_effects(tmp_path):
-    """12 000 steps of the US06 record through models with effects (float: hysteresis,
-    extra_rc, current_dependent_resistance, capacity_error; fixed: all but the
-    current-dependent resistance) on an emulated Cortex-M4F: voltage, SOC and the effect
-    states h and u_x equal the host's bit for bit, on all four variants."""
+    """12 000 steps of the US06 record through models with effects (hysteresis, extra_rc,
+    current_dependent_resistance, capacity_error; float and fixed alike) on an emulated
+    Cortex-M4F: voltage, SOC and the effect states h and u_x equal the host's bit for bit, on
+    all four variants."""
     _need(qemu=True)
     models = _fx_models()
     s = cycle("us06.mat")
@@ -152,7 +153,8 @@ def test_qemu_cortex_m4_bit_exact_with_effects(tmp_path):
     print("\n", res)
     _check_fx(res, {"float/variable-dt", "float/dt=0.1", "fixed/variable-dt", "fixed/dt=0.1"},
               10000)
-    assert "current_dependent_resistance" in res["variants"]["float/variable-dt"]["effects"]
+    for name in res["variants"]:
+        assert "current_dependent_resistance" in res["variants"][name]["effects"], name
 
 
 @pytest.mark.slow
@@ -165,6 +167,7 @@ def test_qemu_cortex_m3_soft_float_fixed_bit_exact_with_effects(tmp_path):
                                   out_dir=tmp_path)
     print("\n", res)
     _check_fx(res, {"fixed/variable-dt", "fixed/dt=0.1"}, 10000)
+    assert all("current_dependent_resistance" in r["effects"] for r in res["variants"].values())
 
 
 def test_firmware_records_effect_states_only_for_models_with_effects():

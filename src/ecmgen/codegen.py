@@ -45,8 +45,10 @@ RUNTIME_FILES = {"float": ("ecmrt.h", "ecmrt_f32.h"), "fixed": ("ecmrt.h", "ecmr
 RUNTIME_FX_FILES = {"float": ("ecmrt_fx.h", "ecmrt_f32_fx.h"), "fixed": ("ecmrt_fx.h", "ecmrt_q_fx.h")}
 # effects (ecmgen.effects) the generated C implements, per numeric
 C_EFFECTS = {"float": ("hysteresis", "extra_rc", "current_dependent_resistance", "capacity_error"),
-             "fixed": ("hysteresis", "extra_rc", "capacity_error")}
+             "fixed": ("hysteresis", "extra_rc", "current_dependent_resistance", "capacity_error")}
 CDR_X_MAX = 1e9             # largest |i| / i0_a the float asinh handles (x^2 must stay finite)
+CDR_SEG_BITS = 6            # fixed point: 2^6 linear segments in [0, 1) and in every binade of x
+CDR_E_MAX = 16              # fixed point: |i| / i0_a must stay below 2^16 (table size)
 MAX_POINTS = 255            # segment hints are uint8_t
 Q30 = 30
 Q_D = 16                    # dt input of the variable-dt fixed-point step
@@ -315,7 +317,34 @@ def _fx_float(effects, by_name: dict, dt_s: float | None) -> dict:
     return fx
 
 
-def _fx_fixed(hyst, xrc, q: dict, dt_s: float | None, i_lim: float) -> dict:
+def cdr_nodes(e_bins: int, k: int = CDR_SEG_BITS) -> np.ndarray:
+    """x of the fixed-point g table: 2^k uniform segments in [0, 1), then 2^k uniform
+    segments in each binade [2^b, 2^(b+1)), b = 0 .. e_bins - 1 (last node 2^e_bins)."""
+    idx = np.arange((e_bins + 1) * 2**k + 1)
+    return np.where(idx < 2**k, idx / 2.0**k,
+                    np.ldexp(1.0 + (idx % 2**k) / 2.0**k, np.maximum(idx // 2**k - 1, 0)))
+
+
+def cdr_table(scale: float, e_bins: int, k: int = CDR_SEG_BITS) -> np.ndarray:
+    """scale * asinh(x)/x at cdr_nodes (float64), each node moved by minus a quarter of the
+    chord errors at the midpoints of its two segments (half at the ends), which roughly halves
+    the error of linear interpolation (max relative error ~2.3e-5 with k = 6)."""
+    def f(x):
+        x = np.asarray(x, dtype=np.float64)
+        safe = np.where(x > 1e-6, x, 1.0)
+        return np.where(x > 1e-6, np.arcsinh(safe) / safe, 1.0 - x * x / 6.0)
+
+    x = cdr_nodes(e_bins, k)
+    y = f(x)
+    e = 0.5 * (y[1:] + y[:-1]) - f(0.5 * (x[1:] + x[:-1]))
+    adj = y.copy()
+    adj[1:-1] -= 0.25 * (e[1:] + e[:-1])
+    adj[0] -= 0.5 * e[0]
+    adj[-1] -= 0.5 * e[-1]
+    return scale * adj
+
+
+def _fx_fixed(hyst, xrc, q: dict, dt_s: float | None, i_lim: float, cdr=None) -> dict:
     """Constants (raw integers) and shifts of ecmrt_q_fx_model_t; see ecmrt_q_fx.h."""
     q_i, q_v = q["Q_I"], q["Q_V"]
     fx = {"hyst": 0, "xrc": 0, "cdr": 0, "h_init": 0, "h_k": 0, "h_m": 0, "h_m0": 0, "h_ref": 0,
@@ -361,6 +390,27 @@ def _fx_fixed(hyst, xrc, q: dict, dt_s: float | None, i_lim: float) -> dict:
             raise InputError(None, f"[c] effect extra_rc: tau_s = {xrc.tau_s:g} s does not fit the "
                                    "fixed-point formats; use numeric=\"float\"")
         fx.update(xrc=1, x_r=one(xrc.r_ohm, q_xr), x_k=x_k, Q_XR=q_xr)
+    if cdr is not None:
+        # x = |i| / i0 = rshr(|i| g_k, SH_GX) in Q(CDR_QX) with CDR_QX = 31 - E: x < 2^E
+        # for every int32 current (|i| <= 2^31), so x fits int31 and indexes the table
+        q_k = _q_fit(1.0 / cdr.i0_a)
+        g_k = one(1.0 / cdr.i0_a, q_k)
+        e_bins = max(1, math.ceil(math.log2(i_lim / cdr.i0_a)))
+        while True:
+            q_x = 31 - e_bins
+            sh = q_i + q_k - q_x
+            if e_bins > CDR_E_MAX or not 1 <= sh <= 62 or g_k <= 0:
+                raise InputError(None, f"[c] effect current_dependent_resistance: i0_a = "
+                                       f"{cdr.i0_a:g} A is too small for the fixed-point current "
+                                       f"range {i_lim:g} A (|i|/i0_a must stay below "
+                                       f"2^{CDR_E_MAX}); use numeric=\"float\"")
+            if ((2**31 * g_k + (1 << (sh - 1))) >> sh) < 2**31:
+                break
+            e_bins += 1
+        tab = cdr_table(cdr.scale_at_zero, e_bins)
+        q_g = min(Q30, _q_fit(float(np.max(tab))))
+        fx.update(cdr=1, g_k=g_k, g_tab=quantize(tab, q_g), SH_GX=sh, CDR_QX=q_x, CDR_QG=q_g,
+                  Q_GK=q_k, CDR_E=e_bins, g_max=float(np.max(tab)))
     return fx
 
 
@@ -439,6 +489,10 @@ def prepare(model, numeric: str = "float", dt_s: float | None = None, prefix: st
         v_bound += 2.0 * (hyst.m_v + hyst.m0_v)
     if xrc is not None:
         v_bound += i_lim * xrc.r_ohm
+    cdr = by_name.get("current_dependent_resistance")
+    if cdr is not None:             # r0 and r_fast times g <= max of the g table
+        g_max = float(np.max(cdr_table(cdr.scale_at_zero, 1)))
+        v_bound += i_lim * (vmax("r0_ohm") + vmax("r_fast_ohm")) * max(0.0, g_max - 1.0)
     q["Q_V"] = min(30, _q_fit(v_bound * 1.001))
     for key, name in (("r0_ohm", "Q_R0"), ("r_fast_ohm", "Q_RF"), ("r_slow_ohm", "Q_RS")):
         q[name] = min(_q_fit(vmax(key)), 62 - q_i + q["Q_V"], 40 if vmax(key) == 0 else 62)
@@ -501,7 +555,8 @@ def prepare(model, numeric: str = "float", dt_s: float | None = None, prefix: st
                          quantize(cols["r_fast_ohm"], q["Q_RF"]), kfq,
                          quantize(cols["r_slow_ohm"], q["Q_RS"]), ksq))
     db = int(quantize([model.direction_deadband_a], q_i)[0])
-    fx = _fx_fixed(hyst, xrc, q, dt_s, i_lim) if (hyst is not None or xrc is not None) else {}
+    fx = (_fx_fixed(hyst, xrc, q, dt_s, i_lim, cdr)
+          if (hyst is not None or xrc is not None or cdr is not None) else {})
     return CSpec(ocv_grid=qgrid(xs[0]), ocv=quantize(ocv_v, q["Q_V"]), dirs=tuple(dirs),
                  deadband=db, k_soc=k_soc, q=q, notes=tuple(notes), fx=fx, **common)
 
@@ -593,6 +648,11 @@ def _ranges(spec: CSpec) -> list[dict]:
             rows.append(row("tau_x", q["Q_T"], "s, extra RC pair", "-"))
         else:
             rows.append(row("c_x", Q30, "1 - exp(-dt/tau_x), extra RC pair", "(0, 1]"))
+    if fx.get("cdr"):
+        rows.append(row("g_k", fx["Q_GK"], "1/i0_a per A", "-"))
+        rows.append(row("x_cdr (run time)", fx["CDR_QX"], "|i| / i0_a", f"[0, 2^{fx['CDR_E']})"))
+        rows.append(row("g_cdr (run time)", fx["CDR_QG"], "scale asinh(x)/x, table + linear interp.",
+                        f"(0, {fx['g_max']:.6g}], saturated"))
     return rows
 
 
@@ -639,6 +699,7 @@ def _context(spec: CSpec) -> dict:
     else:
         scalars = {"deadband": c_float(spec.deadband), "i_max": c_float(spec.i_lim_a),
                    "k_soc": c_float(spec.k_soc)}
+    fxc = _fx_context(spec, arrays) if spec.has_fx else None     # may add the g table
     return {
         "p": p, "P": p.upper(), "fixed": fixed, "variable_dt": spec.variable_dt,
         "dt_s": spec.dt_s, "dt_s_c": None if spec.dt_s is None or fixed else c_float(spec.dt_s),
@@ -652,18 +713,24 @@ def _context(spec: CSpec) -> dict:
         "notes": spec.notes,
         "rt": ("ecmrt_q" if fixed else "ecmrt_f32") + ("_fx" if spec.has_fx else ""),
         "vt": "int32_t" if fixed else "float",
-        "fx": _fx_context(spec) if spec.has_fx else None,
+        "fx": fxc,
     }
 
 
-def _fx_context(spec: CSpec) -> dict:
+def _fx_context(spec: CSpec, arrays: "_Arrays") -> dict:
     """Effect constants as C text, in the order of the runtime's fx model struct."""
     fx = spec.fx
     fmt = (lambda v: str(int(v))) if spec.fixed else c_float
     out = {"hyst": int(fx["hyst"]), "xrc": int(fx["xrc"]), "cdr": int(fx["cdr"])}
     keys = FX_FIXED_KEYS if spec.fixed else FX_FLOAT_KEYS
     out["values"] = [(k, fmt(fx[k])) for k in keys]
-    out["q"] = {k: v for k, v in fx.items() if k.startswith("SH_")}
+    if spec.fixed and fx["cdr"]:        # fields present only with ECMRT_FX_CDR = 1
+        tab = arrays.add("cdr_g", fx["g_tab"], f"current_dependent_resistance: g = scale "
+                         f"asinh(x)/x in Q{fx['CDR_QG']} at x = k/64 (k < 64), then 64 "
+                         f"points per binade up to 2^{fx['CDR_E']}")
+        out["values"] += [("g_k", fmt(fx["g_k"])), ("g_tab", tab)]
+        out["e"] = int(fx["CDR_E"])
+    out["q"] = {k: v for k, v in fx.items() if k.startswith(("SH_", "CDR_Q"))}
     return out
 
 

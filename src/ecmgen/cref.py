@@ -327,6 +327,23 @@ def _one_minus_exp_q26(x, zero, big) -> np.ndarray:
     return np.where(zero, 0, np.where(big, ONE30, ONE30 - e)).astype(np.int64)
 
 
+CDR_K = 6          # ECMRT_FX_CDR_K: 2^6 table segments per binade
+
+
+def cdr_factor_q(ai, fx: dict) -> np.ndarray:
+    """ecmrt_q_fx_cdr_factor: g = scale asinh(x)/x in Q(CDR_QG) for ai = |i| (Q_I, int64)."""
+    ai = np.asarray(ai, dtype=np.int64)
+    x = _sat32(_rshr(ai * np.int64(fx["g_k"]), fx["SH_GX"]))
+    qx = int(fx["CDR_QX"])
+    big = x >= (1 << qx)
+    b = np.frexp(np.maximum(x, 1).astype(np.float64))[1].astype(np.int64) - 1   # exact: x < 2^31
+    s = np.where(big, b - CDR_K, qx - CDR_K).astype(np.int64)
+    idx = np.where(big, ((b - qx) << CDR_K) + (x >> s), x >> s)
+    w = (x & ((np.int64(1) << s) - 1)) << (30 - s)
+    tab = np.asarray(fx["g_tab"], dtype=np.int64)
+    return _lerp_q(tab, idx, w)
+
+
 def _rc_q_fx(c: np.ndarray, t: np.ndarray, u0: int = 0) -> np.ndarray:
     """ECMRT_Q_RC with Q30 coefficients from u0 (c and t arrays of Python ints)."""
     out = np.empty(len(t), dtype=np.int64)
@@ -414,13 +431,18 @@ def simulate_fixed_raw(spec: CSpec, i_raw, dt_raw=None, soc0_raw: int = ONE30) -
         cf = ((1 << (qcf + q["Q_DF"])) + (p["k_fast"] >> 1)) // p["k_fast"]
         cs = ((1 << (qcs + q["Q_DS"])) + (p["k_slow"] >> 1)) // p["k_slow"]
     q_i, q_v = q["Q_I"], q["Q_V"]
-    uf = _rc_q(cf, _rshr(p["r_fast"] * i, q["Q_RF"] + q_i - q_v), qcf)
-    us = _rc_q(cs, _rshr(p["r_slow"] * i, q["Q_RS"] + q_i - q_v), qcs)
+    fx = spec.fx
+    tf = _rshr(p["r_fast"] * i, q["Q_RF"] + q_i - q_v)
     r0i = _rshr(p["r0"] * i, q["Q_R0"] + q_i - q_v)
+    if fx and fx["cdr"]:
+        g = cdr_factor_q(np.abs(i), fx)
+        tf = _rshr(tf * g, fx["CDR_QG"])
+        r0i = _rshr(r0i * g, fx["CDR_QG"])
+    uf = _rc_q(cf, tf, qcf)
+    us = _rc_q(cs, _rshr(p["r_slow"] * i, q["Q_RS"] + q_i - q_v), qcs)
     k, w = _weight_q(spec.ocv_grid, soc, q["Q_G"])
     ocv = _lerp_q(spec.ocv, k, w)
     v = ((ocv + r0i) + uf) + us
-    fx = spec.fx
     if not fx:
         return RefResult(_sat32(v).astype(np.int64), soc, uf, us, chg)
     n = i.size

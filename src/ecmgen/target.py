@@ -361,7 +361,7 @@ def qemu_equivalence(model, time_s, current_a, soc0: float, cpu: str = "m4f",
     inputs; compare voltages and SOC (and the effect states h, u_x of a model with effects)
     bit for bit. ``variants``: (numeric, dt_s) pairs; a fixed-dt variant ignores the record's
     time stamps (each step lasts dt_s). ``model``: one model, or a dict numeric -> model (a
-    model with effects only the float variant carries, e.g. current_dependent_resistance)."""
+    model per numeric, e.g. with different effects)."""
     import tempfile
 
     from . import cref
