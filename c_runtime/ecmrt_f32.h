@@ -113,9 +113,8 @@ static inline float ecmrt_f32_lerp(const float *yd, float w)
     return yd[0] + yd[1] * w;
 }
 
-#if ECMRT_VARIABLE_DT
 /* c = 1 - exp(-x) for x = dt/tau >= 0, to ~1 ulp, from + - * and exact powers of two.
- * x <= 0 or NaN gives 0; x >= 87 gives 1. */
+ * x <= 0 or NaN gives 0; x >= 87 gives 1. (Also the effects' exp, in both dt modes.) */
 static inline float ecmrt_f32_one_minus_exp_neg(float x)
 {
     int32_t n;
@@ -166,7 +165,6 @@ static inline float ecmrt_f32_one_minus_exp_neg(float x)
     s = bits.f;
     return (1.0f - s) - s * q;
 }
-#endif
 
 static inline void ecmrt_f32_init(ecmrt_f32_state_t *s, float soc0)
 {

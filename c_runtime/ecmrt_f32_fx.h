@@ -45,53 +45,6 @@ typedef struct {
     float g_inv_i0;           /* 1 / i0_a */
 } ecmrt_f32_fx_model_t;
 
-/* 1 - exp(-x), the same routine as ecmrt_f32_one_minus_exp_neg() (which exists only with
- * ECMRT_VARIABLE_DT = 1): x <= 0 or NaN gives 0, x >= 87 gives 1. */
-static inline float ecmrt_f32_fx_one_minus_exp_neg(float x)
-{
-    int32_t n;
-    float fn, r, t, q, s;
-    union {
-        uint32_t u;
-        float f;
-    } bits;
-    bits.f = x;
-    if (bits.u < 0x3D000000u) {
-        q = x * 4.16666679e-02f - 1.66666672e-01f;
-        q = 0.5f + x * q;
-        q = x * q - 1.0f;
-        return -(x * q);
-    }
-    if (x < 0.346573591f) {
-        if (!(x > 0.0f)) {
-            return 0.0f;
-        }
-        n = 0;
-        r = x;
-    } else if (!(x < 87.0f)) {
-        return x == x ? 1.0f : 0.0f;
-    } else {
-        n = (int32_t)(x * 1.44269502f + 0.5f);
-        fn = (float)n;
-        r = (x - fn * 0.693145752f) - fn * 1.42860677e-06f;
-    }
-    t = -r;
-    q = 1.98412701e-04f;
-    q = 1.38888892e-03f + t * q;
-    q = 8.33333377e-03f + t * q;
-    q = 4.16666679e-02f + t * q;
-    q = 1.66666672e-01f + t * q;
-    q = 0.5f + t * q;
-    q = 1.0f + t * q;
-    q = t * q;
-    if (n == 0) {
-        return -q;
-    }
-    bits.u = (uint32_t)(127 - n) << 23;
-    s = bits.f;
-    return (1.0f - s) - s * q;
-}
-
 #if ECMRT_FX_CDR
 /* sqrt(w) for 1 <= w < 2^100: bit-trick start, four Newton steps (deterministic, <= 1 ulp) */
 static inline float ecmrt_f32_fx_sqrt(float w)
@@ -291,9 +244,9 @@ static inline float ecmrt_f32_fx_step(const ecmrt_f32_fx_model_t *fm, ecmrt_f32_
 #if ECMRT_FX_HYST
     sg = dir == ECMRT_CHARGE ? 1.0f : -1.0f;                       /* fx 4' */
 #if ECMRT_VARIABLE_DT
-    ch = ecmrt_f32_fx_one_minus_exp_neg((ai * dt) * fm->h_k);
+    ch = ecmrt_f32_one_minus_exp_neg((ai * dt) * fm->h_k);
 #else
-    ch = ecmrt_f32_fx_one_minus_exp_neg(ai * fm->h_k);
+    ch = ecmrt_f32_one_minus_exp_neg(ai * fm->h_k);
 #endif
     h = s->h;
     h = h + ch * (sg - h);
@@ -303,7 +256,7 @@ static inline float ecmrt_f32_fx_step(const ecmrt_f32_fx_model_t *fm, ecmrt_f32_
 #if ECMRT_FX_XRC
     ux = s->u_x;
 #if ECMRT_VARIABLE_DT
-    ux = ux + ecmrt_f32_fx_one_minus_exp_neg(dt / fm->x_k) * (fm->x_r * i - ux);
+    ux = ux + ecmrt_f32_one_minus_exp_neg(dt / fm->x_k) * (fm->x_r * i - ux);
 #else
     ux = ux + (fm->x_r * i - ux) / fm->x_k;
 #endif
