@@ -41,11 +41,10 @@ import numpy as np
 
 from . import effects as fx
 from .measure import TimeSeries
-from .model import EcmModel, write_atomic
+from .model import RC_FIELDS, EcmModel, write_atomic
 from .simulate import SimResult, initial_soc, rc_recurrence, simulate, step_inputs
 
 KELVIN = fx.KELVIN
-RC_KEYS = ("r0_ohm", "r_fast_ohm", "tau_fast_s", "r_slow_ohm", "tau_slow_s")
 
 
 # -- results ------------------------------------------------------------------------------
@@ -355,9 +354,9 @@ class _Problem:
             par[k][pname] = pf[j]
         for j, (k, pname) in enumerate(self.const):
             par[k][pname] = pc[j]
-        rows = ["dt", "i", "s", "ocv"] + list(RC_KEYS)
+        rows = ["dt", "i", "s", "ocv"] + list(RC_FIELDS)
         if self.has_cap:
-            rows += ["q", "soc"] + ["d_ocv"] + ["d_" + k for k in RC_KEYS]
+            rows += ["q", "soc"] + ["d_ocv"] + ["d_" + k for k in RC_FIELDS]
         if self.has_temp:
             rows += ["temp"]
         self.rows = rows
@@ -373,7 +372,7 @@ class _Problem:
 
         dt, i, s = U["dt"], U["i"], U["s"]
         ocv = U["ocv"]
-        p = {k: U[k] for k in RC_KEYS}
+        p = {k: U[k] for k in RC_FIELDS}
         if self.has_cap:
             scale = 1
             for k, name in enumerate(self.names):
@@ -382,7 +381,7 @@ class _Problem:
             soc_sym = self.soc0 + U["q"] / (3600.0 * self.model.capacity_ah * scale)
             dsoc = soc_sym - U["soc"]
             ocv = ocv + U["d_ocv"] * dsoc
-            p = {k: p[k] + U["d_" + k] * dsoc for k in RC_KEYS}
+            p = {k: p[k] + U["d_" + k] * dsoc for k in RC_FIELDS}
         for k, name in enumerate(self.names):
             if name == fx.CurrentDependentResistance.name:
                 xx = ca.fmax(ca.fabs(i) / par[k]["i0_a"], 1e-12)
@@ -436,13 +435,13 @@ class _Problem:
         ch = self.charging
         pc_, pd_ = m.charge.at(soc), m.discharge.at(soc)
         cols = {"dt": self.dt, "i": i, "s": self.s, "ocv": m.ocv.ocv_at(soc)}
-        for k in RC_KEYS:
+        for k in RC_FIELDS:
             cols[k] = np.where(ch, pc_[k], pd_[k])
         if self.has_cap:
             cols["q"] = self.q_as
             cols["soc"] = soc
             cols["d_ocv"] = _interp_slope(soc, m.ocv.soc, m.ocv.ocv_v)
-            for k in RC_KEYS:
+            for k in RC_FIELDS:
                 dc = _interp_slope(soc, m.charge.soc, getattr(m.charge, k))
                 dd = _interp_slope(soc, m.discharge.soc, getattr(m.discharge, k))
                 cols["d_" + k] = np.where(ch, dc, dd)

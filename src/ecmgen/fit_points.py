@@ -48,7 +48,6 @@ import numpy as np
 
 Progress = Callable[[int, int], None]
 
-PARAM_FIELDS = ("r0_ohm", "r_fast_ohm", "tau_fast_s", "r_slow_ohm", "tau_slow_s")
 MIN_POINTS = 3            # valid points after the first one needed for a fit
 _LOG_GAP = 1e-6           # tau_slow >= tau_fast * exp(_LOG_GAP): strict ordering
 _PENALTY = 1e3            # GA: fitness penalty per ohm of constraint violation

@@ -21,7 +21,7 @@ from . import dcir as dcir_mod
 from .config import BuildConfig
 from .errors import InputError
 from .measure import ColumnMap, TimeSeries, read_timeseries
-from .model import EcmModel, InputRecord, OcvTable, RcTable, file_sha256
+from .model import RC_FIELDS, EcmModel, InputRecord, OcvTable, RcTable, file_sha256
 from .ocv import looks_like_ocv_table, ocv_from_low_rate, ocv_from_pulse_rests, read_ocv_table
 from .simulate import Validation, validate
 
@@ -219,8 +219,7 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
             fits["lm"] = fit_points.fit_lm(rows.t_s, rows.r_ohm)
         for m in point_methods:
             f = fits[m]
-            cols = {k: getattr(f, k) for k in ("r0_ohm", "r_fast_ohm", "tau_fast_s",
-                                                "r_slow_ohm", "tau_slow_s")}
+            cols = {k: getattr(f, k) for k in RC_FIELDS}
             ch, dis, n2 = _rc_tables(rows.soc, rows.direction, cols, f.fitness_ohm, f.converged)
             bad = int(np.sum(~f.converged))
             n3 = [f"{m}: {bad} of {f.converged.size} table cells did not converge"] if bad else []
@@ -235,8 +234,7 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
         cf = fit_pulse_curves(inputs.pulses_series, list(inputs.pulses), inputs.ocv,
                               inputs.capacity_ah, relax_s=cfg.relax_s,
                               progress=lambda k, n: progress(f"  curve fit level {k}/{n}"))
-        cols = {k: getattr(cf, k) for k in ("r0_ohm", "r_fast_ohm", "tau_fast_s",
-                                            "r_slow_ohm", "tau_slow_s")}
+        cols = {k: getattr(cf, k) for k in RC_FIELDS}
         bad = ~cf.converged
         if bad.all():
             raise InputError(cfg.pulses, "the whole-curve fit resolved no SOC level "

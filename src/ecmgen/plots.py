@@ -17,22 +17,27 @@ def _plt():
     return plt
 
 
+def _panels(plt, n: int):
+    """A grid of up to 5 columns for n panels; the spare axes are switched off.
+    Returns (fig, axes of the n panels, number of columns)."""
+    cols = min(5, n)
+    rows = int(np.ceil(n / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.6 * rows), squeeze=False)
+    for ax in axes.flat[n:]:
+        ax.axis("off")
+    return fig, list(axes.flat[:n]), cols
+
+
 def plot_dcir_fits(table, fits: dict, path: Path) -> Path:
     """One panel per SOC level x direction: R(t) points and each method's curve."""
     from .fit_points import curve_r_ohm
 
     plt = _plt()
     n = len(table)
-    cols = min(5, n)
-    rows = int(np.ceil(n / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.6 * rows), squeeze=False)
+    fig, axes, cols = _panels(plt, n)
     t_fine = np.linspace(table.t_s[0], table.t_s[-1], 200)
     curves = {m: curve_r_ohm(f, t_fine) for m, f in fits.items()}
-    for k in range(rows * cols):
-        ax = axes.flat[k]
-        if k >= n:
-            ax.axis("off")
-            continue
+    for k, ax in enumerate(axes):
         ax.plot(table.t_s, table.r_ohm[k] * 1e3, "ko", ms=4, label="DC-IR")
         for m, c in curves.items():
             ax.plot(t_fine, c[k] * 1e3, lw=1.2, label=m.upper())
@@ -43,7 +48,7 @@ def plot_dcir_fits(table, fits: dict, path: Path) -> Path:
             ax.set_ylabel("R [mΩ]", fontsize=8)
         if k >= n - cols:
             ax.set_xlabel("t [s]", fontsize=8)
-    axes.flat[0].legend(fontsize=7)
+    axes[0].legend(fontsize=7)
     fig.suptitle("DC-IR points and fitted 2RC curves (Aras & Yonel Fig. 4)")
     fig.tight_layout()
     fig.savefig(path, dpi=90)
@@ -54,15 +59,8 @@ def plot_dcir_fits(table, fits: dict, path: Path) -> Path:
 def plot_curve_fits(curve_fit, path: Path) -> Path:
     """Whole-curve fit: measured vs fitted voltage change over each pulse + relaxation."""
     plt = _plt()
-    n = len(curve_fit.soc)
-    cols = min(5, n)
-    rows = int(np.ceil(n / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.6 * rows), squeeze=False)
-    for k in range(rows * cols):
-        ax = axes.flat[k]
-        if k >= n:
-            ax.axis("off")
-            continue
+    fig, axes, _ = _panels(plt, len(curve_fit.soc))
+    for k, ax in enumerate(axes):
         for t, meas, fit in curve_fit.windows[k]:
             ax.plot(t, meas * 1e3, "k", lw=0.6)
             ax.plot(t, fit * 1e3, "r", lw=0.8)
@@ -71,7 +69,7 @@ def plot_curve_fits(curve_fit, path: Path) -> Path:
                      f"rms {curve_fit.rms_error_v[k] * 1e3:.1f} mV", fontsize=8)
         ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
-    axes.flat[0].set_ylabel("ΔV [mV]")
+    axes[0].set_ylabel("ΔV [mV]")
     fig.suptitle("Whole-curve fit: measured (black) vs fitted (red) pulse + relaxation")
     fig.tight_layout()
     fig.savefig(path, dpi=90)
