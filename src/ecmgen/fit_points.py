@@ -223,9 +223,12 @@ def _result(data: _Data, tf, ts, rf, rs, converged, iterations, method) -> Point
     nan = np.full(ok.shape, np.nan)
     tf, ts, rf, rs = (np.where(ok, a, nan) for a in (tf, ts, rf, rs))
     r0 = _r0(data.ra, data.t0, tf, ts, rf, rs)
-    # rounding only: the constraint keeps R0 >= 0 up to a few ulps of R(t_0)
+    # rounding only: at an active constraint R0 = 0 comes out a few ulps of R(t_0) off,
+    # of either sign; snap it to exactly 0. Above 0 only by ulps of R(t_0): a GA stall
+    # at R0 ~ 1e-14 R(t_0) is a fitted value that the curve R(t_0) depends on.
     tiny = 1e-12 * np.maximum(np.abs(data.ra), data.scale)
-    r0 = np.where((r0 < 0) & (r0 > -tiny), 0.0, r0)
+    ulps = 4 * np.spacing(np.abs(data.ra))
+    r0 = np.where((r0 > -tiny) & (r0 < ulps), 0.0, r0)
     fitness = np.where(ok, _eq5(data, tf, ts, rf, rs), np.nan)
     return PointFit(r0_ohm=r0, r_fast_ohm=rf, tau_fast_s=tf, r_slow_ohm=rs, tau_slow_s=ts,
                     fitness_ohm=fitness, converged=np.asarray(converged, bool) & ok,
