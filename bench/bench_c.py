@@ -31,9 +31,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-from ecmgen import cbuild, cref, target  # noqa: E402
-from ecmgen.codegen import prepare, render  # noqa: E402
-from ecmgen.simulate import simulate  # noqa: E402
+from ecmgen.c import cbuild, cref, target  # noqa: E402
+from ecmgen.c.codegen import prepare, render  # noqa: E402
+from ecmgen.model.simulate import simulate  # noqa: E402
 
 VARIANTS = [("float", None), ("float", 0.1), ("fixed", None), ("fixed", 0.1)]
 

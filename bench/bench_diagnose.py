@@ -1,6 +1,6 @@
 """Benchmark: `diagnose` on a 4-hour drive cycle sampled at 1 s (14 400 samples).
 
-A synthetic cell (ecmgen.synthcell) with a hidden slow RC pair; its base model is
+A synthetic cell (ecmgen.diagnosis.synthcell) with a hidden slow RC pair; its base model is
 fitted from its pulse + OCV tests, then diagnose runs on the first 4 h of a long drive
 cycle (time split, the last 40 % held out). Target: under a minute on 2 cores.
 
@@ -15,8 +15,8 @@ import time
 
 
 def main(argv=None) -> int:
-    from ecmgen.diagnose import diagnose
-    from ecmgen.synthcell import random_cell
+    from ecmgen.diagnosis.search import diagnose
+    from ecmgen.diagnosis.synthcell import random_cell
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--effect", default="extra_rc", help="hidden effect, or 'none'")

@@ -29,7 +29,7 @@ import time
 import numpy as np
 from scipy.optimize import differential_evolution, least_squares
 
-from ecmgen.fit_points import (PointFit, curve_r_ohm, default_bounds, fit_ga, fit_lm)
+from ecmgen.fit import PointFit, curve_r_ohm, default_bounds, fit_ga, fit_lm
 
 T_S = np.array([0.1, 1.0, 3.0, 6.0, 10.0])
 PENALTY = 1e3          # the GA's penalty per ohm of constraint violation

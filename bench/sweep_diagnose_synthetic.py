@@ -1,7 +1,7 @@
 """Statistical sweep of `diagnose` on synthetic cells with one hidden effect each.
 
 For every effect (and for cells with no hidden effect) it draws N random cells
-(ecmgen.synthcell.random_cell), fits the base model from the cell's pulse + OCV tests,
+(ecmgen.diagnosis.synthcell.random_cell), fits the base model from the cell's pulse + OCV tests,
 runs diagnose on the drive cycle (time split: the last 40 % is held out) and reports
 how often the hidden effect is named first and how much the held-out MAE fell.
 
@@ -22,8 +22,8 @@ from concurrent.futures import ProcessPoolExecutor
 
 def one(job):
     effect, seed = job
-    from ecmgen.diagnose import diagnose
-    from ecmgen.synthcell import random_cell
+    from ecmgen.diagnosis.search import diagnose
+    from ecmgen.diagnosis.synthcell import random_cell
 
     t0 = time.perf_counter()
     cell = random_cell(seed, effect)
@@ -38,7 +38,7 @@ def one(job):
 
 
 def main(argv=None) -> int:
-    from ecmgen.effects import EFFECT_NAMES
+    from ecmgen.model.effects import EFFECT_NAMES
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cells", type=int, default=10)

@@ -68,8 +68,8 @@ def make_pulse_test(model, *, soc_levels=(0.9, 0.7, 0.5, 0.3, 0.15), c_rates=(1.
     file does), so the returned Ah column is what tells the SOC.
 
     Returns (TimeSeries, soc0)."""
-    from ecmgen.measure import TimeSeries
-    from ecmgen.simulate import simulate
+    from ecmgen.data.measure import TimeSeries
+    from ecmgen.model.simulate import simulate
 
     q = model.capacity_ah
     seg_t, seg_i = [np.array([0.0])], [np.array([0.0])]

@@ -13,9 +13,10 @@ import subprocess
 import numpy as np
 import pytest
 
-from ecmgen import __version__, cref
-from ecmgen.cbuild import STRICT_CFLAGS, host_cc
-from ecmgen.codegen import c_float, describe, generate_c, prepare, render, runtime_dir
+from ecmgen import __version__
+from ecmgen.c import cref
+from ecmgen.c.cbuild import STRICT_CFLAGS, host_cc
+from ecmgen.c.codegen import c_float, describe, generate_c, prepare, render, runtime_dir
 from ecmgen.errors import InputError
 
 VARIANTS = [("float", None), ("float", 0.1), ("fixed", None), ("fixed", 0.1)]
@@ -334,9 +335,9 @@ def test_build_c_outputs_for_the_pipeline(tmp_path, synthetic_model):
     """What pipeline._write_c calls: C per numeric under c/<numeric>/, and the "c" block."""
     from types import SimpleNamespace
 
-    from ecmgen.codegen import build_c_outputs
-    from ecmgen.measure import TimeSeries
-    from ecmgen.simulate import simulate, validate
+    from ecmgen.c.check import build_c_outputs
+    from ecmgen.data.measure import TimeSeries
+    from ecmgen.model.simulate import simulate, validate
 
     t = np.arange(4000) * 0.1
     cur = np.where((t % 60) < 30, -3.0, 1.0)

@@ -14,9 +14,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_codegen_helpers import load_mat, realistic_model, soc0_of
 
-from ecmgen import cbuild, cref
-from ecmgen import effects as fx
-from ecmgen.codegen import C_EFFECTS, cdr_nodes, file_names, generate_c, prepare, render
+from ecmgen.c import cbuild, cref
+from ecmgen.model import effects as fx
+from ecmgen.c.codegen import C_EFFECTS, file_names, generate_c, prepare, render
+from ecmgen.c.qformat import cdr_nodes
 from ecmgen.errors import InputError
 
 TOL = {"float": (0.05e-3, 0.5e-3), "fixed": (0.5e-3, 2e-3)}     # |dMAE|, max |dv|
@@ -116,7 +117,7 @@ def test_real_panasonic_stretch():
     """A real US06 stretch (measured, non-uniform time stamps) through every variant."""
     s = load_mat(need(PANASONIC / "us06.mat"))
     n = min(len(s.time_s), 6000)
-    from ecmgen.measure import TimeSeries
+    from ecmgen.data.measure import TimeSeries
 
     part = TimeSeries(s.time_s[:n], s.current_a[:n], s.voltage_v[:n], source="us06.mat")
     for numeric in ("float", "fixed"):
@@ -301,7 +302,7 @@ def test_files_and_documentation(tmp_path):
 def test_cortex_m_build_with_effects(tmp_path, numeric, cpu):
     """Strict cross-compilation: no libm (the float asinh/log/sqrt/exp are hand-written), no
     floating point at all in the fixed-point variant, no mutable globals."""
-    from ecmgen import target
+    from ecmgen.c import target
 
     reason = target.skip_reason(qemu=False)
     if reason:
@@ -323,9 +324,9 @@ def test_build_c_outputs_for_a_model_with_effects(tmp_path):
     effects: compared with simulate.py *with* the effects, bit-exact, in tolerance."""
     from types import SimpleNamespace
 
-    from ecmgen.codegen import build_c_outputs
-    from ecmgen.measure import TimeSeries
-    from ecmgen.simulate import simulate, validate
+    from ecmgen.c.check import build_c_outputs
+    from ecmgen.data.measure import TimeSeries
+    from ecmgen.model.simulate import simulate, validate
 
     model = _model(("hysteresis", "extra_rc", "capacity_error"))
     t = np.arange(3000) * 0.5

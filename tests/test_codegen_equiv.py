@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ecmgen import cbuild, cref
-from ecmgen.codegen import prepare, runtime_dir
+from ecmgen.c import cbuild, cref
+from ecmgen.c.codegen import prepare, runtime_dir
 from test_codegen_helpers import CYCLES, cycle, panasonic_model, soc0_of
 
 VARIANTS = [("float", None), ("float", 0.1), ("fixed", None), ("fixed", 0.1)]
@@ -194,8 +194,8 @@ def test_real_cycle_fixed_dt(pana):
 
 
 def test_c_equivalence_block_shape(synthetic_model):
-    from ecmgen.measure import TimeSeries
-    from ecmgen.simulate import simulate
+    from ecmgen.data.measure import TimeSeries
+    from ecmgen.model.simulate import simulate
 
     t, cur = _profile(3000, seed=5)
     v = simulate(synthetic_model, t, cur, 0.7).voltage_v + 0.001

@@ -23,7 +23,7 @@ CYCLES = ("us06.mat", "hwfet-a.mat")
 def load_mat(path: Path):
     import scipy.io
 
-    from ecmgen.measure import TimeSeries
+    from ecmgen.data.measure import TimeSeries
 
     m = scipy.io.loadmat(str(path), squeeze_me=True, struct_as_record=False)["meas"]
     return TimeSeries(np.asarray(m.Time, float), np.asarray(m.Current, float),
@@ -94,6 +94,6 @@ def cycle(name: str):
 
 
 def soc0_of(model, series) -> float:
-    from ecmgen.simulate import initial_soc
+    from ecmgen.model.simulate import initial_soc
 
     return float(initial_soc(model, series))

@@ -11,8 +11,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ecmgen import cbuild, cref
-from ecmgen.codegen import c_float
+from ecmgen.c import cbuild, cref
+from ecmgen.c.codegen import c_float
 from test_codegen_helpers import realistic_model
 
 SETTINGS = settings(max_examples=60, deadline=None,

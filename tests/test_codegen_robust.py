@@ -10,8 +10,8 @@ import subprocess
 import numpy as np
 import pytest
 
-from ecmgen import cbuild, cref
-from ecmgen.codegen import generate_c
+from ecmgen.c import cbuild, cref
+from ecmgen.c.codegen import generate_c
 from test_codegen_helpers import realistic_model
 
 VARIANTS = [("float", None), ("float", 0.1), ("fixed", None), ("fixed", 0.1)]
@@ -266,7 +266,7 @@ FX_DT = {None: None, 0.1: 0.1}
 def _fx_model(numeric):
     from test_codegen_effects import EFFECTS
 
-    from ecmgen.codegen import C_EFFECTS
+    from ecmgen.c.codegen import C_EFFECTS
 
     return _model().with_effects([e for n, e in EFFECTS.items() if n in C_EFFECTS[numeric]])
 

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from conftest import PANASONIC, REPO, flat, make_pulse_test, need, synthetic_nca_model
-from ecmgen.dcir import extract_dcir, find_pulses, read_dcir_csv
+from ecmgen.data.dcir import extract_dcir, find_pulses, read_dcir_csv
 from ecmgen.errors import InputError
-from ecmgen.measure import TimeSeries, read_timeseries
+from ecmgen.data.measure import TimeSeries, read_timeseries
 
 
 def test_synthetic_pulses_give_the_analytic_resistance():
@@ -122,7 +122,7 @@ def test_a_dynamic_profile_is_not_a_pulse_test():
 def test_usabc_hppc_discharge_then_regen_after_40_s():
     """A 10 s discharge pulse, 40 s rest, a 10 s regen pulse: both are pulses."""
     m = flat(synthetic_nca_model())
-    from ecmgen.simulate import simulate
+    from ecmgen.model.simulate import simulate
 
     t = np.arange(0, 700.0, 0.1)
     i = np.zeros_like(t)

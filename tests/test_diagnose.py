@@ -10,13 +10,15 @@ import json
 import numpy as np
 import pytest
 
-from ecmgen import effects as fx
-from ecmgen.diagnose import (DiagnoseResult, _Problem, _specs, block_bootstrap_low, decimate,
-                             diagnose, noise_std, write_diagnose_outputs)
-from ecmgen.measure import TimeSeries
+from ecmgen.model import effects as fx
+from ecmgen.diagnosis.output import write_diagnose_outputs
+from ecmgen.diagnosis.problems import _Problem, _specs
+from ecmgen.diagnosis.search import (DiagnoseResult, block_bootstrap_low, decimate, diagnose,
+                                     noise_std)
+from ecmgen.data.measure import TimeSeries
 from ecmgen.model import load_model
-from ecmgen.simulate import simulate
-from ecmgen.synthcell import random_cell
+from ecmgen.model.simulate import simulate
+from ecmgen.diagnosis.synthcell import random_cell
 
 
 def _cycle(seed=3, n=2500):
@@ -174,7 +176,7 @@ def test_candidates_can_be_restricted_and_bad_names_fail(synthetic_model):
 
 
 def test_config_section_options():
-    from ecmgen.diagnose import diagnose_options
+    from ecmgen.diagnosis.search import diagnose_options
     from ecmgen.errors import InputError
 
     assert diagnose_options(None) == {"judge": None}

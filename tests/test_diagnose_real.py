@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from conftest import CALCE, PANASONIC, need
-from ecmgen.diagnose import diagnose
-from ecmgen.measure import read_timeseries
+from ecmgen.diagnosis.search import diagnose
+from ecmgen.data.measure import read_timeseries
 from ecmgen.model import EcmModel, RcTable
-from ecmgen.simulate import validate
+from ecmgen.model.simulate import validate
 
 pytestmark = pytest.mark.slow
 
@@ -24,7 +24,7 @@ def _flat_table(r0, rf, tf, rs, ts) -> RcTable:
 def test_lfp_names_hysteresis():
     """A123 LFP (CALCE): OCV from the charge branch of the C/22 test (another cell), 2RC
     from rough values. The LFP charge/discharge hysteresis is what the model misses."""
-    from ecmgen.ocv import ocv_from_low_rate
+    from ecmgen.data.ocv import ocv_from_low_rate
 
     data = need(CALCE)
     cycle = read_timeseries(data / "dynamics-dst-us06-fuds.csv", capacity_ah=1.1)
@@ -51,11 +51,11 @@ def test_lfp_names_hysteresis():
 
 def _panasonic_base():
     """A 10 s-pulse model: each HPPC pulse fitted with 10 s of relaxation
-    (ecmgen.synthcell.fit_pulses), parameters averaged over the C-rates of a pulse set;
+    (ecmgen.diagnosis.synthcell.fit_pulses), parameters averaged over the C-rates of a pulse set;
     OCV from the discharge branch of the C/20 test (its charge branch was logged months
     later and is off by tens of mV)."""
-    from ecmgen.ocv import ocv_from_low_rate
-    from ecmgen.synthcell import fit_pulses
+    from ecmgen.data.ocv import ocv_from_low_rate
+    from ecmgen.diagnosis.synthcell import fit_pulses
 
     data = need(PANASONIC)
     hppc = read_timeseries(data / "hppc.mat", capacity_ah=2.9)

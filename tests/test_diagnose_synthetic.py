@@ -1,4 +1,4 @@
-"""diagnose on synthetic cells with one hidden effect each (ecmgen.synthcell): the
+"""diagnose on synthetic cells with one hidden effect each (ecmgen.diagnosis.synthcell): the
 Done-when statistics, 10 random cells per effect.
 
 Each cell: pulse test + C/20 OCV test -> base model (10 s pulses with 30 s relaxation,
@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import pytest
 
-from ecmgen.diagnose import diagnose
-from ecmgen.effects import EFFECT_NAMES
-from ecmgen.synthcell import random_cell
+from ecmgen.diagnosis.search import diagnose
+from ecmgen.model.effects import EFFECT_NAMES
+from ecmgen.diagnosis.synthcell import random_cell
 
 pytestmark = pytest.mark.slow
 

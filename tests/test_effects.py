@@ -1,5 +1,5 @@
 """Effects: parameters, model.json round trip, and each discrete update against an
-independent per-sample implementation of the equations in ecmgen.effects."""
+independent per-sample implementation of the equations in ecmgen.model.effects."""
 
 from __future__ import annotations
 
@@ -9,11 +9,11 @@ import math
 import numpy as np
 import pytest
 
-from ecmgen import effects as fx
+from ecmgen.model import effects as fx
 from ecmgen.errors import InputError
-from ecmgen.measure import TimeSeries
+from ecmgen.data.measure import TimeSeries
 from ecmgen.model import load_model, model_from_json_dict
-from ecmgen.simulate import simulate, validate
+from ecmgen.model.simulate import simulate, validate
 
 ALL = (
     fx.Hysteresis(m_v=0.02, decay_ah=0.15, m0_v=0.004, ocv_table_state=0.3, initial_state=0.5),
@@ -37,7 +37,7 @@ def profile(n=3000, seed=1):
 
 
 def reference(model, t, i, soc0, temp):
-    """The augmented step of ecmgen.effects, one sample at a time, scalar math only."""
+    """The augmented step of ecmgen.model.effects, one sample at a time, scalar math only."""
     dt = np.diff(t, prepend=t[0])
     q_eff = model.capacity_ah
     for e in model.effects:

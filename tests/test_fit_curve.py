@@ -3,8 +3,8 @@
 import pytest
 
 from conftest import make_pulse_test, synthetic_nca_model
-from ecmgen.dcir import find_pulses
-from ecmgen.fit_curve import fit_pulse_curves
+from ecmgen.data.dcir import find_pulses
+from ecmgen.fit.curve import fit_pulse_curves
 
 
 # With 10 s pulses a slow pole of tau_slow is charged to only ~10 s / tau_slow of its

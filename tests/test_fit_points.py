@@ -1,4 +1,4 @@
-"""GA and casadi-LM fits of the paper's DC-IR point curves (ecmgen.fit_points).
+"""GA and casadi-LM fits of the paper's DC-IR point curves (ecmgen.fit: points, ga, lm).
 
 Truth tables are synthesised from known 2RC parameters; measured resistances are made
 the way a DC-IR extraction makes them: R(t) = (V(t) - V_rest) / I from noisy voltages.
@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from ecmgen import fit_points as fp
-from ecmgen.fit_points import Bounds, PointFit, curve_r_ohm, default_bounds, fit_ga, fit_lm
+from ecmgen.fit import Bounds, PointFit, curve_r_ohm, default_bounds, fit_ga, fit_lm
+from ecmgen.fit import lm as lm_mod
+from ecmgen.fit import points as fp
 
 PAPER_T = np.array([0.1, 1.0, 3.0, 6.0, 10.0])
 # Aras & Yonel (2017) Table 1: 70 % SOC, charge, 25 degC
@@ -321,7 +322,7 @@ def test_casadi_jacobian_matches_finite_differences():
     rng = np.random.default_rng(0)
     data = fp._prepare(PAPER_T, np.array([r_model(th, PAPER_T) for th in TRUTH_5PT[:3]]))
     b = default_bounds(PAPER_T, data.r)
-    prob = fp._LmProblem(data, np.arange(3), b)
+    prob = lm_mod._LmProblem(data, np.arange(3), b)
     ix = np.arange(3)
     z = np.column_stack([np.log([0.7, 1.1, 0.5]), np.log([6.0, 9.0, 20.0]),
                          rng.uniform(0.2, 0.8, 3), rng.uniform(0.2, 0.8, 3)])

@@ -11,8 +11,8 @@ import scipy.io
 
 from conftest import CALCE, PANASONIC, REPO, need
 from ecmgen.errors import InputError
-from ecmgen.measure import (ColumnMap, TimeSeries, read_timeseries,
-                            write_timeseries_csv)
+from ecmgen.data.measure import (ColumnMap, TimeSeries, read_timeseries,
+                                 write_timeseries_csv)
 
 EXAMPLE = REPO / "examples" / "panasonic-25degC"
 PANASONIC_FILES = ("hppc.mat", "ocv-c20.mat", "us06.mat", "hwfet-a.mat",

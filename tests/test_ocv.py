@@ -6,8 +6,8 @@ import pytest
 
 from conftest import CALCE, PANASONIC, need
 from ecmgen.errors import InputError
-from ecmgen.measure import TimeSeries, read_timeseries
-from ecmgen.ocv import ocv_from_low_rate, read_ocv_table
+from ecmgen.data.measure import TimeSeries, read_timeseries
+from ecmgen.data.ocv import ocv_from_low_rate, read_ocv_table
 
 
 def test_table_in_percent_and_fraction(tmp_path):

@@ -12,7 +12,7 @@ import pytest
 
 from conftest import REPO, make_pulse_test, synthetic_nca_model
 from ecmgen.cli import main
-from ecmgen.measure import TimeSeries, write_timeseries_csv
+from ecmgen.data.measure import TimeSeries, write_timeseries_csv
 
 EXAMPLE = REPO / "examples" / "panasonic-25degC" / "config.toml"
 
@@ -31,7 +31,7 @@ def synthetic_project(tmp_path):
     write_timeseries_csv(series, tmp_path / "pulses.csv")
     np.savetxt(tmp_path / "ocv.csv", np.column_stack([truth.ocv.soc, truth.ocv.ocv_v]),
                delimiter=",", header="soc,ocv_v", comments="")
-    from ecmgen.simulate import simulate
+    from ecmgen.model.simulate import simulate
 
     t = np.arange(0, 1800.0, 1.0)
     rng = np.random.default_rng(0)
@@ -165,7 +165,7 @@ def test_another_cyclers_csv_with_ma_and_discharge_positive(synthetic_project):
     """A pulse test exported by another cycler: its own column names, mA, current
     positive on discharge, time in minutes; mapped per file role in the config."""
     folder, cfg, truth = synthetic_project
-    from ecmgen.measure import read_timeseries
+    from ecmgen.data.measure import read_timeseries
 
     s = read_timeseries(folder / "pulses.csv")
     rows = ["Zeit_min;Strom_mA;Spannung_V;Ladung_mAh"] + [
@@ -207,7 +207,7 @@ def test_diagnose_cli_on_the_bundled_example(tmp_path):
 
 
 def test_codegen_cli_writes_c_for_a_model_and_refuses_bad_ones(tmp_path):
-    from ecmgen.effects import make_effect
+    from ecmgen.model.effects import make_effect
 
     model = synthetic_nca_model().with_effects([make_effect("extra_rc", r_ohm=0.01, tau_s=600.0)])
     path = model.save(tmp_path / "model.json")
@@ -225,7 +225,7 @@ def test_codegen_cli_writes_c_for_a_model_and_refuses_bad_ones(tmp_path):
 def test_validate_reads_another_cyclers_csv_through_the_config(synthetic_project):
     folder, cfg, _ = synthetic_project
     assert main(["build", str(cfg), "--out", str(folder / "out"), "--quiet", "--no-plots"]) == 0
-    from ecmgen.measure import read_timeseries
+    from ecmgen.data.measure import read_timeseries
 
     s = read_timeseries(folder / "cycle.csv")
     rows = ["t [h],I [mA],U [V]"] + [f"{float(t) / 3600!r},{float(-i) * 1000!r},{float(v)!r}"

@@ -6,8 +6,8 @@ import pytest
 
 from conftest import flat, synthetic_nca_model
 from ecmgen.errors import InputError
-from ecmgen.measure import TimeSeries
-from ecmgen.simulate import Metrics, initial_soc, simulate, validate
+from ecmgen.data.measure import TimeSeries
+from ecmgen.model.simulate import Metrics, initial_soc, simulate, validate
 
 
 def test_constant_current_step_matches_the_analytic_response(synthetic_model):

@@ -11,8 +11,8 @@ import functools
 import numpy as np
 import pytest
 
-from ecmgen import target
-from ecmgen.codegen import prepare
+from ecmgen.c import target
+from ecmgen.c.codegen import prepare
 from test_codegen_helpers import cycle, panasonic_model, realistic_model, soc0_of
 
 pytestmark = pytest.mark.target
@@ -121,7 +121,7 @@ def _fx_models():
     capacity_error."""
     from test_codegen_effects import EFFECTS
 
-    from ecmgen.codegen import C_EFFECTS
+    from ecmgen.c.codegen import C_EFFECTS
 
     base = panasonic_model()
     return {num: base.with_effects([e for n, e in EFFECTS.items() if n in C_EFFECTS[num]])

@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from . import __version__
+from ._version import __version__
 from .errors import InputError
 
 
@@ -37,8 +37,8 @@ def cmd_build(args) -> int:
 
 
 def cmd_dcir(args) -> int:
-    from .dcir import extract_dcir, find_pulses
-    from .measure import read_timeseries
+    from .data.dcir import extract_dcir, find_pulses
+    from .data.measure import read_timeseries
 
     series = read_timeseries(args.pulses, capacity_ah=args.capacity_ah)
     pulses = find_pulses(series, args.capacity_ah, soc0=args.soc0)
@@ -77,9 +77,9 @@ def cmd_fit(args) -> int:
 
 
 def cmd_validate(args) -> int:
-    from .measure import read_timeseries
-    from .model import load_model
-    from .simulate import validate
+    from .data.measure import read_timeseries
+    from .model.model import load_model
+    from .model.simulate import validate
 
     model = load_model(args.model)
     if args.config:
@@ -108,8 +108,8 @@ def cmd_validate(args) -> int:
 
 
 def cmd_codegen(args) -> int:
-    from .codegen import generate_c
-    from .model import load_model
+    from .c.codegen import generate_c
+    from .model.model import load_model
 
     # the files are named <prefix>_ecm.* and ecmrt*.h, never a model.json
     files = generate_c(load_model(args.model), Path(args.out), prefix=args.prefix,

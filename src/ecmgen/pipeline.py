@@ -1,6 +1,10 @@
 """The `build` chain: config -> measurements -> DC-IR -> fits -> model.json -> validation.
 
-Each function is callable from a notebook; the CLI only parses arguments and prints.
+It strings the stages together: :mod:`ecmgen.data` (files, DC-IR table, OCV),
+:mod:`ecmgen.fit` (GA, LM, whole-curve), :mod:`ecmgen.model` (model.json, validation),
+:mod:`ecmgen.c` (the C of the best model), :mod:`ecmgen.plots` / :mod:`ecmgen.report`;
+``run_diagnose`` does the same for :mod:`ecmgen.diagnosis`. Each function is callable
+from a notebook; the CLI only parses arguments and prints.
 Outputs are staged in a temporary folder and moved into place only when everything
 succeeded, so a failure leaves no half-written output.
 """
@@ -17,13 +21,15 @@ from typing import Callable
 
 import numpy as np
 
-from . import dcir as dcir_mod
 from .config import BuildConfig
+from .data import dcir as dcir_mod
+from .data.measure import ColumnMap, TimeSeries, read_timeseries
+from .data.ocv import (OcvTable, looks_like_ocv_table, ocv_from_low_rate, ocv_from_pulse_rests,
+                       read_ocv_table)
 from .errors import InputError
-from .measure import ColumnMap, TimeSeries, read_timeseries
-from .model import RC_FIELDS, EcmModel, InputRecord, OcvTable, RcTable, file_sha256
-from .ocv import looks_like_ocv_table, ocv_from_low_rate, ocv_from_pulse_rests, read_ocv_table
-from .simulate import Validation, validate
+from .files import file_sha256
+from .model.model import RC_FIELDS, EcmModel, InputRecord, RcTable
+from .model.simulate import Validation, validate
 
 Progress = Callable[[str], None]
 
@@ -102,7 +108,7 @@ def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
         records.append(InputRecord("pulses", cfg.pulses.name, file_sha256(cfg.pulses)))
         soc0 = cfg.pulses_soc0
         if soc0 is None and ocv is not None:
-            from .simulate import rested_soc
+            from .model.simulate import rested_soc
 
             try:
                 soc0 = rested_soc(ocv, q, series)
@@ -198,7 +204,8 @@ def _rc_tables(soc, direction, cols: dict[str, np.ndarray], fit_error, converged
 def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
                ) -> tuple[dict[str, EcmModel], dict]:
     """Fit every method of the config; returns the models and the raw fits (for plots)."""
-    from . import fit_points
+    from .fit.ga import fit_ga
+    from .fit.lm import fit_lm
 
     models: dict[str, EcmModel] = {}
     raw: dict = {}
@@ -211,12 +218,12 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
         fits = {}
         if "ga" in point_methods:
             progress(f"GA fit of {len(rows)} table cells (seed {cfg.seed})")
-            fits["ga"] = fit_points.fit_ga(rows.t_s, rows.r_ohm, seed=cfg.seed)
+            fits["ga"] = fit_ga(rows.t_s, rows.r_ohm, seed=cfg.seed)
         if "lm" in point_methods:
             # on its own (multi-start), as the paper compares the two methods; started
             # from the GA it would keep the GA's Eq.-5 optimum (fit_lm's guarantee)
             progress("Levenberg-Marquardt fit (casadi Jacobian, multi-start)")
-            fits["lm"] = fit_points.fit_lm(rows.t_s, rows.r_ohm)
+            fits["lm"] = fit_lm(rows.t_s, rows.r_ohm)
         for m in point_methods:
             f = fits[m]
             cols = {k: getattr(f, k) for k in RC_FIELDS}
@@ -227,7 +234,7 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
                                  notes=inputs.notes + tuple(n) + tuple(n2) + tuple(n3), **common)
         raw["point_fits"] = fits
     if "curve" in cfg.methods:
-        from .fit_curve import fit_pulse_curves
+        from .fit.curve import fit_pulse_curves
 
         progress(f"whole-curve fit of {len(inputs.pulses)} pulses with {cfg.relax_s:g} s "
                  "of relaxation each")
@@ -301,10 +308,10 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
 def _write_c(cfg: BuildConfig, result: BuildResult, staging: Path, progress: Progress):
     """Generate C for the best model (if the code generator is installed) and check it."""
     try:
-        from . import codegen
+        from .c.check import build_c_outputs
     except ImportError:
         return None
-    return codegen.build_c_outputs(cfg, result, staging, progress)
+    return build_c_outputs(cfg, result, staging, progress)
 
 
 @contextmanager
@@ -340,7 +347,8 @@ def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _qu
     """`diagnose` from a build config: fit the base model (method ``fit.best``), look for
     missing effects on ``data.cycle`` (judged on ``[diagnose] judge`` or on the held-out
     end of the cycle), and write the augmented model, plots and report into out_dir."""
-    from .diagnose import diagnose, diagnose_options, write_diagnose_outputs
+    from .diagnosis.output import write_diagnose_outputs
+    from .diagnosis.search import diagnose, diagnose_options
 
     options = diagnose_options(cfg.raw.get("diagnose"), cfg.path)
     judge_name = options.pop("judge")

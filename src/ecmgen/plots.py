@@ -7,30 +7,12 @@ from pathlib import Path
 
 import numpy as np
 
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _panels(plt, n: int):
-    """A grid of up to 5 columns for n panels; the spare axes are switched off.
-    Returns (fig, axes of the n panels, number of columns)."""
-    cols = min(5, n)
-    rows = int(np.ceil(n / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.6 * rows), squeeze=False)
-    for ax in axes.flat[n:]:
-        ax.axis("off")
-    return fig, list(axes.flat[:n]), cols
+from .plotting import _panels, _plt
 
 
 def plot_dcir_fits(table, fits: dict, path: Path) -> Path:
     """One panel per SOC level x direction: R(t) points and each method's curve."""
-    from .fit_points import curve_r_ohm
+    from .fit.points import curve_r_ohm
 
     plt = _plt()
     n = len(table)

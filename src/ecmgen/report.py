@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .model import write_atomic
+from .files import write_atomic
 
 
 def validation_rows(result) -> list[tuple[str, str, float, float, float, float]]:

@@ -453,7 +453,7 @@ def python_voltage(model, time_s, current_a, soc0: float, dt_s: float | None = N
     dt_s given (fixed-dt C, whose every step lasts dt_s, the first one included): on the
     uniform time line t_0 + k dt_s, preceded by one rested sample so that Python's step k
     is the C's step k (simulate.py gives its first sample dt = 0)."""
-    from .simulate import simulate
+    from ..model.simulate import simulate
 
     base = model
     current_a = np.asarray(current_a, dtype=np.float64)
@@ -520,7 +520,7 @@ def c_equivalence(model, series, soc0: float | None = None, *, dt_s: float | Non
     ``model``: EcmModel or model.json path; ``soc0`` None: from the record's first rested
     sample (simulate.initial_soc), as validation does. Raises CBuildError without a compiler."""
     from .codegen import _as_model
-    from .simulate import initial_soc
+    from ..model.simulate import initial_soc
 
     model = _as_model(model)
     if soc0 is None:

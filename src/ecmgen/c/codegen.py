@@ -21,9 +21,13 @@ fixed dt (``dt_s`` given)    ``step(state, i)``; D = 1 / (1 - exp(-dt_s/tau)) is
     interpolating c itself would not (c ~ dt/tau is convex in tau).
 
 Every constant the C uses is computed once here (float64 maths, then rounded once to
-float32 or quantised once to an integer) into a :class:`CSpec`; both the renderer and the
-Python references in :mod:`ecmgen.cref` read that spec, so "what the C does" has one
-definition. Same model + options -> byte-identical files.
+float32 or quantised once to an integer, :mod:`ecmgen.c.qformat`) into a :class:`CSpec`;
+both the renderer and the Python references in :mod:`ecmgen.c.cref` read that spec, so
+"what the C does" has one definition. Same model + options -> byte-identical files.
+
+This module only writes C; compiling it and proving it equal to the references is
+:mod:`ecmgen.c.cbuild`, and the build's C stage (generate, then check) is
+:mod:`ecmgen.c.check`.
 """
 
 from __future__ import annotations
@@ -35,27 +39,22 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__
-from .errors import InputError
-from .model import DIRECTIONS, RC_FIELDS, EcmModel, load_model, write_atomic
+from .._version import __version__
+from ..errors import InputError
+from ..files import write_atomic
+from ..model.model import DIRECTIONS, RC_FIELDS, EcmModel, load_model
+from .qformat import CDR_E_MAX, INT32_MAX, Q30, Q_D, _q_fit, cdr_table, quantize
 
 NUMERICS = ("float", "fixed")
 RUNTIME_FILES = {"float": ("ecmrt.h", "ecmrt_f32.h"), "fixed": ("ecmrt.h", "ecmrt_q.h")}
 # extra runtime headers of a model that carries diagnose effects (the last one is included)
 RUNTIME_FX_FILES = {"float": ("ecmrt_fx.h", "ecmrt_f32_fx.h"), "fixed": ("ecmrt_fx.h", "ecmrt_q_fx.h")}
-# effects (ecmgen.effects) the generated C implements, per numeric
+# effects (ecmgen.model.effects) the generated C implements, per numeric
 C_EFFECTS = {"float": ("hysteresis", "extra_rc", "current_dependent_resistance", "capacity_error"),
              "fixed": ("hysteresis", "extra_rc", "current_dependent_resistance", "capacity_error")}
 CDR_X_MAX = 1e9             # largest |i| / i0_a the float asinh handles (x^2 must stay finite)
-CDR_SEG_BITS = 6            # fixed point: 2^6 linear segments in [0, 1) and in every binade of x
-CDR_E_MAX = 16              # fixed point: |i| / i0_a must stay below 2^16 (table size)
 MAX_POINTS = 255            # segment hints are uint8_t
-Q30 = 30
-Q_D = 16                    # dt input of the variable-dt fixed-point step
-DT_MAX_S = 32767.0          # dt saturation (float); Q16 int32 range (fixed)
-SOC_LIM = 2.0               # SOC saturates at +-2 (float) / int32 Q30 range (fixed)
 DEFAULT_I_MAX_C = 32.0      # default current range: 32 C, rounded up to a power of two
-INT32_MAX = 2**31 - 1
 
 _PREFIX_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_]{0,31}$")
 _RESERVED = {"ecmrt", "int", "float", "double", "char", "void", "static", "const", "return"}
@@ -64,7 +63,7 @@ _RESERVED = {"ecmrt", "int", "float", "double", "char", "void", "static", "const
 def _find_dir(name: str) -> Path:
     """templates/ and c_runtime/ live at the repository root (editable install); an
     installed package may carry them as package data under ecmgen/_data/."""
-    here = Path(__file__).resolve().parent
+    here = Path(__file__).resolve().parents[1]    # the ecmgen package (this is ecmgen/c/)
     for cand in (here / "_data" / name, here.parents[1] / name):
         if cand.is_dir():
             return cand
@@ -245,24 +244,6 @@ def validate_for_c(model: EcmModel, path=None) -> None:
 # spec preparation
 # --------------------------------------------------------------------------------------
 
-def _q_fit(vmax: float, bits: int = 31, cap: int = 62) -> int:
-    """Largest Q (<= cap) with round(vmax * 2^Q) <= 2^bits - 1."""
-    limit = 2**bits - 1
-    if vmax <= 0:
-        return cap
-    q = min(cap, math.floor(math.log2(limit / vmax)))
-    while math.floor(math.ldexp(vmax, q) + 0.5) > limit:
-        q -= 1
-    return q
-
-
-def quantize(values, q: int) -> np.ndarray:
-    """round(v * 2^q) half up, saturated to int32, as int64 (the one quantiser of ecmgen)."""
-    v = np.ldexp(np.asarray(values, dtype=np.float64), q)
-    v = np.floor(v + 0.5)
-    return np.clip(v, -2**31, INT32_MAX).astype(np.int64)
-
-
 def _f32(values, name: str) -> np.ndarray:
     a = np.asarray(values, dtype=np.float64).astype(np.float32)
     if not np.all(np.isfinite(a)):
@@ -315,33 +296,6 @@ def _fx_float(effects, by_name: dict, dt_s: float | None) -> dict:
     if g is not None:
         fx.update(cdr=1, g_scale=np.float32(g.scale_at_zero), g_inv_i0=_f32(1.0 / g.i0_a, "1/i0_a"))
     return fx
-
-
-def cdr_nodes(e_bins: int, k: int = CDR_SEG_BITS) -> np.ndarray:
-    """x of the fixed-point g table: 2^k uniform segments in [0, 1), then 2^k uniform
-    segments in each binade [2^b, 2^(b+1)), b = 0 .. e_bins - 1 (last node 2^e_bins)."""
-    idx = np.arange((e_bins + 1) * 2**k + 1)
-    return np.where(idx < 2**k, idx / 2.0**k,
-                    np.ldexp(1.0 + (idx % 2**k) / 2.0**k, np.maximum(idx // 2**k - 1, 0)))
-
-
-def cdr_table(scale: float, e_bins: int, k: int = CDR_SEG_BITS) -> np.ndarray:
-    """scale * asinh(x)/x at cdr_nodes (float64), each node moved by minus a quarter of the
-    chord errors at the midpoints of its two segments (half at the ends), which roughly halves
-    the error of linear interpolation (max relative error ~2.3e-5 with k = 6)."""
-    def f(x):
-        x = np.asarray(x, dtype=np.float64)
-        safe = np.where(x > 1e-6, x, 1.0)
-        return np.where(x > 1e-6, np.arcsinh(safe) / safe, 1.0 - x * x / 6.0)
-
-    x = cdr_nodes(e_bins, k)
-    y = f(x)
-    e = 0.5 * (y[1:] + y[:-1]) - f(0.5 * (x[1:] + x[:-1]))
-    adj = y.copy()
-    adj[1:-1] -= 0.25 * (e[1:] + e[:-1])
-    adj[0] -= 0.5 * e[0]
-    adj[-1] -= 0.5 * e[-1]
-    return scale * adj
 
 
 def _fx_fixed(hyst, xrc, q: dict, dt_s: float | None, i_lim: float, cdr=None) -> dict:
@@ -820,44 +774,3 @@ def generate_c(model, out_dir, prefix: str = "ecm", numeric: str = "float",
             write_atomic(path, text)
         written.append(path)
     return written
-
-
-def build_c_outputs(cfg, result, out_dir, progress=lambda msg: None) -> dict:
-    """The C stage of ``ecmgen build`` (called by pipeline._write_c).
-
-    For each numeric of ``cfg.c_numeric`` (prefix ``cfg.c_prefix``, ``cfg.c_dt_s``: None =
-    variable dt) the files go to ``out_dir/c/<numeric>/``; the C is compiled on the host and
-    compared (cbuild.c_equivalence) over the first validation cycle of the best model. Returns
-    the ``"c"`` block of ``--json``: ``{numeric: {"mae_v", "max_abs_diff_vs_python_v", ...,
-    "dir", "files"}}``. Without a host compiler the C is still written and each block says
-    ``"skipped"`` with the reason."""
-    from .cbuild import CBuildError, c_equivalence
-    from .measure import TimeSeries
-
-    model = result.models[result.best]
-    numerics = tuple(cfg.c_numeric)
-    dt_s, prefix = cfg.c_dt_s, cfg.c_prefix
-    specs = {n: prepare(model, numeric=n, dt_s=dt_s, prefix=prefix) for n in numerics}  # checks first
-    vals = (getattr(result, "validations", None) or {}).get(result.best) or {}
-    val = next(iter(vals.values()), None)
-    eq: dict = {}
-    if val is not None:
-        progress(f"checking the C against Python on {Path(val.source).name or 'the cycle'}")
-        series = TimeSeries(val.sim.time_s, val.sim.current_a, val.measured_v, source=val.source)
-        try:
-            eq = c_equivalence(model, series, val.soc0, dt_s=dt_s, prefix=prefix, numerics=numerics)
-        except CBuildError as exc:
-            eq = {n: {"skipped": str(exc).strip().splitlines()[0]} for n in numerics}
-        for r in eq.values():
-            r["cycle"] = Path(val.source).name
-    out_dir = Path(out_dir)
-    block = {}
-    for n in numerics:
-        progress(f"writing {n} C ({prefix}_ecm.c)")
-        files = generate_c(model, out_dir / "c" / n, prefix=prefix, numeric=n, dt_s=dt_s,
-                           equivalence={n: eq[n]} if n in eq else None)
-        entry = dict(eq.get(n, {"skipped": "no validation cycle to compare on"}))
-        entry.update({"dir": f"c/{n}", "files": [p.relative_to(out_dir).as_posix() for p in files],
-                      "table_bytes": describe(specs[n])["table_bytes"]})
-        block[n] = entry
-    return block

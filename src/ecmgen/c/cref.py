@@ -6,7 +6,7 @@
 ``simulate_fixed``  bit-true integers (numpy int64 / Python int) as ``c_runtime/ecmrt_q.h``,
                     with the same rounding (half up) and saturation.
 
-Both read a :class:`ecmgen.codegen.CSpec` - the very numbers written into the C - so a
+Both read a :class:`ecmgen.c.codegen.CSpec` - the very numbers written into the C - so a
 difference between C and reference is a bug in one of them, never in the constants.
 Vectorised where the C has no recurrence (inputs, direction, lookups, coefficients); the
 SOC and RC recurrences run sequentially (SOC vectorised when no saturation occurs).
@@ -18,7 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .codegen import DT_MAX_S, Q30, Q_D, SOC_LIM, CSpec, quantize
+from .codegen import CSpec
+from .qformat import DT_MAX_S, Q30, Q_D, SOC_LIM, quantize
 
 F32 = np.float32
 PARAMS = ("r0", "r_fast", "r_slow", "k_fast", "k_slow")

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
+from ..files import write_atomic
 from .measure import TimeSeries
-from .model import write_atomic
 
 DEFAULT_TIMES_S = (0.1, 1.0, 3.0, 6.0, 10.0)
 

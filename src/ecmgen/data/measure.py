@@ -16,7 +16,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
+from ..files import write_atomic
 
 
 @dataclass(frozen=True)
@@ -546,8 +547,6 @@ def _check_charge_sign(path, values, names) -> None:
 def write_timeseries_csv(series: TimeSeries, path: str | Path) -> Path:
     """Write the canonical CSV ``time_s,current_a,voltage_v[,temperature_c][,charge_ah]``
     (current positive on charge), floats as round-trip ``repr``; atomic."""
-    from .model import write_atomic
-
     present = [(name, getattr(series, name)) for name in CANONICAL_HEADER]
     header = [name for name, values in present if values is not None]
     cols = [values for _, values in present if values is not None]

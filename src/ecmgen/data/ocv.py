@@ -1,20 +1,80 @@
-"""OCV(SOC) from a ``soc,ocv_v`` table, a low-rate test, or the rests of a pulse test."""
+"""OCV(SOC): the :class:`OcvTable` (and its check) and where it comes from: a
+``soc,ocv_v`` table, a low-rate test, or the rests of a pulse test.
+
+The OCV stage produces the table that the fits and the model use, so it lives here,
+below both; :mod:`ecmgen.model` re-exports it.
+"""
 
 from __future__ import annotations
 
 import csv
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 from .measure import TimeSeries
-from .model import OcvTable, check_ocv
 
 GRID = np.linspace(0.0, 1.0, 101)
 # strictly increasing OCV is needed to invert it; flat LFP plateaus get this tiny slope
 MIN_SLOPE_V_PER_SOC = 1e-4
+
+
+def _f64(values, name: str, path) -> np.ndarray:
+    try:
+        arr = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(path, f"{name} is not a list of numbers") from None
+    if arr.ndim != 1 or arr.size == 0:
+        raise InputError(path, f"{name} must be a non-empty 1-D list")
+    if not np.all(np.isfinite(arr)):
+        raise InputError(path, f"{name} has non-finite values (NaN or inf)")
+    return arr
+
+
+@dataclass(frozen=True)
+class OcvTable:
+    """Open-circuit voltage over SOC. soc strictly increasing in [0, 1]; ocv_v in volts,
+    non-decreasing (strictly increasing where the OCV has to be inverted)."""
+
+    soc: np.ndarray
+    ocv_v: np.ndarray
+
+    def __post_init__(self):
+        check_ocv(self.soc, self.ocv_v, None)
+
+    def ocv_at(self, soc) -> np.ndarray:
+        """OCV in volts; SOC outside the table is clamped to its ends."""
+        return np.interp(soc, self.soc, self.ocv_v)
+
+    def soc_at(self, ocv_v) -> np.ndarray:
+        """Inverse lookup (OCV -> SOC), clamped to the table ends."""
+        return np.interp(ocv_v, self.ocv_v, self.soc)
+
+
+def check_ocv(soc, ocv_v, path) -> None:
+    """Raise InputError unless (soc, ocv_v) is a usable OCV table."""
+    soc = _f64(soc, "ocv soc", path)
+    ocv_v = _f64(ocv_v, "ocv_v", path)
+    if soc.shape != ocv_v.shape:
+        raise InputError(path, f"OCV table has {soc.size} SOC points but {ocv_v.size} voltages")
+    if soc.size < 2:
+        raise InputError(path, "OCV table needs at least 2 points")
+    if np.any(np.diff(soc) <= 0):
+        k = int(np.flatnonzero(np.diff(soc) <= 0)[0])
+        raise InputError(path, f"OCV table SOC is not strictly increasing at row {k + 1} "
+                               f"(soc {soc[k]:.6g} then {soc[k + 1]:.6g})")
+    if soc[0] < -1e-9 or soc[-1] > 1 + 1e-9:
+        raise InputError(path, f"OCV table SOC must lie in [0, 1], got {soc[0]:.6g}..{soc[-1]:.6g}")
+    if np.any(np.diff(ocv_v) <= 0):
+        k = int(np.flatnonzero(np.diff(ocv_v) <= 0)[0])
+        raise InputError(path, f"OCV is not monotonic in SOC: ocv_v falls from {ocv_v[k]:.6g} V "
+                               f"to {ocv_v[k + 1]:.6g} V between soc {soc[k]:.6g} and {soc[k + 1]:.6g}")
+    if ocv_v[0] < 0.5 or ocv_v[-1] > 6.0:
+        raise InputError(path, f"OCV values {ocv_v[0]:.4g}..{ocv_v[-1]:.4g} V are not plausible "
+                               "cell voltages (mV given as V?)")
 
 
 def read_ocv_table(path: str | Path) -> OcvTable:

@@ -12,10 +12,10 @@
    ``temperature_dependence``);
 3. greedily, one effect at a time: add each remaining candidate, fit its parameters on
    the fit part (least squares on the voltage time series with a soft-L1 loss; casadi
-   forward sensitivities of the discrete step of :mod:`ecmgen.effects` give the exact
+   forward sensitivities of the discrete step of :mod:`ecmgen.model.effects` give the exact
    Jacobian, scipy's bounded trust-region Gauss-Newton the steps; a few starts from
    the signature regressions for the nonconvex shape parameters), and judge every candidate on
-   the held-out part, simulated at full resolution with :func:`ecmgen.simulate.simulate`.
+   the held-out part, simulated at full resolution with :func:`ecmgen.model.simulate.simulate`.
    A candidate passes when the held-out MAE falls by at least ``min_rel_gain`` (relative),
    by at least ``min_gain_noise`` times the voltage noise (estimated from the rests) and
    by more than noise explains: the lower ``confidence`` bound of a circular block
@@ -27,6 +27,9 @@
 The held-out part is ``judge_series`` when given (a second cycle), else the last
 ``1 - split`` of the fit cycle's duration (the model is simulated over the whole cycle;
 only the first part is fitted).
+
+The candidate problems of step 3 are :mod:`ecmgen.diagnosis.problems`; what diagnose
+writes (model, report, plots) is :mod:`ecmgen.diagnosis.output`.
 """
 
 from __future__ import annotations
@@ -39,12 +42,14 @@ from typing import Callable
 
 import numpy as np
 
-from . import effects as fx
-from .measure import TimeSeries
-from .model import RC_FIELDS, EcmModel, write_atomic
-from .simulate import SimResult, initial_soc, rc_recurrence, simulate, step_inputs
-
-KELVIN = fx.KELVIN
+from ..data.measure import TimeSeries
+from ..errors import InputError
+from ..model import effects as fx
+from ..model.effects import KELVIN
+from ..model.model import EcmModel
+from ..model.rc import rc_recurrence
+from ..model.simulate import SimResult, initial_soc, simulate
+from .problems import _Problem, _Spec, _fit, _fixed, _interp_slope, _neutral, _specs
 
 
 # -- results ------------------------------------------------------------------------------
@@ -144,17 +149,6 @@ class DiagnoseResult:
 
 # -- small numeric helpers ----------------------------------------------------------------
 
-def _interp_slope(x, xp, fp) -> np.ndarray:
-    """d/dx of np.interp(x, xp, fp) (0 where np.interp clamps)."""
-    xp = np.asarray(xp, dtype=np.float64)
-    fp = np.asarray(fp, dtype=np.float64)
-    if xp.size < 2:
-        return np.zeros_like(x)
-    j = np.clip(np.searchsorted(xp, x, side="right") - 1, 0, xp.size - 2)
-    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
-    return np.where((x < xp[0]) | (x > xp[-1]), 0.0, slope)
-
-
 def _lowpass(dt: np.ndarray, x: np.ndarray, tau: float, x0: float = 0.0) -> np.ndarray:
     a = np.exp(-dt / tau)
     return rc_recurrence(a, (1.0 - a) * x, x0)
@@ -225,291 +219,6 @@ def decimate(series: TimeSeries, factor: int) -> TimeSeries:
     temp = None if series.temperature_c is None else \
         series.temperature_c[:n].reshape(-1, factor).mean(axis=1)
     return TimeSeries(t_b, i_b, v_b, temp, None, series.source, series.notes)
-
-
-# -- parameter layout ---------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class _Spec:
-    lo: float
-    hi: float
-    log: bool
-
-
-def _specs(name: str, model: EcmModel, ctx: dict) -> dict[str, _Spec]:
-    """Free parameters of an effect and their bounds (native units)."""
-    q = model.capacity_ah
-    if name == fx.Hysteresis.name:
-        return {"m_v": _Spec(0.0, 0.3, False), "decay_ah": _Spec(0.002 * q, 0.5 * q, True),
-                "m0_v": _Spec(0.0, 0.1, False), "ocv_table_state": _Spec(-1.0, 1.0, False),
-                "initial_state": _Spec(-1.0, 1.0, False)}
-    if name == fx.CurrentDependentResistance.name:
-        return {"scale_at_zero": _Spec(0.2, 5.0, True), "i0_a": _Spec(0.02 * q, 50.0 * q, True)}
-    if name == fx.ExtraRc.name:
-        r_hi = max(0.5, 20.0 * ctx["r_total_ohm"])
-        return {"r_ohm": _Spec(0.0, r_hi, False),
-                "tau_s": _Spec(ctx["tau_min_s"], ctx["tau_max_s"], True)}
-    if name == fx.CapacityError.name:
-        return {"capacity_scale": _Spec(0.7, 1.4, False)}
-    if name == fx.TemperatureDependence.name:
-        return {"activation_k": _Spec(0.0, 15000.0, False)}
-    raise ValueError(name)
-
-
-def _fixed(name: str, ctx: dict) -> dict[str, float]:
-    """Parameters that are set from the data, not fitted."""
-    if name == fx.TemperatureDependence.name:
-        return {"t_ref_c": ctx["t_ref_c"]}
-    return {}
-
-
-def _neutral(name: str, ctx: dict) -> dict[str, float]:
-    """Parameter values at which the effect changes nothing (used as fallback start)."""
-    return {
-        fx.Hysteresis.name: {"m_v": 0.005, "decay_ah": 0.05 * ctx["capacity_ah"], "m0_v": 0.0,
-                             "ocv_table_state": 0.0, "initial_state": 0.0},
-        fx.CurrentDependentResistance.name: {"scale_at_zero": 1.0, "i0_a": ctx["capacity_ah"]},
-        fx.ExtraRc.name: {"r_ohm": 0.0, "tau_s": 600.0},
-        fx.CapacityError.name: {"capacity_scale": 1.0},
-        fx.TemperatureDependence.name: {"activation_k": 0.0},
-    }[name]
-
-
-# -- the casadi model with forward sensitivities ---------------------------------------------
-
-class _Problem:
-    """Residual (simulated - measured) and its Jacobian for a set of effects whose
-    parameters are partly free. Mirrors ecmgen.simulate + ecmgen.effects exactly."""
-
-    def __init__(self, model: EcmModel, data: TimeSeries, soc0: float,
-                 effects: list[tuple[str, dict[str, float], dict[str, _Spec]]]):
-        import casadi as ca
-
-        self.ca = ca
-        self.model = model
-        self.soc0 = float(soc0)
-        self.t = data.time_s
-        self.i = data.current_a
-        self.v = data.voltage_v
-        self.temp = data.temperature_c
-        self.n = len(data)
-        # effects: (name, values of all parameters, free parameter specs)
-        self.effects = effects
-        self.names = [e[0] for e in effects]
-        self.free: list[tuple[int, str, _Spec]] = []
-        self.const: list[tuple[int, str]] = []
-        for k, (name, values, specs) in enumerate(effects):
-            for pname in values:
-                if pname in specs:
-                    self.free.append((k, pname, specs[pname]))
-                else:
-                    self.const.append((k, pname))
-        self.values = [dict(v) for _, v, _ in effects]
-        dt, soc, charging, _ = step_inputs(model, self.t, self.i, self.soc0)
-        self.dt = dt
-        self.charging = charging
-        self.s = np.where(charging, 1.0, -1.0)
-        self.q_as = np.cumsum(self.i * dt)
-        self.has_cap = fx.CapacityError.name in self.names
-        self.has_temp = fx.TemperatureDependence.name in self.names and self.temp is not None
-        self._build()
-
-    # z <-> native ---------------------------------------------------------------------
-    def z0(self) -> np.ndarray:
-        out = []
-        for k, pname, sp in self.free:
-            v = min(max(self.values[k][pname], sp.lo), sp.hi)
-            out.append(math.log(max(v, 1e-300)) if sp.log else v)
-        return np.array(out, dtype=np.float64)
-
-    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        lo = [math.log(sp.lo) if sp.log else sp.lo for _, _, sp in self.free]
-        hi = [math.log(sp.hi) if sp.log else sp.hi for _, _, sp in self.free]
-        return np.array(lo), np.array(hi)
-
-    def native(self, z, snap: bool = False) -> list[dict[str, float]]:
-        """Parameter values of z; ``snap``: values within 1e-6 of the span of a bound are
-        set to the bound (a term the fit switched off reads as exactly 0)."""
-        vals = [dict(v) for v in self.values]
-        for zk, (k, pname, sp) in zip(np.asarray(z, dtype=np.float64), self.free):
-            x = float(math.exp(zk) if sp.log else zk)
-            if snap:
-                tol = 1e-6 * (sp.hi - sp.lo)
-                x = sp.lo if x - sp.lo < tol else sp.hi if sp.hi - x < tol else x
-            vals[k][pname] = x
-        return vals
-
-    def effects_of(self, z) -> list:
-        return [fx.make_effect(name, **vals)
-                for name, vals in zip(self.names, self.native(z, snap=True))]
-
-    # casadi step ----------------------------------------------------------------------
-    def _build(self) -> None:
-        ca = self.ca
-        nf, nc = len(self.free), len(self.const)
-        pf = ca.SX.sym("pf", nf)
-        pc = ca.SX.sym("pc", nc)
-        par = [dict() for _ in self.names]
-        for j, (k, pname, _) in enumerate(self.free):
-            par[k][pname] = pf[j]
-        for j, (k, pname) in enumerate(self.const):
-            par[k][pname] = pc[j]
-        rows = ["dt", "i", "s", "ocv"] + list(RC_FIELDS)
-        if self.has_cap:
-            rows += ["q", "soc"] + ["d_ocv"] + ["d_" + k for k in RC_FIELDS]
-        if self.has_temp:
-            rows += ["temp"]
-        self.rows = rows
-        u = ca.SX.sym("u", len(rows))
-        U = {r: u[j] for j, r in enumerate(rows)}
-        states = ["u_fast", "u_slow"]
-        for k, name in enumerate(self.names):
-            if name in (fx.Hysteresis.name, fx.ExtraRc.name):
-                states.append(f"{name}#{k}")
-        self.states = states
-        x = ca.SX.sym("x", len(states))
-        X = {s: x[j] for j, s in enumerate(states)}
-
-        dt, i, s = U["dt"], U["i"], U["s"]
-        ocv = U["ocv"]
-        p = {k: U[k] for k in RC_FIELDS}
-        if self.has_cap:
-            scale = 1
-            for k, name in enumerate(self.names):
-                if name == fx.CapacityError.name:
-                    scale = scale * par[k]["capacity_scale"]
-            soc_sym = self.soc0 + U["q"] / (3600.0 * self.model.capacity_ah * scale)
-            dsoc = soc_sym - U["soc"]
-            ocv = ocv + U["d_ocv"] * dsoc
-            p = {k: p[k] + U["d_" + k] * dsoc for k in RC_FIELDS}
-        for k, name in enumerate(self.names):
-            if name == fx.CurrentDependentResistance.name:
-                xx = ca.fmax(ca.fabs(i) / par[k]["i0_a"], 1e-12)
-                g = par[k]["scale_at_zero"] * ca.asinh(xx) / xx
-                p["r0_ohm"] = p["r0_ohm"] * g
-                p["r_fast_ohm"] = p["r_fast_ohm"] * g
-            elif name == fx.TemperatureDependence.name and self.has_temp:
-                f = ca.exp(par[k]["activation_k"] * (1.0 / (U["temp"] + KELVIN)
-                                                    - 1.0 / (par[k]["t_ref_c"] + KELVIN)))
-                for key in ("r0_ohm", "r_fast_ohm", "r_slow_ohm"):
-                    p[key] = p[key] * f
-        a_f = ca.exp(-dt / p["tau_fast_s"])
-        a_s = ca.exp(-dt / p["tau_slow_s"])
-        nxt = {"u_fast": a_f * X["u_fast"] + p["r_fast_ohm"] * (1 - a_f) * i,
-               "u_slow": a_s * X["u_slow"] + p["r_slow_ohm"] * (1 - a_s) * i}
-        v = ocv + p["r0_ohm"] * i + nxt["u_fast"] + nxt["u_slow"]
-        for k, name in enumerate(self.names):
-            key = f"{name}#{k}"
-            if name == fx.Hysteresis.name:
-                e = par[k]
-                a_h = ca.exp(-ca.fabs(i) * dt / (3600.0 * e["decay_ah"]))
-                nxt[key] = a_h * X[key] + (1 - a_h) * s
-                v = v + e["m_v"] * (nxt[key] - e["ocv_table_state"]) \
-                    + e["m0_v"] * (s - e["ocv_table_state"])
-            elif name == fx.ExtraRc.name:
-                a3 = ca.exp(-dt / par[k]["tau_s"])
-                nxt[key] = a3 * X[key] + par[k]["r_ohm"] * (1 - a3) * i
-                v = v + nxt[key]
-        xn = ca.vertcat(*[nxt[s_] for s_ in states])
-        S = ca.SX.sym("S", len(states), nf)
-        Sn = ca.jacobian(xn, x) @ S + ca.jacobian(xn, pf)
-        dv = ca.jacobian(v, x) @ S + ca.jacobian(v, pf)
-        xa = ca.vertcat(x, ca.vec(S))
-        xan = ca.vertcat(xn, ca.vec(Sn))
-        self.F = ca.Function("F", [xa, u, pf, pc], [xan, ca.vertcat(v, dv.T)])
-        self.Fm = self.F.mapaccum("Fm", self.n)
-        # initial state (h_{-1} = initial_state) and its sensitivity
-        self._x0_index = {}
-        for k, name in enumerate(self.names):
-            if name == fx.Hysteresis.name:
-                self._x0_index[k] = states.index(f"{name}#{k}")
-
-    def _inputs(self, vals) -> np.ndarray:
-        m = self.model
-        i = self.i
-        scale = 1.0
-        for name, v in zip(self.names, vals):
-            if name == fx.CapacityError.name:
-                scale *= v["capacity_scale"]
-        soc = self.soc0 + self.q_as / (3600.0 * m.capacity_ah * scale)
-        ch = self.charging
-        pc_, pd_ = m.charge.at(soc), m.discharge.at(soc)
-        cols = {"dt": self.dt, "i": i, "s": self.s, "ocv": m.ocv.ocv_at(soc)}
-        for k in RC_FIELDS:
-            cols[k] = np.where(ch, pc_[k], pd_[k])
-        if self.has_cap:
-            cols["q"] = self.q_as
-            cols["soc"] = soc
-            cols["d_ocv"] = _interp_slope(soc, m.ocv.soc, m.ocv.ocv_v)
-            for k in RC_FIELDS:
-                dc = _interp_slope(soc, m.charge.soc, getattr(m.charge, k))
-                dd = _interp_slope(soc, m.discharge.soc, getattr(m.discharge, k))
-                cols["d_" + k] = np.where(ch, dc, dd)
-        if self.has_temp:
-            cols["temp"] = self.temp
-        return np.vstack([cols[r] for r in self.rows])
-
-    def simulate(self, z) -> tuple[np.ndarray, np.ndarray]:
-        """Simulated voltage and its Jacobian with respect to z."""
-        vals = self.native(z)
-        nf = len(self.free)
-        xa0 = np.zeros(len(self.states) * (1 + nf))
-        for k, j in self._x0_index.items():
-            xa0[j] = vals[k]["initial_state"]
-            for col, (kk, pname, _) in enumerate(self.free):
-                if kk == k and pname == "initial_state":
-                    xa0[len(self.states) + col * len(self.states) + j] = 1.0
-        pf = np.array([vals[k][p] for k, p, _ in self.free])
-        pc = np.array([vals[k][p] for k, p in self.const])
-        _, out = self.Fm(xa0, self._inputs(vals), pf, pc)
-        out = np.asarray(out)
-        v = out[0]
-        jac = out[1:].T.copy() if nf else np.zeros((self.n, 0))
-        for col, (k, pname, sp) in enumerate(self.free):
-            if sp.log:
-                jac[:, col] *= vals[k][pname]
-        return v, jac
-
-
-def _fit(problem: _Problem, rows: np.ndarray, starts: list[np.ndarray], max_nfev: int,
-         f_scale: float) -> tuple[np.ndarray, float]:
-    """Bounded Gauss-Newton (scipy TRF, casadi Jacobian) from the best of ``starts``."""
-    from scipy.optimize import least_squares
-
-    lo, hi = problem.bounds()
-    span = np.maximum(hi - lo, 1e-12)
-    cache: dict = {}
-
-    def both(z):
-        key = z.tobytes()
-        if key not in cache:
-            cache.clear()
-            v, jac = problem.simulate(z)
-            r = (v - problem.v)[rows]
-            jr = jac[rows]
-            bad = ~np.isfinite(r)
-            if bad.any():
-                r = np.where(bad, 1.0, r)
-                jr = np.where(bad[:, None], 0.0, jr)
-            cache[key] = (r, np.nan_to_num(jr))
-        return cache[key]
-
-    def clip(z):
-        return np.clip(z, lo + 1e-9 * span, hi - 1e-9 * span)
-
-    best = None
-    n_start_nfev = 6 if len(starts) > 1 else max_nfev
-    for z in starts:
-        sol = least_squares(lambda z: both(z)[0], clip(z), jac=lambda z: both(z)[1],
-                            bounds=(lo, hi), method="trf", x_scale="jac", loss="soft_l1",
-                            f_scale=f_scale, max_nfev=n_start_nfev, xtol=1e-6, ftol=1e-7)
-        if best is None or sol.cost < best.cost:
-            best = sol
-    if len(starts) > 1:
-        best = least_squares(lambda z: both(z)[0], clip(best.x), jac=lambda z: both(z)[1],
-                             bounds=(lo, hi), method="trf", x_scale="jac", loss="soft_l1",
-                             f_scale=f_scale, max_nfev=max_nfev, xtol=1e-6, ftol=1e-7)
-    return best.x, float(best.cost)
 
 
 # -- signatures ---------------------------------------------------------------------------
@@ -660,7 +369,7 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
     judge_series     a second cycle to judge on; None: the last ``1 - split`` of the
                      fit cycle's duration is held out
     soc0, judge_soc0 start SOC of the cycles (default: from the OCV of the first rested
-                     voltage, :func:`ecmgen.simulate.initial_soc`)
+                     voltage, :func:`ecmgen.model.simulate.initial_soc`)
     candidates       effect names to try (default all five); effects already in
                      ``base_model`` are kept as they are and not tried again
     max_effects      at most this many effects are added
@@ -887,8 +596,6 @@ def diagnose_options(table, path=None) -> dict:
         min_rel_gain = 0.08       # held-out MAE must fall by at least this fraction
         confidence = 0.99         # of the block-bootstrap bound on the held-out gain
     """
-    from .errors import InputError
-
     table = {} if table is None else table
     if not isinstance(table, dict):
         raise InputError(path, "[diagnose] must be a table")
@@ -929,244 +636,3 @@ def diagnose_options(table, path=None) -> dict:
     if "confidence" in table:
         out["confidence"] = number("confidence", 0.5, 0.9999)
     return out
-
-
-# -- outputs: model.json, plots, report.md ---------------------------------------------------
-
-EFFECT_WORDS = {
-    fx.Hysteresis.name: "OCV hysteresis: the voltage depends on the sign and history of the "
-                        "current (one-state Plett model)",
-    fx.CurrentDependentResistance.name: "resistance falling with |I| (Butler-Volmer-like "
-                                        "charge transfer)",
-    fx.ExtraRc.name: "a slow polarisation (a further RC pair with a time constant of minutes) "
-                     "that 10 s pulses cannot see",
-    fx.CapacityError.name: "the capacity used for coulomb counting is off",
-    fx.TemperatureDependence.name: "resistances falling as the cell warms (Arrhenius)",
-}
-
-
-def _signature_x(name: str, result: DiagnoseResult):
-    """x values and label of an effect's signature plot over the fit part."""
-    s = result.fit_series
-    sim = result.base_fit_sim
-    stop = result.fit_stop
-    dt = np.diff(s.time_s, prepend=s.time_s[0])
-    i = s.current_a
-    q = result.base_model.capacity_ah
-    g = result.signatures[name].guess
-    if name == fx.Hysteresis.name:
-        ch = np.where(sim.charging, 1.0, -1.0)
-        a = np.exp(-np.abs(i) * dt / (3600.0 * g.get("decay_ah", 0.05 * q)))
-        x = rc_recurrence(a, (1 - a) * ch, ch[0])
-        return x[:stop], f"direction memory h (decay {g.get('decay_ah', 0.05 * q):.3g} Ah)"
-    if name == fx.CurrentDependentResistance.name:
-        return i[:stop], "current [A]"
-    if name == fx.ExtraRc.name:
-        tau = g.get("tau_s", 600.0)
-        return _lowpass(dt, i, tau)[:stop], f"current low-pass filtered, tau {tau:.0f} s [A]"
-    if name == fx.CapacityError.name:
-        return (np.cumsum(i * dt) / 3600.0)[:stop], "charge throughput [Ah]"
-    if name == fx.TemperatureDependence.name:
-        if s.temperature_c is None:
-            return None, "temperature (not in the data)"
-        return s.temperature_c[:stop], "cell temperature [degC]"
-    raise ValueError(name)
-
-
-def _binned(x, y, n=25):
-    ok = np.isfinite(x) & np.isfinite(y)
-    x, y = x[ok], y[ok]
-    if x.size < 10 or np.ptp(x) <= 0:
-        return np.array([]), np.array([])
-    edges = np.quantile(x, np.linspace(0, 1, n + 1))
-    edges = np.unique(edges)
-    k = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, edges.size - 2)
-    cnt = np.bincount(k, minlength=edges.size - 1)
-    sy = np.bincount(k, weights=y, minlength=edges.size - 1)
-    sx = np.bincount(k, weights=x, minlength=edges.size - 1)
-    m = cnt > 0
-    return sx[m] / cnt[m], sy[m] / cnt[m]
-
-
-def plot_signatures(result: DiagnoseResult, path: Path) -> Path:
-    """Residual of the base model (fit part) against each effect's signature."""
-    from .plots import _plt
-
-    plt = _plt()
-    res = (result.fit_series.voltage_v - result.base_fit_sim.voltage_v)[:result.fit_stop] * 1e3
-    names = list(fx.EFFECT_NAMES)
-    fig, axes = plt.subplots(2, 3, figsize=(14, 7.5))
-    rng = np.random.default_rng(0)
-    pick = rng.choice(res.size, size=min(res.size, 4000), replace=False)
-    for ax, name in zip(axes.flat, names):
-        sig = result.signatures[name]
-        x, label = _signature_x(name, result)
-        if x is None:
-            ax.text(0.5, 0.5, sig.detail, ha="center", va="center", transform=ax.transAxes,
-                    fontsize=9, wrap=True)
-            ax.set_xticks([])
-            ax.set_yticks([])
-        else:
-            ax.plot(x[pick], res[pick], ".", ms=2, alpha=0.25, color="0.5")
-            bx, by = _binned(x, res)
-            ax.plot(bx, by, "o-", color="C3", ms=3, lw=1.2, label="binned mean")
-            ax.axhline(0, color="k", lw=0.6)
-            lo, hi = np.percentile(res, [1, 99])
-            pad = 0.1 * (hi - lo + 1e-3)
-            ax.set_ylim(lo - pad, hi + pad)
-        added = name in result.effects
-        ax.set_title(f"{name}  (explains {100 * sig.r2:.0f} %)" + ("  ADDED" if added else ""),
-                     fontsize=9, color="C2" if added else "k")
-        ax.set_xlabel(label, fontsize=8)
-        ax.set_ylabel("measured - base [mV]", fontsize=8)
-        ax.tick_params(labelsize=7)
-        ax.grid(alpha=0.3)
-    t = result.fit_series.time_s[:result.fit_stop]
-    ax = axes.flat[5]
-    ax.plot(t, res, lw=0.5, color="C0")
-    ax.axhline(0, color="k", lw=0.6)
-    ax.set_title("residual over time (fit part)", fontsize=9)
-    ax.set_xlabel("time [s]", fontsize=8)
-    ax.set_ylabel("measured - base [mV]", fontsize=8)
-    ax.tick_params(labelsize=7)
-    ax.grid(alpha=0.3)
-    fig.suptitle("Where the base model misses: residual against each effect's signature",
-                 fontsize=11)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
-
-
-def plot_comparison(result: DiagnoseResult, path: Path) -> Path:
-    """Held-out part: measured vs base vs augmented voltage, the errors, MAE per step."""
-    from .plots import _plt
-
-    plt = _plt()
-    a = result.judge_start
-    s = result.judge_series
-    t = s.time_s[a:]
-    vm = s.voltage_v[a:]
-    vb = result.base_judge_sim.voltage_v[a:]
-    va = result.judge_sim.voltage_v[a:]
-    fig = plt.figure(figsize=(13, 9))
-    gs = fig.add_gridspec(3, 4)
-    ax0 = fig.add_subplot(gs[0, :])
-    ax0.plot(t, vm, lw=0.8, color="k", label="measured")
-    ax0.plot(t, vb, lw=0.7, color="C1", label=f"base (MAE {result.mae_before_v * 1e3:.2f} mV)")
-    ax0.plot(t, va, lw=0.7, color="C2",
-             label=f"with {', '.join(result.effects) or 'no effects'} "
-                   f"(MAE {result.mae_after_v * 1e3:.2f} mV)")
-    ax0.set_ylabel("voltage [V]")
-    ax0.legend(fontsize=8, loc="lower left")
-    ax0.set_title(f"held out: {result.split}", fontsize=9)
-    ax0.grid(alpha=0.3)
-    ax1 = fig.add_subplot(gs[1, :], sharex=ax0)
-    ax1.plot(t, (vb - vm) * 1e3, lw=0.5, color="C1", label="base")
-    ax1.plot(t, (va - vm) * 1e3, lw=0.5, color="C2", label="augmented")
-    ax1.axhline(0, color="k", lw=0.6)
-    e = np.concatenate([vb - vm, va - vm]) * 1e3
-    lo, hi = np.percentile(e, [0.5, 99.5])
-    ax1.set_ylim(lo - 0.1 * (hi - lo + 1), hi + 0.1 * (hi - lo + 1))
-    ax1.set_ylabel("simulated - measured [mV]")
-    ax1.set_xlabel("time [s]")
-    ax1.legend(fontsize=8)
-    ax1.grid(alpha=0.3)
-    ax2 = fig.add_subplot(gs[2, :2])
-    labels = ["base"] + [f"+ {st.name}" for st in result.steps]
-    maes = [result.mae_before_v * 1e3] + [st.mae_after_v * 1e3 for st in result.steps]
-    ax2.bar(range(len(maes)), maes, color=["C1"] + ["C2"] * len(result.steps))
-    ax2.set_xticks(range(len(maes)))
-    ax2.set_xticklabels(labels, fontsize=8, rotation=15)
-    ax2.set_ylabel("held-out MAE [mV]")
-    ax2.grid(alpha=0.3, axis="y")
-    ax3 = fig.add_subplot(gs[2, 2:])
-    rounds = sorted({c.round for c in result.candidates})
-    for r in rounds:
-        cs = [c for c in result.candidates if c.round == r and math.isfinite(c.judge_mae_v)]
-        ax3.plot([c.judge_mae_v * 1e3 for c in cs], [c.name for c in cs], "o",
-                 label=f"round {r}")
-    ax3.axvline(result.mae_before_v * 1e3, color="C1", lw=0.8, ls="--")
-    ax3.set_xlabel("held-out MAE with the candidate [mV]")
-    ax3.tick_params(labelsize=7)
-    ax3.legend(fontsize=7)
-    ax3.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
-
-
-def report_text(result: DiagnoseResult, model_name: str = "model.json") -> str:
-    """report.md: what is missing, in words, with the numbers behind it."""
-    mv = lambda x: f"{x * 1e3:.2f} mV"  # noqa: E731
-    lines = ["# ecmgen diagnose", ""]
-    fit_name = Path(result.fit_series.source).name or "the cycle"
-    lines += [f"Fitted on: {fit_name} (first {result.fit_stop} samples)",
-              f"Held out: {result.split}",
-              f"Start SOC {result.soc0:.4f} (held-out record {result.judge_soc0:.4f}); "
-              f"voltage noise {mv(result.noise_v)} (std, from the rests); "
-              f"run time {result.seconds:.1f} s", ""]
-    lines += ["## Verdict", ""]
-    if result.steps:
-        lines.append(f"The base model misses {len(result.steps)} effect(s); each was added "
-                     "only because it lowered the error on data the fit did not see by more "
-                     "than noise explains:")
-        lines.append("")
-        for k, st in enumerate(result.steps, 1):
-            lines.append(f"{k}. **{st.name}** - {EFFECT_WORDS[st.name]}. Held-out MAE "
-                         f"{mv(st.mae_before_v)} -> {mv(st.mae_after_v)} "
-                         f"({100 * (1 - st.mae_after_v / st.mae_before_v):.0f} % lower; "
-                         f"99 % lower bound of the gain {mv(st.ci_low_v)}).")
-        lines += ["", f"Held-out MAE of the base model {mv(result.mae_before_v)}, of the "
-                      f"augmented model ({model_name}) {mv(result.mae_after_v)}."]
-    else:
-        lines.append(f"Nothing is missing that this data can show: no effect lowered the "
-                     f"held-out MAE ({mv(result.mae_before_v)}) by more than noise explains. "
-                     f"{model_name} is the base model unchanged.")
-    lines += ["", "## Signatures in the base residual (fit part)", "",
-              "| effect | explains | what was regressed |", "|---|---|---|"]
-    for name, sig in sorted(result.signatures.items(), key=lambda kv: -kv[1].r2):
-        share = f"{100 * sig.r2:.1f} %" if sig.applicable else "n/a"
-        lines.append(f"| {name} | {share} | {sig.detail} |")
-    lines += ["", "## Candidates tried", "",
-              "| round | effect | held-out MAE | gain | gain lower bound | kept | why not |",
-              "|---|---|---|---|---|---|---|"]
-    kept = {(k + 1, st.name) for k, st in enumerate(result.steps)}
-    for c in result.candidates:
-        yes = (c.round, c.name) in kept
-        why = c.message or ("" if yes else "passed, but another candidate did better")
-        lines.append(f"| {c.round} | {c.name} | {mv(c.judge_mae_v)} | {mv(c.gain_v)} "
-                     f"({100 * c.rel_gain:.1f} %) | {mv(c.ci_low_v)} | "
-                     f"{'yes' if yes else 'no'} | {why} |")
-    if result.steps:
-        lines += ["", "## Effect parameters (as in the augmented model)", ""]
-        for st in result.steps:
-            params = ", ".join(f"{k} = {v:.6g}" for k, v in st.effect.params().items())
-            lines.append(f"- {st.name}: {params}")
-    lines += ["", "## Plots", "", "- diagnose-signatures.png: the base residual against each "
-              "effect's signature", "- diagnose-comparison.png: measured vs base vs augmented "
-              "on the held-out part, and the MAE per step"]
-    for n in result.notes:
-        lines.append(f"- note: {n}")
-    return "\n".join(lines) + "\n"
-
-
-def write_diagnose_outputs(result: DiagnoseResult, out_dir: str | Path, *, plots: bool = True,
-                           model_name: str = "model.json") -> list[Path]:
-    """Write the augmented model, report.md, diagnose.json and the plots into ``out_dir``."""
-    import json
-
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    files = [result.model.save(out / model_name)]
-    report = out / "report.md"
-    write_atomic(report, report_text(result, model_name))
-    files.append(report)
-    js = out / "diagnose.json"
-    write_atomic(js, json.dumps(result.to_json_dict(out / model_name), indent=1) + "\n")
-    files.append(js)
-    if plots:
-        files.append(plot_signatures(result, out / "diagnose-signatures.png"))
-        files.append(plot_comparison(result, out / "diagnose-comparison.png"))
-    return files

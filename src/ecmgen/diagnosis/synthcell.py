@@ -1,10 +1,10 @@
 """Synthetic cells with a hidden effect, for testing ``diagnose``.
 
 A :class:`SyntheticCell` holds a hidden "true" model (a 2RC base plus at most one
-effect from :mod:`ecmgen.effects`), a first-order thermal model and a noise model. It
+effect from :mod:`ecmgen.model.effects`), a first-order thermal model and a noise model. It
 produces the three records a cell test gives -- a pulse test, a low-rate OCV test and a
 drive cycle with rests -- by simulating the hidden model (with
-:func:`ecmgen.simulate.simulate`) and adding measurement noise. :meth:`base_model`
+:func:`ecmgen.model.simulate.simulate`) and adding measurement noise. :meth:`base_model`
 then builds the model the usual method would get from those records: OCV from the mean
 of the low-rate branches, 2RC parameters per SOC level from 10 s pulses (plus a short
 relaxation), and the nominal capacity. What the base model misses is the hidden effect.
@@ -21,10 +21,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import effects as fx
-from .measure import TimeSeries
-from .model import EcmModel, OcvTable, RcTable
-from .simulate import rc_recurrence, simulate
+from ..data.measure import TimeSeries
+from ..data.ocv import OcvTable
+from ..model import effects as fx
+from ..model.model import EcmModel, RcTable
+from ..model.rc import rc_recurrence
+from ..model.simulate import simulate
 
 SOC_GRID = np.linspace(0.0, 1.0, 101)
 

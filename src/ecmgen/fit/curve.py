@@ -25,9 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares, lsq_linear
 
-from .dcir import Pulse
-from .measure import TimeSeries
-from .model import OcvTable
+from ..data.dcir import Pulse
+from ..data.measure import TimeSeries
+from ..data.ocv import OcvTable
 
 
 @dataclass(frozen=True)

@@ -1,14 +1,14 @@
 """Optional effects added to the 2RC model by ``ecmgen diagnose``.
 
 An effect is a small, frozen set of scalar parameters (units in the names) that changes
-the discrete 2RC step of :mod:`ecmgen.simulate` in one precisely defined way. Effects
+the discrete 2RC step of :mod:`ecmgen.model.simulate` in one precisely defined way. Effects
 live in ``EcmModel.effects`` in the order diagnose added them and are stored in
 ``model.json`` as flat objects ``{"name": ..., <parameter>: <number>, ...}``.
 
 The augmented discrete step
 ---------------------------
 For sample k with dt_k = t_k - t_{k-1} (dt_0 = 0) and current i_k (A, positive = charge)
-held over (t_{k-1}, t_k], the base step of :mod:`ecmgen.simulate` becomes:
+held over (t_{k-1}, t_k], the base step of :mod:`ecmgen.model.simulate` becomes:
 
 1. direction d_k exactly as in the base step; s_k = +1 when charging, -1 otherwise.
 2. SOC.  With ``capacity_error`` effects, Q_eff = capacity_ah * prod(capacity_scale)
@@ -54,7 +54,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
+from .rc import rc_recurrence
 
 KELVIN = 273.15
 
@@ -283,7 +284,7 @@ def make_effect(name: str, **params):
     return EFFECT_TYPES[name](**params)
 
 
-# -- simulation (called by ecmgen.simulate) --------------------------------------------
+# -- simulation (called by ecmgen.model.simulate) --------------------------------------------
 
 def capacity_factor(effects) -> float:
     """prod(capacity_scale) over the capacity_error effects (1.0 when there are none)."""
@@ -320,8 +321,6 @@ def effects_inputs(model, time_s, current_a, soc0, dt, soc, charging, params,
 
 def effects_voltage(model, time_s, current_a, soc, charging, temperature_c, params):
     """Step 5's voltage effects (hysteresis, extra_rc) summed, one value per sample."""
-    from .simulate import rc_recurrence
-
     time_s = np.asarray(time_s, dtype=np.float64)
     current_a = np.asarray(current_a, dtype=np.float64)
     dt = np.diff(time_s, prepend=time_s[0])
@@ -340,8 +339,6 @@ def effects_voltage(model, time_s, current_a, soc, charging, temperature_c, para
 
 def hysteresis_state(effect: Hysteresis, time_s, current_a, charging) -> np.ndarray:
     """h_k of a hysteresis effect over a record (for plots and reports)."""
-    from .simulate import rc_recurrence
-
     time_s = np.asarray(time_s, dtype=np.float64)
     current_a = np.asarray(current_a, dtype=np.float64)
     dt = np.diff(time_s, prepend=time_s[0])

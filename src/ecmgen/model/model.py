@@ -10,83 +10,29 @@ Model (current positive on charge)::
     v = ocv_v(soc) + i * r0_ohm + u_fast + u_slow
     du_j/dt = -u_j / tau_j + i * r_j / tau_j        (j = fast, slow)
 
-with every parameter a table over SOC, one table per current direction.
+with every parameter a table over SOC, one table per current direction. The OCV table
+(:class:`OcvTable`) is made by the OCV stage, :mod:`ecmgen.data.ocv`, and re-exported here.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from . import __version__
-from .errors import InputError
+from .._version import __version__
+from ..data.ocv import OcvTable, _f64, check_ocv
+from ..errors import InputError
+from ..files import write_atomic
 
 SCHEMA = "ecmgen.model"
 SCHEMA_VERSION = 1
 DIRECTIONS = ("charge", "discharge")
 RC_FIELDS = ("r0_ohm", "r_fast_ohm", "tau_fast_s", "r_slow_ohm", "tau_slow_s")
-
-
-def _f64(values, name: str, path) -> np.ndarray:
-    try:
-        arr = np.asarray(values, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(path, f"{name} is not a list of numbers") from None
-    if arr.ndim != 1 or arr.size == 0:
-        raise InputError(path, f"{name} must be a non-empty 1-D list")
-    if not np.all(np.isfinite(arr)):
-        raise InputError(path, f"{name} has non-finite values (NaN or inf)")
-    return arr
-
-
-@dataclass(frozen=True)
-class OcvTable:
-    """Open-circuit voltage over SOC. soc strictly increasing in [0, 1]; ocv_v in volts,
-    non-decreasing (strictly increasing where the OCV has to be inverted)."""
-
-    soc: np.ndarray
-    ocv_v: np.ndarray
-
-    def __post_init__(self):
-        check_ocv(self.soc, self.ocv_v, None)
-
-    def ocv_at(self, soc) -> np.ndarray:
-        """OCV in volts; SOC outside the table is clamped to its ends."""
-        return np.interp(soc, self.soc, self.ocv_v)
-
-    def soc_at(self, ocv_v) -> np.ndarray:
-        """Inverse lookup (OCV -> SOC), clamped to the table ends."""
-        return np.interp(ocv_v, self.ocv_v, self.soc)
-
-
-def check_ocv(soc, ocv_v, path) -> None:
-    """Raise InputError unless (soc, ocv_v) is a usable OCV table."""
-    soc = _f64(soc, "ocv soc", path)
-    ocv_v = _f64(ocv_v, "ocv_v", path)
-    if soc.shape != ocv_v.shape:
-        raise InputError(path, f"OCV table has {soc.size} SOC points but {ocv_v.size} voltages")
-    if soc.size < 2:
-        raise InputError(path, "OCV table needs at least 2 points")
-    if np.any(np.diff(soc) <= 0):
-        k = int(np.flatnonzero(np.diff(soc) <= 0)[0])
-        raise InputError(path, f"OCV table SOC is not strictly increasing at row {k + 1} "
-                               f"(soc {soc[k]:.6g} then {soc[k + 1]:.6g})")
-    if soc[0] < -1e-9 or soc[-1] > 1 + 1e-9:
-        raise InputError(path, f"OCV table SOC must lie in [0, 1], got {soc[0]:.6g}..{soc[-1]:.6g}")
-    if np.any(np.diff(ocv_v) <= 0):
-        k = int(np.flatnonzero(np.diff(ocv_v) <= 0)[0])
-        raise InputError(path, f"OCV is not monotonic in SOC: ocv_v falls from {ocv_v[k]:.6g} V "
-                               f"to {ocv_v[k + 1]:.6g} V between soc {soc[k]:.6g} and {soc[k + 1]:.6g}")
-    if ocv_v[0] < 0.5 or ocv_v[-1] > 6.0:
-        raise InputError(path, f"OCV values {ocv_v[0]:.4g}..{ocv_v[-1]:.4g} V are not plausible "
-                               "cell voltages (mV given as V?)")
 
 
 @dataclass(frozen=True)
@@ -192,22 +138,6 @@ def _effect_to_json(effect) -> dict:
     return effect.to_json_dict()
 
 
-def write_atomic(path: Path, text: str | bytes) -> None:
-    """Write via a temporary file + rename, so a failure never leaves half a file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(text.encode() if isinstance(text, str) else text)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; outputs are ordinary files
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def load_model(path: str | Path) -> EcmModel:
     """Read and check a model.json; any problem is an InputError naming the file."""
     path = Path(path)
@@ -282,12 +212,4 @@ def model_from_json_dict(raw: Any, path=None) -> EcmModel:
         effects=effects,
         tool_version=str(raw.get("tool_version", "")),
     )
-
-
-def file_sha256(path: str | Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 

@@ -12,7 +12,7 @@ The discrete step is defined here once; the generated C implements exactly this
 5. v_k = ocv(soc_k) + r0 * i_k + u_fast + u_slow.
 
 A model with ``effects`` (added by ``ecmgen diagnose``) changes steps 2, 3 and 5 as
-defined in :mod:`ecmgen.effects`; without effects the step above is untouched.
+defined in :mod:`ecmgen.model.effects`; without effects the step above is untouched.
 """
 
 from __future__ import annotations
@@ -21,9 +21,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InputError
-from .measure import TimeSeries
+from ..data.measure import TimeSeries
+from ..errors import InputError
 from .model import EcmModel
+from .rc import rc_recurrence
 
 
 @dataclass(frozen=True)
@@ -39,17 +40,6 @@ class SimResult:
     u_slow_v: np.ndarray
     charging: np.ndarray          # bool, the direction used at each step
     extra_v: np.ndarray | None = None   # voltage added by effects (diagnose), if any
-
-
-def rc_recurrence(a: np.ndarray, b: np.ndarray, u0: float = 0.0) -> np.ndarray:
-    """u_k = a_k * u_{k-1} + b_k, u_{-1} = u0. Time-varying first-order recursion."""
-    out = np.empty_like(b)
-    u = float(u0)
-    # Plain Python floats: ~10x faster than indexing numpy scalars; n is at most ~1e6.
-    for k, (ak, bk) in enumerate(zip(a.tolist(), b.tolist())):
-        u = ak * u + bk
-        out[k] = u
-    return out
 
 
 def step_inputs(model: EcmModel, time_s: np.ndarray, current_a: np.ndarray, soc0: float):
@@ -77,7 +67,7 @@ def simulate(model: EcmModel, time_s, current_a, soc0: float,
     dt, soc, charging, p = step_inputs(model, time_s, current_a, soc0)
     if model.effects:
         # SOC and parameter effects (capacity_error, current_dependent_resistance,
-        # temperature_dependence) change steps 2-3; see ecmgen.effects.
+        # temperature_dependence) change steps 2-3; see ecmgen.model.effects.
         from .effects import effects_inputs
 
         soc, p = effects_inputs(model, time_s, current_a, soc0, dt, soc, charging, p,

@@ -1,0 +1,52 @@
+"""The C stage of ``ecmgen build``: generate the C of the best model and check it.
+
+:func:`build_c_outputs` writes ``c/<numeric>/`` with :mod:`ecmgen.c.codegen` and compiles
+and compares it with :mod:`ecmgen.c.cbuild`; it sits above both so that the code
+generator never imports the cffi build.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..data.measure import TimeSeries
+from .cbuild import CBuildError, c_equivalence
+from .codegen import describe, generate_c, prepare
+
+
+def build_c_outputs(cfg, result, out_dir, progress=lambda msg: None) -> dict:
+    """The C stage of ``ecmgen build`` (called by pipeline._write_c).
+
+    For each numeric of ``cfg.c_numeric`` (prefix ``cfg.c_prefix``, ``cfg.c_dt_s``: None =
+    variable dt) the files go to ``out_dir/c/<numeric>/``; the C is compiled on the host and
+    compared (cbuild.c_equivalence) over the first validation cycle of the best model. Returns
+    the ``"c"`` block of ``--json``: ``{numeric: {"mae_v", "max_abs_diff_vs_python_v", ...,
+    "dir", "files"}}``. Without a host compiler the C is still written and each block says
+    ``"skipped"`` with the reason."""
+    model = result.models[result.best]
+    numerics = tuple(cfg.c_numeric)
+    dt_s, prefix = cfg.c_dt_s, cfg.c_prefix
+    specs = {n: prepare(model, numeric=n, dt_s=dt_s, prefix=prefix) for n in numerics}  # checks first
+    vals = (getattr(result, "validations", None) or {}).get(result.best) or {}
+    val = next(iter(vals.values()), None)
+    eq: dict = {}
+    if val is not None:
+        progress(f"checking the C against Python on {Path(val.source).name or 'the cycle'}")
+        series = TimeSeries(val.sim.time_s, val.sim.current_a, val.measured_v, source=val.source)
+        try:
+            eq = c_equivalence(model, series, val.soc0, dt_s=dt_s, prefix=prefix, numerics=numerics)
+        except CBuildError as exc:
+            eq = {n: {"skipped": str(exc).strip().splitlines()[0]} for n in numerics}
+        for r in eq.values():
+            r["cycle"] = Path(val.source).name
+    out_dir = Path(out_dir)
+    block = {}
+    for n in numerics:
+        progress(f"writing {n} C ({prefix}_ecm.c)")
+        files = generate_c(model, out_dir / "c" / n, prefix=prefix, numeric=n, dt_s=dt_s,
+                           equivalence={n: eq[n]} if n in eq else None)
+        entry = dict(eq.get(n, {"skipped": "no validation cycle to compare on"}))
+        entry.update({"dir": f"c/{n}", "files": [p.relative_to(out_dir).as_posix() for p in files],
+                      "table_bytes": describe(specs[n])["table_bytes"]})
+        block[n] = entry
+    return block

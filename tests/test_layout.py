@@ -1,0 +1,195 @@
+"""The source layout follows the pipeline: no import circles, no stage imports a later one,
+no module over 800 lines, and the notebook API resolves from ``import ecmgen``.
+
+Every import statement of every module under src/ecmgen is read with ``ast`` (also the
+ones inside functions, relative and absolute), so a lazy import counts like any other.
+An edge X -> P for a package P means X imports P/__init__; ``from P import name`` is an
+edge to the module P.name when that is a module, and importing a module of another
+package is also an edge to that package (its __init__ runs first). The package facade
+``ecmgen/__init__`` (lazy, PEP 562) is left out of the graph, and no module may import
+it: the version comes from ``ecmgen._version``.
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib
+from pathlib import Path
+
+import ecmgen
+
+SRC = Path(ecmgen.__file__).resolve().parent
+MAX_LINES = 800
+
+# the stages, lowest first; a unit may import only units of a lower level (and itself)
+LEVELS = [
+    {"base": ("ecmgen._version", "ecmgen.errors", "ecmgen.files", "ecmgen.config",
+              "ecmgen.plotting")},
+    {"data": ("ecmgen.data",)},
+    {"fit": ("ecmgen.fit",)},
+    {"model": ("ecmgen.model",)},
+    {"c": ("ecmgen.c",), "diagnosis": ("ecmgen.diagnosis",)},
+    {"plots": ("ecmgen.plots",), "report": ("ecmgen.report",)},
+    {"pipeline": ("ecmgen.pipeline",)},
+    {"cli": ("ecmgen.cli",)},
+]
+
+
+def _modules() -> dict[str, Path]:
+    """Dotted name -> file, for every module of the package (packages by their __init__)."""
+    out = {}
+    for path in sorted(SRC.rglob("*.py")):
+        parts = ("ecmgen",) + path.relative_to(SRC).with_suffix("").parts
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        out[".".join(parts)] = path
+    return out
+
+
+def _is_package(path: Path) -> bool:
+    return path.name == "__init__.py"
+
+
+def _imports(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
+    """The package modules that ``name`` imports, anywhere in its file."""
+    package = name if _is_package(path) else name.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[:len(base) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module
+            for alias in node.names:
+                sub = f"{target}.{alias.name}"
+                found.add(sub if sub in modules else target)
+    # name and the packages it is part of, but not the facade: no module may import that
+    own = {name.rsplit(".", k)[0] for k in range(name.count("."))}
+    edges = set()
+    for target in found:
+        # `import a.b.c` names a, a.b and a.b.c: keep the deepest module of the package ...
+        while target and target not in modules:
+            target = target.rpartition(".")[0]
+        if target and target not in own:
+            edges.add(target)
+        # ... and the packages on the way, whose __init__ runs first (not the facade, and
+        # not a package that ``name`` itself is part of: that one is already running)
+        target = target.rpartition(".")[0]
+        while target and target != "ecmgen" and target not in own:
+            edges.add(target)
+            target = target.rpartition(".")[0]
+    return edges
+
+
+def _graph() -> dict[str, set[str]]:
+    modules = _modules()
+    return {name: _imports(name, path, modules) for name, path in modules.items()}
+
+
+def _unit(module: str) -> tuple[int, str]:
+    for level, units in enumerate(LEVELS):
+        for unit, prefixes in units.items():
+            if any(module == p or module.startswith(p + ".") for p in prefixes):
+                return level, unit
+    raise AssertionError(f"{module} belongs to no stage of the layout; add it to LEVELS")
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    out: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def _check_the_graph_sees_lazy_and_relative_imports(g: dict[str, set[str]]) -> None:
+    # lazy imports inside functions count (cli imports nearly everything that way)
+    assert "ecmgen.pipeline" in g["ecmgen.cli"]
+    assert "ecmgen.model.effects" in g["ecmgen.model.model"]
+    # `from . import cref` is an edge to the module, `from ..model import effects` too
+    assert "ecmgen.c.cref" in g["ecmgen.c.target"]
+    assert "ecmgen.model.effects" in g["ecmgen.diagnosis.search"]
+    # a subpackage __init__ imports its own modules
+    assert "ecmgen.c.codegen" in g["ecmgen.c"]
+
+
+def _check_no_cycles_and_no_stage_imports_a_later_one(graph: dict[str, set[str]]) -> None:
+    graph = dict(graph)
+    facade = graph.pop("ecmgen")
+    assert facade == {"ecmgen._version"}, "the facade imports its API lazily, by name"
+    users = sorted(m for m, deps in graph.items() if "ecmgen" in deps)
+    assert not users, f"modules import the package facade (use ecmgen._version): {users}"
+    wrong = []
+    for module, deps in sorted(graph.items()):
+        level, unit = _unit(module)
+        for dep in sorted(deps):
+            dep_level, dep_unit = _unit(dep)
+            if dep_unit != unit and dep_level >= level:
+                wrong.append(f"{module} ({unit}) imports {dep} ({dep_unit})")
+    assert not wrong, "\n".join(wrong)
+    cycles = _cycles(graph)
+    assert not cycles, "import circles: " + "; ".join(" <-> ".join(c) for c in cycles)
+
+
+def _check_no_module_over_800_lines() -> None:
+    long = {name: n for name, path in _modules().items()
+            if (n := len(path.read_text().splitlines())) > MAX_LINES}
+    assert not long, long
+
+
+def _check_the_notebook_api_resolves() -> None:
+    from ecmgen.errors import InputError
+    from ecmgen.model.model import EcmModel
+
+    for name in ecmgen.__all__:
+        assert getattr(ecmgen, name) is not None, name
+    assert set(dir(ecmgen)) >= set(ecmgen.__all__)
+    assert ecmgen.InputError is InputError and ecmgen.EcmModel is EcmModel
+    for name in ("build", "load_config", "load_model", "read_timeseries", "simulate",
+                 "validate", "diagnose", "generate_c", "extract_dcir", "find_pulses",
+                 "fit_ga", "fit_lm", "fit_pulse_curves"):
+        assert callable(getattr(ecmgen, name)), name
+    # no API name is also a module of the package: importing that module would rebind
+    # ecmgen.<name> to it (the reason the diagnose stage is the package `diagnosis`)
+    top = {m.split(".")[1] for m in _modules() if m != "ecmgen"}
+    assert not top & set(ecmgen.__all__), top & set(ecmgen.__all__)
+    assert ecmgen.__version__ == importlib.import_module("ecmgen._version").__version__
+
+
+def test_layout_follows_the_pipeline():
+    graph = _graph()
+    _check_the_graph_sees_lazy_and_relative_imports(graph)
+    _check_no_cycles_and_no_stage_imports_a_later_one(graph)
+    _check_no_module_over_800_lines()
+    _check_the_notebook_api_resolves()
