@@ -261,11 +261,11 @@ def _broken(tmp_path, synthetic_model, how: str):
     elif how == "missing_r0":
         del raw["rc"]["discharge"]["r0_ohm"]
     elif how == "nan":
-        raw["rc"]["charge"]["r0_ohm"][3] = float("nan")
+        raw["rc"]["charge"]["r0_ohm"][0][3] = float("nan")
     elif how == "inf":
-        raw["ocv"]["ocv_v"][2] = float("inf")
+        raw["ocv"]["ocv_v"][0][2] = float("inf")
     elif how == "short":
-        raw["rc"]["discharge"]["tau_slow_s"] = raw["rc"]["discharge"]["tau_slow_s"][:-1]
+        raw["rc"]["discharge"]["tau_slow_s"][0] = raw["rc"]["discharge"]["tau_slow_s"][0][:-1]
     path = tmp_path / f"{how}.json"
     path.write_text(json.dumps(raw))          # json writes NaN/Infinity tokens
     return path
@@ -279,7 +279,7 @@ def _broken(tmp_path, synthetic_model, how: str):
     ("missing_r0", "missing rc.discharge.r0_ohm"),
     ("nan", "non-finite"),
     ("inf", "non-finite"),
-    ("short", "has 10 values, soc has 11"),
+    ("short", "must have 11 values per row"),
 ])
 def test_bad_model_json_refused_before_any_file(tmp_path, synthetic_model, how, words):
     path = _broken(tmp_path, synthetic_model, how)

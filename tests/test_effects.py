@@ -59,7 +59,7 @@ def reference(model, t, i, soc0, temp):
         s = 1.0 if charging else -1.0
         soc = soc + ik * dtk / (3600.0 * q_eff)
         tab = model.charge if charging else model.discharge
-        p = {key: float(np.interp(soc, tab.soc, getattr(tab, key)))
+        p = {key: float(np.interp(soc, tab.soc, getattr(tab, key)[0]))
              for key in ("r0_ohm", "r_fast_ohm", "tau_fast_s", "r_slow_ohm", "tau_slow_s")}
         for e in model.effects:
             if e.name == "current_dependent_resistance":
@@ -75,7 +75,7 @@ def reference(model, t, i, soc0, temp):
         a_s = math.exp(-dtk / p["tau_slow_s"])
         u_f = a_f * u_f + p["r_fast_ohm"] * (1 - a_f) * ik
         u_s = a_s * u_s + p["r_slow_ohm"] * (1 - a_s) * ik
-        v = float(np.interp(soc, model.ocv.soc, model.ocv.ocv_v)) + p["r0_ohm"] * ik + u_f + u_s
+        v = float(np.interp(soc, model.ocv.soc, model.ocv.ocv_v[0])) + p["r0_ohm"] * ik + u_f + u_s
         for e in model.effects:
             if e.name == "hysteresis":
                 a_h = math.exp(-abs(ik) * dtk / (3600.0 * e.decay_ah))

@@ -60,4 +60,4 @@ def test_charge_and_discharge_pulses_give_their_own_tables():
     # the synthetic cell's charge resistances are 0.9 x its discharge resistances
     for table, truth_table in ((charge, truth.charge), (discharge, truth.discharge)):
         for k, soc in enumerate(table.soc):
-            assert table.r0_ohm[k] == pytest.approx(float(truth_table.at(soc)["r0_ohm"]), rel=0.02)
+            assert table.r0_ohm[0, k] == pytest.approx(float(truth_table.at(soc)["r0_ohm"]), rel=0.02)

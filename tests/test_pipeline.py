@@ -29,7 +29,7 @@ def synthetic_project(tmp_path):
     series, _ = make_pulse_test(truth, soc_levels=(0.9, 0.6, 0.3), c_rates=(1.0, 3.0),
                                 noise_v=0.0005, rest_s=900.0)
     write_timeseries_csv(series, tmp_path / "pulses.csv")
-    np.savetxt(tmp_path / "ocv.csv", np.column_stack([truth.ocv.soc, truth.ocv.ocv_v]),
+    np.savetxt(tmp_path / "ocv.csv", np.column_stack([truth.ocv.soc, truth.ocv.ocv_v[0]]),
                delimiter=",", header="soc,ocv_v", comments="")
     from ecmgen.model.simulate import simulate
 
@@ -216,7 +216,7 @@ def test_codegen_cli_writes_c_for_a_model_and_refuses_bad_ones(tmp_path):
     assert (tmp_path / "c" / "cell1_ecm.h").exists() and (tmp_path / "c" / "cell1_ecm.c").exists()
     assert "extra_rc" in (tmp_path / "c" / "cell1_ecm.h").read_text()
     bad = tmp_path / "bad.json"
-    bad.write_text(path.read_text().replace('"schema_version": 1', '"schema_version": 99'))
+    bad.write_text(path.read_text().replace('"schema_version": 2', '"schema_version": 99'))
     err = _fails(["codegen", bad, "--out", tmp_path / "c2"], "bad.json", "schema_version")
     assert "99" in err
     assert not (tmp_path / "c2").exists()

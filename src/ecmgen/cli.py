@@ -90,20 +90,25 @@ def cmd_validate(args) -> int:
         series = read_series(load_config(args.config), Path(args.cycle), "cycle")
     else:
         series = read_timeseries(args.cycle, capacity_ah=model.capacity_ah)
-    val = validate(model, series, args.soc0)
+    val = validate(model, series, args.soc0, args.temperature_c)
     if args.plot:
         from .plots import plot_validation
 
         plot_validation(val, Path(args.plot))
     if args.json:
+        t_range = val.temperature_range_c
         print(json.dumps(dict(val.overall.as_dict(), soc0=val.soc0,
-                              soc_above_10=val.soc_above_10.as_dict())))
+                              soc_above_10=val.soc_above_10.as_dict(),
+                              temperature_c=None if t_range is None else
+                              {"min": t_range[0], "max": t_range[1]})))
     else:
         m = val.overall
         src = "from the OCV of the first rested voltage" if val.soc0_from_ocv else "given"
         print(f"{Path(args.cycle).name}: MAE {m.mae_v * 1e3:.2f} mV  RMSE {m.rmse_v * 1e3:.2f} mV"
               f"  max {m.max_abs_v * 1e3:.1f} mV  (soc0 {val.soc0:.4f} {src}; "
-              f"MAE at SOC>10 % {val.soc_above_10.mae_v * 1e3:.2f} mV)")
+              f"MAE at SOC>10 % {val.soc_above_10.mae_v * 1e3:.2f} mV"
+              + ("" if val.temperature_range_c is None else
+                 "; cell {:.1f}..{:.1f} degC".format(*val.temperature_range_c)) + ")")
     return 0
 
 
@@ -177,6 +182,8 @@ def parser() -> argparse.ArgumentParser:
     v.add_argument("model")
     v.add_argument("cycle")
     v.add_argument("--soc0", type=float, help="start SOC (default: from the OCV)")
+    v.add_argument("--temperature-c", type=float, default=None,
+                   help="cell temperature in degC for a file without a temperature column")
     v.add_argument("--json", action="store_true")
     v.add_argument("--plot", help="write measured vs simulated PNG here")
     v.add_argument("--config", help="a build config whose [data.columns] maps the cycle's CSV")

@@ -210,8 +210,12 @@ def validate_for_c(model: EcmModel, path=None) -> None:
     db = float(model.direction_deadband_a)
     if not math.isfinite(db) or db < 0:
         raise InputError(path, f"direction_deadband_a must be >= 0, got {model.direction_deadband_a!r}")
+    if model.needs_temperature:
+        # TODO(issue 8): the C step over (temperature, SOC) tables
+        raise InputError(path, "C generation for a model with tables over temperature is not "
+                               "supported yet")
     grids = {"ocv": arr(model.ocv.soc, "ocv.soc")}
-    ocv = arr(model.ocv.ocv_v, "ocv.ocv_v")
+    ocv = arr(model.ocv.ocv_v[0], "ocv.ocv_v")
     if ocv.size != grids["ocv"].size:
         raise InputError(path, "ocv.soc and ocv.ocv_v differ in length")
     if np.any(ocv <= 0) or np.any(ocv > 100):
@@ -220,7 +224,7 @@ def validate_for_c(model: EcmModel, path=None) -> None:
         t = model.table(d)
         grids[d] = arr(t.soc, f"rc.{d}.soc")
         for k in RC_FIELDS:
-            a = arr(getattr(t, k), f"rc.{d}.{k}")
+            a = arr(getattr(t, k)[0], f"rc.{d}.{k}")
             if a.size != grids[d].size:
                 raise InputError(path, f"rc.{d}.{k} has {a.size} values, soc has {grids[d].size}")
             if k.startswith("tau"):
@@ -391,11 +395,11 @@ def prepare(model, numeric: str = "float", dt_s: float | None = None, prefix: st
         if e.name == "capacity_error":
             cap_scale *= float(e.capacity_scale)
 
-    ocv_soc, (ocv_v,) = _expand(np.asarray(model.ocv.soc, float), [np.asarray(model.ocv.ocv_v, float)])
+    ocv_soc, (ocv_v,) = _expand(np.asarray(model.ocv.soc, float), [np.asarray(model.ocv.ocv_v[0], float)])
     raw_dirs = []
     for d in ("discharge", "charge"):
         t = model.table(d)
-        soc, cols = _expand(np.asarray(t.soc, float), [np.asarray(getattr(t, k), float) for k in RC_FIELDS])
+        soc, cols = _expand(np.asarray(t.soc, float), [np.asarray(getattr(t, k)[0], float) for k in RC_FIELDS])
         raw_dirs.append((soc, dict(zip(RC_FIELDS, cols))))
 
     def k_tables(cols):

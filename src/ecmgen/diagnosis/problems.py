@@ -23,17 +23,6 @@ from ..model.simulate import step_inputs
 
 # -- small numeric helpers ----------------------------------------------------------------
 
-def _interp_slope(x, xp, fp) -> np.ndarray:
-    """d/dx of np.interp(x, xp, fp) (0 where np.interp clamps)."""
-    xp = np.asarray(xp, dtype=np.float64)
-    fp = np.asarray(fp, dtype=np.float64)
-    if xp.size < 2:
-        return np.zeros_like(x)
-    j = np.clip(np.searchsorted(xp, x, side="right") - 1, 0, xp.size - 2)
-    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
-    return np.where((x < xp[0]) | (x > xp[-1]), 0.0, slope)
-
-
 # -- parameter layout ---------------------------------------------------------------------
 
 @dataclass(frozen=True)
@@ -240,17 +229,18 @@ class _Problem:
                 scale *= v["capacity_scale"]
         soc = self.soc0 + self.q_as / (3600.0 * m.capacity_ah * scale)
         ch = self.charging
-        pc_, pd_ = m.charge.at(soc), m.discharge.at(soc)
-        cols = {"dt": self.dt, "i": i, "s": self.s, "ocv": m.ocv.ocv_at(soc)}
+        temp = self.temp if m.needs_temperature else None
+        pc_, pd_ = m.charge.at(soc, temp), m.discharge.at(soc, temp)
+        cols = {"dt": self.dt, "i": i, "s": self.s, "ocv": m.ocv.ocv_at(soc, temp)}
         for k in RC_FIELDS:
             cols[k] = np.where(ch, pc_[k], pd_[k])
         if self.has_cap:
             cols["q"] = self.q_as
             cols["soc"] = soc
-            cols["d_ocv"] = _interp_slope(soc, m.ocv.soc, m.ocv.ocv_v)
+            cols["d_ocv"] = m.ocv.soc_slope(soc, temp)
             for k in RC_FIELDS:
-                dc = _interp_slope(soc, m.charge.soc, getattr(m.charge, k))
-                dd = _interp_slope(soc, m.discharge.soc, getattr(m.discharge, k))
+                dc = m.charge.soc_slope(k, soc, temp)
+                dd = m.discharge.soc_slope(k, soc, temp)
                 cols["d_" + k] = np.where(ch, dc, dd)
         if self.has_temp:
             cols["temp"] = self.temp

@@ -49,7 +49,7 @@ from ..model.effects import KELVIN
 from ..model.model import EcmModel
 from ..model.rc import rc_recurrence
 from ..model.simulate import SimResult, initial_soc, simulate
-from .problems import _Problem, _Spec, _fit, _fixed, _interp_slope, _neutral, _specs
+from .problems import _Problem, _Spec, _fit, _fixed, _neutral, _specs
 
 
 # -- results ------------------------------------------------------------------------------
@@ -225,9 +225,9 @@ def decimate(series: TimeSeries, factor: int) -> TimeSeries:
 
 def _context(model: EcmModel, series: TimeSeries, stop: int) -> dict:
     tables = (model.charge, model.discharge)
-    tau_slow = np.concatenate([t.tau_slow_s for t in tables])
+    tau_slow = np.concatenate([t.tau_slow_s.ravel() for t in tables])
     r_total = float(np.median(np.concatenate(
-        [t.r0_ohm + t.r_fast_ohm + t.r_slow_ohm for t in tables])))
+        [(t.r0_ohm + t.r_fast_ohm + t.r_slow_ohm).ravel() for t in tables])))
     dur = float(series.time_s[stop - 1] - series.time_s[0]) if stop > 1 else 0.0
     ctx = {"capacity_ah": model.capacity_ah, "r_total_ohm": r_total,
            "tau_min_s": float(max(30.0, 2.0 * np.median(tau_slow))),
@@ -294,7 +294,8 @@ def signatures(model: EcmModel, series: TimeSeries, sim: SimResult, rows: np.nda
         {"tau_s": tau, "r_ohm": max(r, 0.0)})
 
     # capacity: residual against Ah throughput x OCV slope
-    slope = _interp_slope(sim.soc, model.ocv.soc, model.ocv.ocv_v)
+    slope = model.ocv.soc_slope(sim.soc, series.temperature_c if model.needs_temperature
+                                else None)
     qq = np.cumsum(i * dt) / (3600.0 * q)
     X = (slope * qq)[rows, None]
     r2, coef = _r2(y, X)

@@ -5,13 +5,21 @@ Everything downstream (simulation, validation, C code, diagnosis) reads an
 round-trip float text (``repr``), keys in a fixed order and no timestamps, so the
 same fit gives a byte-identical file and therefore byte-identical generated C.
 
-Model (current positive on charge)::
+Model (current positive on charge, T the cell temperature in degC)::
 
-    v = ocv_v(soc) + i * r0_ohm + u_fast + u_slow
+    v = ocv_v(soc, T) + i * r0_ohm + u_fast + u_slow
     du_j/dt = -u_j / tau_j + i * r_j / tau_j        (j = fast, slow)
 
-with every parameter a table over SOC, one table per current direction. The OCV table
-(:class:`OcvTable`) is made by the OCV stage, :mod:`ecmgen.data.ocv`, and re-exported here.
+with every parameter a table over (temperature, SOC), one table per current direction
+(:class:`RcTable`), and the OCV a table over (temperature, SOC) of its own
+(:class:`OcvOverTemperature`). Both interpolate bilinearly and clamp at their ends
+(:func:`interp_2d`); a table with one temperature row ignores the temperature, which is
+what a model from one pulse test has. The one-temperature OCV table (:class:`OcvTable`)
+is made by the OCV stage, :mod:`ecmgen.data.ocv`, and re-exported here.
+
+model.json schema version 2 holds every table as rows (one per temperature breakpoint,
+``temperature_c``, null when a one-row table's temperature is unknown); version 1 files
+(SOC only) load as one-row tables.
 """
 
 from __future__ import annotations
@@ -30,21 +38,152 @@ from ..errors import InputError
 from ..files import write_atomic
 
 SCHEMA = "ecmgen.model"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2          # 2: tables over (temperature, SOC); version 1 files still load
+READS_VERSIONS = (1, 2)
 DIRECTIONS = ("charge", "discharge")
 RC_FIELDS = ("r0_ohm", "r_fast_ohm", "tau_fast_s", "r_slow_ohm", "tau_slow_s")
 
 
+def _grid_weights(grid: np.ndarray, x) -> tuple[np.ndarray, np.ndarray]:
+    """Segment index k (0 <= k <= n-2) and weight w in [0, 1] of grid[k+1] for linear
+    interpolation at x, clamped to the grid ends (n >= 2)."""
+    x = np.asarray(x, dtype=np.float64)
+    k = np.clip(np.searchsorted(grid, x, side="right") - 1, 0, grid.size - 2)
+    w = np.clip((x - grid[k]) / (grid[k + 1] - grid[k]), 0.0, 1.0)
+    return k, w
+
+
+def interp_2d(temperature_grid: np.ndarray, soc_grid: np.ndarray, values: np.ndarray,
+              soc, temperature_c=None) -> np.ndarray:
+    """Bilinear interpolation of ``values`` (n_temperature, n_soc) at (temperature_c, soc),
+    clamped to the table ends in both axes: linear in SOC on each temperature row, then
+    linear in temperature (degC) between the two rows around ``temperature_c``. A table
+    with one temperature row ignores the temperature."""
+    soc = np.asarray(soc, dtype=np.float64)
+    if values.shape[0] == 1 or temperature_c is None:
+        if values.shape[0] > 1:
+            raise ValueError("a table over temperature needs the temperature")
+        return np.interp(soc, soc_grid, values[0])
+    k, w = _grid_weights(temperature_grid, temperature_c)
+    k, w = np.broadcast_to(k, soc.shape), np.broadcast_to(w, soc.shape)
+    rows = np.stack([np.interp(soc, soc_grid, row) for row in values])   # (n_t, ...)
+    lo = np.take_along_axis(rows, k[None, ...], axis=0)[0]
+    hi = np.take_along_axis(rows, (k + 1)[None, ...], axis=0)[0]
+    return lo + (hi - lo) * w
+
+
+def interp_2d_soc_slope(temperature_grid: np.ndarray, soc_grid: np.ndarray,
+                        values: np.ndarray, soc, temperature_c=None) -> np.ndarray:
+    """d/dsoc of :func:`interp_2d` at (temperature_c, soc): 0 where the SOC is clamped."""
+    soc = np.asarray(soc, dtype=np.float64)
+
+    def row_slope(row):
+        j = np.clip(np.searchsorted(soc_grid, soc, side="right") - 1, 0, soc_grid.size - 2)
+        slope = (row[j + 1] - row[j]) / (soc_grid[j + 1] - soc_grid[j])
+        return np.where((soc < soc_grid[0]) | (soc > soc_grid[-1]), 0.0, slope)
+
+    if soc_grid.size < 2:
+        return np.zeros_like(soc)
+    if values.shape[0] == 1 or temperature_c is None:
+        return row_slope(values[0])
+    k, w = _grid_weights(temperature_grid, temperature_c)
+    k, w = np.broadcast_to(k, soc.shape), np.broadcast_to(w, soc.shape)
+    rows = np.stack([row_slope(row) for row in values])
+    lo = np.take_along_axis(rows, k[None, ...], axis=0)[0]
+    hi = np.take_along_axis(rows, (k + 1)[None, ...], axis=0)[0]
+    return lo + (hi - lo) * w
+
+
+def _temperature_axis(temperature_c, n: int, where: str) -> np.ndarray:
+    """The temperature breakpoints of a table: strictly increasing degC; a one-row table
+    may leave its temperature unknown (NaN, null in model.json)."""
+    if temperature_c is None:
+        t = np.full(n, np.nan)
+    else:
+        t = np.atleast_1d(np.asarray(temperature_c, dtype=np.float64))
+    if t.shape != (n,):
+        raise ValueError(f"{where}: {t.size} temperatures for {n} table rows")
+    if n > 1 and (not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0)):
+        raise ValueError(f"{where}: temperature_c must be finite and strictly increasing")
+    if np.any(np.isfinite(t) & ((t < -100) | (t > 200))):
+        raise ValueError(f"{where}: temperature_c outside -100..200 degC")
+    return t
+
+
+@dataclass(frozen=True)
+class OcvOverTemperature:
+    """OCV over (temperature, SOC): one row per temperature breakpoint on a common SOC grid.
+
+    temperature_c  (n_t,) breakpoints, strictly increasing, degC (one row: may be NaN,
+                   the temperature unknown, and then it is ignored)
+    soc            (n_soc,) breakpoints, strictly increasing in [0, 1]
+    ocv_v          (n_t, n_soc) volts, each row non-decreasing in SOC
+
+    Bilinear and clamped, as the RC tables (:func:`interp_2d`). A 1-D ``ocv_v`` is one row.
+    """
+
+    temperature_c: np.ndarray
+    soc: np.ndarray
+    ocv_v: np.ndarray
+
+    def __post_init__(self):
+        v = np.asarray(self.ocv_v, dtype=np.float64)
+        v = v[None, :] if v.ndim == 1 else v
+        soc = np.asarray(self.soc, dtype=np.float64)
+        for row in v:
+            check_ocv(soc, row, None)
+        object.__setattr__(self, "ocv_v", v)
+        object.__setattr__(self, "soc", soc)
+        object.__setattr__(self, "temperature_c",
+                           _temperature_axis(self.temperature_c, v.shape[0], "ocv"))
+
+    @classmethod
+    def from_table(cls, table: OcvTable, temperature_c: float | None = None
+                   ) -> "OcvOverTemperature":
+        return cls(np.array([np.nan if temperature_c is None else temperature_c]),
+                   np.asarray(table.soc), np.asarray(table.ocv_v)[None, :])
+
+    @property
+    def n_temperatures(self) -> int:
+        return self.ocv_v.shape[0]
+
+    def ocv_at(self, soc, temperature_c=None) -> np.ndarray:
+        """OCV in volts at (soc, temperature_c), clamped to the table ends."""
+        return interp_2d(self.temperature_c, self.soc, self.ocv_v, soc, temperature_c)
+
+    def soc_slope(self, soc, temperature_c=None) -> np.ndarray:
+        """dOCV/dSOC in V per unit SOC at (soc, temperature_c) (0 where clamped)."""
+        return interp_2d_soc_slope(self.temperature_c, self.soc, self.ocv_v, soc,
+                                   temperature_c)
+
+    def at_temperature(self, temperature_c=None) -> OcvTable:
+        """The one-temperature OCV table at ``temperature_c`` (rows interpolated)."""
+        if self.n_temperatures == 1:
+            return OcvTable(self.soc, self.ocv_v[0])
+        k, w = _grid_weights(self.temperature_c, float(temperature_c))
+        lo, hi = self.ocv_v[int(k)], self.ocv_v[int(k) + 1]
+        return OcvTable(self.soc, lo + (hi - lo) * float(w))
+
+    def soc_at(self, ocv_v, temperature_c=None) -> np.ndarray:
+        """Inverse lookup (OCV -> SOC) at one temperature, clamped to the table ends."""
+        return self.at_temperature(temperature_c).soc_at(ocv_v)
+
+
 @dataclass(frozen=True)
 class RcTable:
-    """2RC parameters over SOC for one current direction.
+    """2RC parameters over (temperature, SOC) for one current direction.
 
-    soc         breakpoints, strictly increasing in [0, 1]
-    r0_ohm      series (ohmic) resistance
-    r_fast_ohm, tau_fast_s   fast RC pair (charge transfer / double layer)
-    r_slow_ohm, tau_slow_s   slow RC pair (diffusion), tau_fast_s < tau_slow_s
-    fit_error   the fit's own residual per breakpoint (units depend on the method)
+    temperature_c  (n_t,) breakpoints, strictly increasing, degC (one row: may be NaN,
+                   temperature unknown and ignored)
+    soc            (n_soc,) breakpoints, strictly increasing in [0, 1]
+    r0_ohm         series (ohmic) resistance, (n_t, n_soc)
+    r_fast_ohm, tau_fast_s   fast RC pair (charge transfer / double layer), (n_t, n_soc)
+    r_slow_ohm, tau_slow_s   slow RC pair (diffusion), tau_fast_s < tau_slow_s, (n_t, n_soc)
+    fit_error   the fit's own residual per table cell (units depend on the method)
     converged   False where the fitter did not meet its stopping rule
+
+    Parameters between breakpoints are bilinear (:func:`interp_2d`), clamped at the table
+    ends. 1-D columns (with ``temperature_c`` a scalar or None) make a one-row table.
     """
 
     soc: np.ndarray
@@ -55,10 +194,64 @@ class RcTable:
     tau_slow_s: np.ndarray
     fit_error: np.ndarray
     converged: np.ndarray
+    temperature_c: np.ndarray | float | None = None
 
-    def at(self, soc) -> dict[str, np.ndarray]:
-        """Linearly interpolated parameters at ``soc`` (clamped to the table ends)."""
-        return {k: np.interp(soc, self.soc, getattr(self, k)) for k in RC_FIELDS}
+    def __post_init__(self):
+        soc = np.asarray(self.soc, dtype=np.float64)
+        object.__setattr__(self, "soc", soc)
+        n_t = None
+        for k in (*RC_FIELDS, "fit_error", "converged"):
+            a = np.asarray(getattr(self, k), dtype=bool if k == "converged" else np.float64)
+            a = a[None, :] if a.ndim == 1 else a
+            if a.ndim != 2 or a.shape[1] != soc.size:
+                raise ValueError(f"RcTable.{k}: shape {a.shape} does not match {soc.size} "
+                                 "SOC breakpoints")
+            if n_t is not None and a.shape[0] != n_t:
+                raise ValueError(f"RcTable.{k}: {a.shape[0]} temperature rows, not {n_t}")
+            n_t = a.shape[0]
+            object.__setattr__(self, k, a)
+        object.__setattr__(self, "temperature_c",
+                           _temperature_axis(self.temperature_c, n_t, "rc"))
+
+    @property
+    def n_temperatures(self) -> int:
+        return self.r0_ohm.shape[0]
+
+    def at(self, soc, temperature_c=None) -> dict[str, np.ndarray]:
+        """Interpolated parameters at (soc, temperature_c), clamped to the table ends."""
+        return {k: interp_2d(self.temperature_c, self.soc, getattr(self, k), soc,
+                             temperature_c) for k in RC_FIELDS}
+
+    def soc_slope(self, key: str, soc, temperature_c=None) -> np.ndarray:
+        """d/dsoc of parameter ``key`` at (soc, temperature_c) (0 where clamped)."""
+        return interp_2d_soc_slope(self.temperature_c, self.soc, getattr(self, key), soc,
+                                   temperature_c)
+
+    def row(self, k: int) -> "RcTable":
+        """The one-temperature table of temperature row ``k``."""
+        return RcTable(soc=self.soc, temperature_c=self.temperature_c[k:k + 1],
+                       **{f: getattr(self, f)[k:k + 1] for f in (*RC_FIELDS, "fit_error",
+                                                                 "converged")})
+
+
+def stack_rc_tables(tables: list[RcTable], temperatures_c, soc=None) -> RcTable:
+    """One table over temperature from one-temperature tables (one per breakpoint,
+    increasing temperature). The rows are resampled linearly onto ``soc`` (default: the
+    union of the tables' SOC breakpoints), so each row keeps its own values at its own
+    breakpoints; ``converged`` is resampled as "both neighbours converged"."""
+    if soc is None:
+        soc = np.unique(np.concatenate([t.soc for t in tables]))
+    soc = np.asarray(soc, dtype=np.float64)
+    cols: dict[str, list] = {k: [] for k in (*RC_FIELDS, "fit_error", "converged")}
+    for t in tables:
+        if t.n_temperatures != 1:
+            raise ValueError("stack_rc_tables takes one-temperature tables")
+        for k in (*RC_FIELDS, "fit_error"):
+            cols[k].append(np.interp(soc, t.soc, getattr(t, k)[0]))
+        ok = t.converged[0].astype(np.float64)
+        cols["converged"].append(np.interp(soc, t.soc, ok) >= 1.0)
+    return RcTable(soc=soc, temperature_c=np.asarray(temperatures_c, dtype=np.float64),
+                   **{k: np.vstack(v) for k, v in cols.items()})
 
 
 @dataclass(frozen=True)
@@ -75,7 +268,7 @@ class EcmModel:
     """A fitted 2RC equivalent-circuit model: what model.json holds."""
 
     capacity_ah: float
-    ocv: OcvTable
+    ocv: OcvOverTemperature            # an OcvTable is taken as one temperature row
     charge: RcTable
     discharge: RcTable
     method: str                          # "ga", "lm" or "curve"
@@ -86,8 +279,26 @@ class EcmModel:
     effects: tuple[Any, ...] = ()        # optional effects added by `diagnose`
     tool_version: str = __version__
 
+    def __post_init__(self):
+        if isinstance(self.ocv, OcvTable):
+            object.__setattr__(self, "ocv", OcvOverTemperature.from_table(self.ocv))
+
     def table(self, direction: str) -> RcTable:
         return self.charge if direction == "charge" else self.discharge
+
+    @property
+    def temperatures_c(self) -> np.ndarray:
+        """All temperature breakpoints of the model's tables (empty: no temperature axis)."""
+        t = np.concatenate([self.ocv.temperature_c, self.charge.temperature_c,
+                            self.discharge.temperature_c])
+        return np.unique(t[np.isfinite(t)]) if self.needs_temperature else np.array([])
+
+    @property
+    def needs_temperature(self) -> bool:
+        """True when some table has more than one temperature row: a simulation then needs
+        the cell temperature."""
+        return max(self.ocv.n_temperatures, self.charge.n_temperatures,
+                   self.discharge.n_temperatures) > 1
 
     def with_effects(self, effects) -> "EcmModel":
         return replace(self, effects=tuple(effects))
@@ -95,11 +306,11 @@ class EcmModel:
     # -- serialisation ----------------------------------------------------------------
     def to_json_dict(self) -> dict:
         def table(t: RcTable) -> dict:
-            d = {"soc": _floats(t.soc)}
+            d = {"temperature_c": _temps(t.temperature_c), "soc": _floats(t.soc)}
             for k in RC_FIELDS:
-                d[k] = _floats(getattr(t, k))
-            d["fit_error"] = _floats(t.fit_error)
-            d["converged"] = [bool(c) for c in t.converged]
+                d[k] = _rows(getattr(t, k))
+            d["fit_error"] = _rows(t.fit_error)
+            d["converged"] = [[bool(c) for c in row] for row in t.converged]
             return d
 
         return {
@@ -110,7 +321,8 @@ class EcmModel:
             "seed": self.seed,
             "capacity_ah": float(self.capacity_ah),
             "direction_deadband_a": float(self.direction_deadband_a),
-            "ocv": {"soc": _floats(self.ocv.soc), "ocv_v": _floats(self.ocv.ocv_v)},
+            "ocv": {"temperature_c": _temps(self.ocv.temperature_c),
+                    "soc": _floats(self.ocv.soc), "ocv_v": _rows(self.ocv.ocv_v)},
             "rc": {"charge": table(self.charge), "discharge": table(self.discharge)},
             "effects": [_effect_to_json(e) for e in self.effects],
             "inputs": [{"role": r.role, "name": r.name, "sha256": r.sha256} for r in self.inputs],
@@ -134,6 +346,15 @@ def _floats(a) -> list[float]:
     return [float(x) for x in np.asarray(a, dtype=np.float64)]
 
 
+def _rows(a) -> list[list[float]]:
+    return [_floats(row) for row in np.asarray(a, dtype=np.float64)]
+
+
+def _temps(t) -> list[float | None]:
+    """Temperature breakpoints for JSON: an unknown temperature (NaN) is null."""
+    return [float(x) if np.isfinite(x) else None for x in np.asarray(t, dtype=np.float64)]
+
+
 def _effect_to_json(effect) -> dict:
     return effect.to_json_dict()
 
@@ -151,25 +372,62 @@ def load_model(path: str | Path) -> EcmModel:
 
 
 def model_from_json_dict(raw: Any, path=None) -> EcmModel:
+    """An EcmModel from the parsed JSON of model.json (schema version 1 or 2)."""
     if not isinstance(raw, dict) or raw.get("schema") != SCHEMA:
         raise InputError(path, f"not an ecmgen model (missing \"schema\": \"{SCHEMA}\")")
     version = raw.get("schema_version")
-    if version != SCHEMA_VERSION:
+    if version not in READS_VERSIONS:
         raise InputError(path, f"schema_version {version!r} is not supported "
-                               f"(this ecmgen reads version {SCHEMA_VERSION})")
+                               f"(this ecmgen reads versions {', '.join(map(str, READS_VERSIONS))})")
 
     def need(d, key, where):
         if not isinstance(d, dict) or key not in d:
             raise InputError(path, f"missing {where}{key}")
         return d[key]
 
+    def temps(d, n_rows: int, where: str) -> np.ndarray:
+        """Version 1 has no temperature axis: one row, temperature unknown."""
+        if version == 1:
+            return np.array([np.nan])
+        t = need(d, "temperature_c", where)
+        if not isinstance(t, list) or len(t) != n_rows:
+            raise InputError(path, f"{where}temperature_c must list one temperature per row "
+                                   f"({n_rows} rows)")
+        if n_rows == 1 and t[0] is None:
+            return np.array([np.nan])
+        out = _f64(t, where + "temperature_c", path)
+        if np.any(np.diff(out) <= 0):
+            raise InputError(path, f"{where}temperature_c must be strictly increasing")
+        return out
+
+    def rows(d, key, where, n_soc: int, dtype=np.float64) -> np.ndarray:
+        """A (n_t, n_soc) table; version 1 (and a flat list) is one row."""
+        v = need(d, key, where)
+        if not isinstance(v, list) or not v:
+            raise InputError(path, f"{where}{key} must be a non-empty list")
+        if not isinstance(v[0], list):
+            v = [v]
+        if dtype is bool:
+            a = np.asarray(v, dtype=bool)
+        else:
+            lengths = {len(r) if isinstance(r, list) else -1 for r in v}
+            if lengths != {n_soc}:
+                raise InputError(path, f"{where}{key} must have {n_soc} values per row "
+                                       "(one per SOC breakpoint)")
+            a = np.vstack([_f64(r, where + key, path) for r in v])
+        if a.ndim != 2 or a.shape[1] != n_soc:
+            raise InputError(path, f"{where}{key} has shape {a.shape}, expected (rows, {n_soc})")
+        return a
+
     capacity = float(_f64([need(raw, "capacity_ah", "")], "capacity_ah", path)[0])
     if capacity <= 0:
         raise InputError(path, f"capacity_ah must be positive, got {capacity}")
     ocv_raw = need(raw, "ocv", "")
     ocv_soc = _f64(need(ocv_raw, "soc", "ocv."), "ocv.soc", path)
-    ocv_v = _f64(need(ocv_raw, "ocv_v", "ocv."), "ocv.ocv_v", path)
-    check_ocv(ocv_soc, ocv_v, path)
+    ocv_v = rows(ocv_raw, "ocv_v", "ocv.", ocv_soc.size)
+    for row in ocv_v:
+        check_ocv(ocv_soc, row, path)
+    ocv = OcvOverTemperature(temps(ocv_raw, ocv_v.shape[0], "ocv."), ocv_soc, ocv_v)
 
     rc = need(raw, "rc", "")
     tables = {}
@@ -181,19 +439,25 @@ def model_from_json_dict(raw: Any, path=None) -> EcmModel:
             raise InputError(path, f"{where}soc must be strictly increasing within [0, 1]")
         cols = {}
         for k in RC_FIELDS:
-            cols[k] = _f64(need(t, k, where), where + k, path)
-            if cols[k].shape != soc.shape:
-                raise InputError(path, f"{where}{k} has {cols[k].size} values, soc has {soc.size}")
+            cols[k] = rows(t, k, where, soc.size)
             if np.any(cols[k] < 0) or (k.startswith("tau") and np.any(cols[k] <= 0)):
                 raise InputError(path, f"{where}{k} must be positive")
-        fit_error = _f64(t.get("fit_error", [0.0] * soc.size), where + "fit_error", path)
-        converged = np.asarray(t.get("converged", [True] * soc.size), dtype=bool)
-        tables[direction] = RcTable(soc=soc, fit_error=fit_error, converged=converged, **cols)
+        n_t = cols["r0_ohm"].shape[0]
+        if any(c.shape[0] != n_t for c in cols.values()):
+            raise InputError(path, f"{where}: the parameters have different numbers of rows")
+        fit_error = (rows(t, "fit_error", where, soc.size) if "fit_error" in t
+                     else np.zeros((n_t, soc.size)))
+        converged = (rows(t, "converged", where, soc.size, bool) if "converged" in t
+                     else np.ones((n_t, soc.size), bool))
+        if fit_error.shape != (n_t, soc.size) or converged.shape != (n_t, soc.size):
+            raise InputError(path, f"{where}fit_error/converged do not match the table shape")
+        tables[direction] = RcTable(soc=soc, fit_error=fit_error, converged=converged,
+                                    temperature_c=temps(t, n_t, where), **cols)
 
     effects_raw = raw.get("effects", [])
     effects: tuple = ()
     if effects_raw:
-        from .effects import effect_from_json_dict  # optional stage, only when present
+        from .effects import effect_from_json_dict
 
         effects = tuple(effect_from_json_dict(e, path) for e in effects_raw)
     inputs = tuple(InputRecord(str(r["role"]), str(r["name"]), str(r["sha256"]))
@@ -201,7 +465,7 @@ def model_from_json_dict(raw: Any, path=None) -> EcmModel:
     seed = raw.get("seed")
     return EcmModel(
         capacity_ah=capacity,
-        ocv=OcvTable(ocv_soc, ocv_v),
+        ocv=ocv,
         charge=tables["charge"],
         discharge=tables["discharge"],
         method=str(raw.get("method", "")),
@@ -212,4 +476,3 @@ def model_from_json_dict(raw: Any, path=None) -> EcmModel:
         effects=effects,
         tool_version=str(raw.get("tool_version", "")),
     )
-

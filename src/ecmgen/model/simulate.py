@@ -7,9 +7,10 @@ The discrete step is defined here once; the generated C implements exactly this
 1. direction: charge if i_k > deadband, discharge if i_k < -deadband, else unchanged
    (starts as discharge unless i_0 > deadband);
 2. soc_k = soc_{k-1} + i_k * dt_k / (3600 * capacity_ah)       (soc_{-1} = soc0);
-3. parameters of that direction interpolated linearly at soc_k (clamped to the table);
+3. parameters of that direction interpolated at (soc_k, T_k), bilinear and clamped to
+   the table ends (T_k = the cell temperature of sample k, degC; ignored by one-row tables);
 4. a_j = exp(-dt_k / tau_j);  u_j = a_j * u_j + r_j * (1 - a_j) * i_k   (exact ZOH);
-5. v_k = ocv(soc_k) + r0 * i_k + u_fast + u_slow.
+5. v_k = ocv(soc_k, T_k) + r0 * i_k + u_fast + u_slow.
 
 A model with ``effects`` (added by ``ecmgen diagnose``) changes steps 2, 3 and 5 as
 defined in :mod:`ecmgen.model.effects`; without effects the step above is untouched.
@@ -17,7 +18,7 @@ defined in :mod:`ecmgen.model.effects`; without effects the step above is untouc
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -42,7 +43,8 @@ class SimResult:
     extra_v: np.ndarray | None = None   # voltage added by effects (diagnose), if any
 
 
-def step_inputs(model: EcmModel, time_s: np.ndarray, current_a: np.ndarray, soc0: float):
+def step_inputs(model: EcmModel, time_s: np.ndarray, current_a: np.ndarray, soc0: float,
+                temperature_c=None):
     """Quantities of steps 1-3 for every sample: dt, soc, direction and parameters."""
     dt = np.diff(time_s, prepend=time_s[0])
     soc = soc0 + np.cumsum(current_a * dt) / (3600.0 * model.capacity_ah)
@@ -54,17 +56,41 @@ def step_inputs(model: EcmModel, time_s: np.ndarray, current_a: np.ndarray, soc0
     idx = np.where(np.isnan(sign), 0, np.arange(sign.size))
     np.maximum.accumulate(idx, out=idx)
     charging = sign[idx] > 0
-    pc, pd = model.charge.at(soc), model.discharge.at(soc)
+    pc = model.charge.at(soc, temperature_c)
+    pd = model.discharge.at(soc, temperature_c)
     params = {k: np.where(charging, pc[k], pd[k]) for k in pc}
     return dt, soc, charging, params
 
 
+def sample_temperatures(model: EcmModel, n: int, temperature_c=None, source=None,
+                        column: str = "temperature_c"):
+    """The cell temperature of each of ``n`` samples for a simulation: ``temperature_c``
+    (an array, or one number for the whole record); None is fine for a model without a
+    temperature axis, else an InputError naming ``source`` and the missing column."""
+    if temperature_c is None:
+        if model.needs_temperature:
+            raise InputError(source, f"no cell temperature ({column} column): this model has "
+                                     "tables over temperature; give --temperature-c T")
+        return None
+    t = np.asarray(temperature_c, dtype=np.float64)
+    t = np.full(n, float(t)) if t.ndim == 0 else t
+    if t.shape != (n,):
+        raise InputError(source, f"{t.size} temperatures for {n} samples")
+    if not np.all(np.isfinite(t)):
+        k = int(np.flatnonzero(~np.isfinite(t))[0])
+        raise InputError(source, f"cell temperature is not finite at sample {k}")
+    return t
+
+
 def simulate(model: EcmModel, time_s, current_a, soc0: float,
              temperature_c=None) -> SimResult:
-    """Simulate the model over a current profile (A, positive = charge) from ``soc0``."""
+    """Simulate the model over a current profile (A, positive = charge) from ``soc0``.
+    ``temperature_c``: the cell temperature per sample (degC) or one number; needed when
+    the model has tables over temperature."""
     time_s = np.asarray(time_s, dtype=np.float64)
     current_a = np.asarray(current_a, dtype=np.float64)
-    dt, soc, charging, p = step_inputs(model, time_s, current_a, soc0)
+    temperature_c = sample_temperatures(model, time_s.size, temperature_c)
+    dt, soc, charging, p = step_inputs(model, time_s, current_a, soc0, temperature_c)
     if model.effects:
         # SOC and parameter effects (capacity_error, current_dependent_resistance,
         # temperature_dependence) change steps 2-3; see ecmgen.model.effects.
@@ -76,7 +102,7 @@ def simulate(model: EcmModel, time_s, current_a, soc0: float,
     a_slow = np.exp(-dt / p["tau_slow_s"])
     u_fast = rc_recurrence(a_fast, p["r_fast_ohm"] * (1.0 - a_fast) * current_a)
     u_slow = rc_recurrence(a_slow, p["r_slow_ohm"] * (1.0 - a_slow) * current_a)
-    ocv = model.ocv.ocv_at(soc)
+    ocv = model.ocv.ocv_at(soc, temperature_c)
     v = ocv + p["r0_ohm"] * current_a + u_fast + u_slow
     extra = None
     if model.effects:
@@ -104,7 +130,9 @@ def rested_soc(ocv, capacity_ah: float, series: TimeSeries, rest_a: float | None
         raise InputError(series.source, "no rested sample to find the start SOC from; "
                                         "give soc0")
     k = int(rested[0])
-    soc_k = float(ocv.soc_at(series.voltage_v[k]))
+    temp = None if series.temperature_c is None else float(series.temperature_c[k])
+    soc_k = float(ocv.soc_at(series.voltage_v[k], temp) if temp is not None and
+                  getattr(ocv, "n_temperatures", 1) > 1 else ocv.soc_at(series.voltage_v[k]))
     passed = float(np.sum(series.current_a[1:k + 1] * np.diff(series.time_s[:k + 1])))
     return soc_k - passed / (3600.0 * capacity_ah)
 
@@ -140,18 +168,33 @@ class Validation:
     soc_above_10: Metrics        # samples with simulated SOC > 10 %
     sim: SimResult
     measured_v: np.ndarray
+    temperature_c: np.ndarray | None = None   # the cell temperature simulated on, degC
+
+    @property
+    def temperature_range_c(self) -> tuple[float, float] | None:
+        """(min, max) cell temperature of the record, degC (None: no temperature)."""
+        if self.temperature_c is None:
+            return None
+        return float(np.min(self.temperature_c)), float(np.max(self.temperature_c))
 
     @property
     def error_v(self) -> np.ndarray:
         return self.sim.voltage_v - self.measured_v
 
 
-def validate(model: EcmModel, series: TimeSeries, soc0: float | None = None) -> Validation:
-    """Simulate ``series``' current and compare with its voltage."""
+def validate(model: EcmModel, series: TimeSeries, soc0: float | None = None,
+             temperature_c: float | None = None) -> Validation:
+    """Simulate ``series``' current and compare with its voltage. The cell temperature is
+    the record's own column, else ``temperature_c`` (one value for the whole record); a
+    model over temperature needs one of the two."""
+    if series.temperature_c is None and temperature_c is not None:
+        series = replace(series, temperature_c=np.full(series.time_s.size, float(temperature_c)))
+    temps = sample_temperatures(model, series.time_s.size, series.temperature_c,
+                                series.source)
     from_ocv = soc0 is None
     if from_ocv:
         soc0 = initial_soc(model, series)
-    sim = simulate(model, series.time_s, series.current_a, float(soc0), series.temperature_c)
+    sim = simulate(model, series.time_s, series.current_a, float(soc0), temps)
     err = sim.voltage_v - series.voltage_v
     return Validation(series.source, float(soc0), from_ocv, Metrics.of(err),
-                      Metrics.of(err[sim.soc > 0.10]), sim, series.voltage_v)
+                      Metrics.of(err[sim.soc > 0.10]), sim, series.voltage_v, temps)
