@@ -198,3 +198,76 @@ def test_cli_validate_temperature_option(tmp_path):
     assert ok.returncode == 0, ok.stderr
     out = json.loads(ok.stdout)
     assert out["mae_v"] < 1e-9 and out["temperature_c"] == {"min": 0.0, "max": 0.0}
+
+
+def _branch_model() -> EcmModel:
+    """Two temperatures with a diffusion pair and a Butler-Volmer fast branch."""
+    rows = [replace(_row(3.0), r_diff_ohm=[0.08], tau_diff_s=[600.0], i0_a=[1.0]),
+            replace(_row(1.0), r_diff_ohm=[0.02], tau_diff_s=[400.0], i0_a=[15.0])]
+    table = stack_rc_tables(rows, [-10.0, 25.0])
+    return replace(_model(), charge=table, discharge=table)
+
+
+def test_diffusion_and_butler_volmer_branches_match_a_plain_loop():
+    import math
+
+    m = _branch_model()
+    t = np.concatenate([np.arange(0.0, 300.0, 0.5), np.arange(300.0, 2000.0, 7.0)])
+    rng = np.random.default_rng(3)
+    i = rng.uniform(-12.0, 4.0, t.size)
+    temp = np.linspace(-15.0, 30.0, t.size)
+    sim = simulate(m, t, i, 0.95, temp)
+    soc, u = 0.95, [0.0, 0.0, 0.0]
+    prev = t[0]
+    for k in range(t.size):
+        dt = t[k] - prev
+        prev = t[k]
+        soc += i[k] * dt / (3600 * 2.9)
+        tk = min(max(temp[k], -10.0), 25.0)
+        w = (tk + 10.0) / 35.0
+        p = {key: float(interp_2d(m.charge.temperature_c, SOC, getattr(m.charge, key), soc, tk))
+             for key in ("r0_ohm", "r_fast_ohm", "tau_fast_s", "r_slow_ohm", "tau_slow_s")}
+        r_d = 0.08 + (0.02 - 0.08) * w
+        tau_d = 600.0 + (400.0 - 600.0) * w
+        i0 = 1.0 + (15.0 - 1.0) * w
+        x = max(abs(i[k]) / i0, 1e-12)
+        g = math.asinh(x) / x
+        for j, (r, tau) in enumerate(((p["r_fast_ohm"] * g, p["tau_fast_s"]),
+                                      (p["r_slow_ohm"], p["tau_slow_s"]), (r_d, tau_d))):
+            a = math.exp(-dt / tau)
+            u[j] = a * u[j] + r * (1 - a) * i[k]
+        ocv = float(m.ocv.ocv_at(soc, tk))
+        v = ocv + p["r0_ohm"] * i[k] + sum(u)
+        assert sim.voltage_v[k] == pytest.approx(v, abs=1e-12)
+    assert sim.u_diff_v is not None and np.abs(sim.u_diff_v).max() > 0.01
+
+
+def test_branches_round_trip_and_rows(tmp_path):
+    m = _branch_model()
+    raw = m.to_json_dict()
+    assert raw["rc"]["charge"]["r_diff_ohm"] == [0.08, 0.02]
+    assert raw["rc"]["charge"]["i0_a"] == [1.0, 15.0]
+    back = load_model(m.save(tmp_path / "m.json"))
+    assert back.to_json() == m.to_json() and back.charge.has_butler_volmer
+    one = back.charge.row(1)
+    assert one.n_temperatures == 1 and list(one.i0_a) == [15.0]
+    # a plain model does not write the keys at all
+    assert "r_diff_ohm" not in _model().to_json_dict()["rc"]["charge"]
+
+
+def test_branches_bad_values_refused():
+    with pytest.raises(ValueError, match="both r_diff_ohm and tau_diff_s"):
+        replace(_row(1.0), r_diff_ohm=[0.01])
+    with pytest.raises(ValueError, match="i0_a must be finite and positive"):
+        replace(_row(1.0), i0_a=[0.0])
+    with pytest.raises(ValueError, match="one direction"):
+        replace(_model(two_temperatures=False),
+                charge=replace(_row(1.0), i0_a=[5.0]))
+    raw = _branch_model().to_json_dict()
+    raw["rc"]["discharge"]["tau_diff_s"] = [1.0]
+    with pytest.raises(InputError, match="one value per temperature row"):
+        model_from_json_dict(raw, "m.json")
+    raw = _branch_model().to_json_dict()
+    del raw["rc"]["discharge"]["tau_diff_s"]
+    with pytest.raises(InputError, match="go together"):
+        model_from_json_dict(raw, "m.json")

@@ -210,6 +210,10 @@ def validate_for_c(model: EcmModel, path=None) -> None:
     db = float(model.direction_deadband_a)
     if not math.isfinite(db) or db < 0:
         raise InputError(path, f"direction_deadband_a must be >= 0, got {model.direction_deadband_a!r}")
+    if model.charge.has_diffusion or model.charge.has_butler_volmer:
+        # TODO(issue 8): the diffusion pair and the Butler-Volmer fast branch in the C step
+        raise InputError(path, "C generation for a model with a diffusion RC pair or a "
+                               "Butler-Volmer fast branch is not supported yet")
     if model.needs_temperature:
         # TODO(issue 8): the C step over (temperature, SOC) tables
         raise InputError(path, "C generation for a model with tables over temperature is not "

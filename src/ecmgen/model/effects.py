@@ -305,7 +305,8 @@ def effects_inputs(model, time_s, current_a, soc0, dt, soc, charging, params,
     params = dict(params)
     if scale != 1.0:
         soc = soc0 + np.cumsum(current_a * dt) / (3600.0 * model.capacity_ah * scale)
-        pc, pd = model.charge.at(soc), model.discharge.at(soc)
+        temps = temperature_c if model.needs_temperature else None
+        pc, pd = model.charge.at(soc, temps), model.discharge.at(soc, temps)
         params = {k: np.where(charging, pc[k], pd[k]) for k in pc}
     for e in model.effects:
         if isinstance(e, CurrentDependentResistance):

@@ -42,6 +42,8 @@ SCHEMA_VERSION = 2          # 2: tables over (temperature, SOC); version 1 files
 READS_VERSIONS = (1, 2)
 DIRECTIONS = ("charge", "discharge")
 RC_FIELDS = ("r0_ohm", "r_fast_ohm", "tau_fast_s", "r_slow_ohm", "tau_slow_s")
+# optional per-temperature values of a direction (one per temperature row; None: absent)
+BRANCH_FIELDS = ("r_diff_ohm", "tau_diff_s", "i0_a")
 
 
 def _grid_weights(grid: np.ndarray, x) -> tuple[np.ndarray, np.ndarray]:
@@ -182,8 +184,15 @@ class RcTable:
     fit_error   the fit's own residual per table cell (units depend on the method)
     converged   False where the fitter did not meet its stopping rule
 
+    Optional, one value per temperature row (None: the branch is absent):
+    r_diff_ohm, tau_diff_s   a third, slow "diffusion" RC pair (minutes), same for all SOC
+    i0_a        Butler-Volmer current of the fast branch: the fast pair is driven by
+                r_fast * g(i) * i with g = asinh(x) / x, x = max(|i| / i0_a, 1e-12), so its
+                resistance falls at large currents (strongly so in the cold)
+
     Parameters between breakpoints are bilinear (:func:`interp_2d`), clamped at the table
-    ends. 1-D columns (with ``temperature_c`` a scalar or None) make a one-row table.
+    ends; the per-temperature values are linear in temperature, clamped. 1-D columns (with
+    ``temperature_c`` a scalar or None) make a one-row table.
     """
 
     soc: np.ndarray
@@ -195,6 +204,9 @@ class RcTable:
     fit_error: np.ndarray
     converged: np.ndarray
     temperature_c: np.ndarray | float | None = None
+    r_diff_ohm: np.ndarray | None = None
+    tau_diff_s: np.ndarray | None = None
+    i0_a: np.ndarray | None = None
 
     def __post_init__(self):
         soc = np.asarray(self.soc, dtype=np.float64)
@@ -212,15 +224,52 @@ class RcTable:
             object.__setattr__(self, k, a)
         object.__setattr__(self, "temperature_c",
                            _temperature_axis(self.temperature_c, n_t, "rc"))
+        if (self.r_diff_ohm is None) != (self.tau_diff_s is None):
+            raise ValueError("RcTable: give both r_diff_ohm and tau_diff_s, or neither")
+        for k in BRANCH_FIELDS:
+            v = getattr(self, k)
+            if v is None:
+                continue
+            a = np.atleast_1d(np.asarray(v, dtype=np.float64))
+            if a.shape != (n_t,):
+                raise ValueError(f"RcTable.{k}: {a.size} values for {n_t} temperature rows")
+            if not np.all(np.isfinite(a)) or np.any(a < 0) or \
+                    (k != "r_diff_ohm" and np.any(a <= 0)):
+                raise ValueError(f"RcTable.{k} must be finite and positive")
+            object.__setattr__(self, k, a)
 
     @property
     def n_temperatures(self) -> int:
         return self.r0_ohm.shape[0]
 
+    @property
+    def has_diffusion(self) -> bool:
+        return self.r_diff_ohm is not None
+
+    @property
+    def has_butler_volmer(self) -> bool:
+        return self.i0_a is not None
+
     def at(self, soc, temperature_c=None) -> dict[str, np.ndarray]:
-        """Interpolated parameters at (soc, temperature_c), clamped to the table ends."""
-        return {k: interp_2d(self.temperature_c, self.soc, getattr(self, k), soc,
-                             temperature_c) for k in RC_FIELDS}
+        """Interpolated parameters at (soc, temperature_c), clamped to the table ends: the
+        RC_FIELDS, and the BRANCH_FIELDS that the table has (same shape as ``soc``)."""
+        out = {k: interp_2d(self.temperature_c, self.soc, getattr(self, k), soc,
+                            temperature_c) for k in RC_FIELDS}
+        shape = np.shape(out["r0_ohm"])
+        for k in BRANCH_FIELDS:
+            v = getattr(self, k)
+            if v is not None:
+                out[k] = np.broadcast_to(self.along_temperature(v, temperature_c), shape)
+        return out
+
+    def along_temperature(self, values: np.ndarray, temperature_c=None) -> np.ndarray:
+        """A per-temperature value (one per row) at ``temperature_c``: linear, clamped."""
+        if values.size == 1 or temperature_c is None:
+            if values.size > 1:
+                raise ValueError("a table over temperature needs the temperature")
+            return np.asarray(values[0], dtype=np.float64)
+        k, w = _grid_weights(self.temperature_c, temperature_c)
+        return values[k] + (values[k + 1] - values[k]) * w
 
     def soc_slope(self, key: str, soc, temperature_c=None) -> np.ndarray:
         """d/dsoc of parameter ``key`` at (soc, temperature_c) (0 where clamped)."""
@@ -229,7 +278,9 @@ class RcTable:
 
     def row(self, k: int) -> "RcTable":
         """The one-temperature table of temperature row ``k``."""
-        return RcTable(soc=self.soc, temperature_c=self.temperature_c[k:k + 1],
+        extra = {f: None if getattr(self, f) is None else getattr(self, f)[k:k + 1]
+                 for f in BRANCH_FIELDS}
+        return RcTable(soc=self.soc, temperature_c=self.temperature_c[k:k + 1], **extra,
                        **{f: getattr(self, f)[k:k + 1] for f in (*RC_FIELDS, "fit_error",
                                                                  "converged")})
 
@@ -243,6 +294,12 @@ def stack_rc_tables(tables: list[RcTable], temperatures_c, soc=None) -> RcTable:
         soc = np.unique(np.concatenate([t.soc for t in tables]))
     soc = np.asarray(soc, dtype=np.float64)
     cols: dict[str, list] = {k: [] for k in (*RC_FIELDS, "fit_error", "converged")}
+    extra: dict[str, np.ndarray | None] = {}
+    for k in BRANCH_FIELDS:
+        have = [getattr(t, k) is not None for t in tables]
+        if any(have) and not all(have):
+            raise ValueError(f"stack_rc_tables: {k} is in some tables and not in others")
+        extra[k] = np.concatenate([getattr(t, k) for t in tables]) if all(have) else None
     for t in tables:
         if t.n_temperatures != 1:
             raise ValueError("stack_rc_tables takes one-temperature tables")
@@ -251,7 +308,7 @@ def stack_rc_tables(tables: list[RcTable], temperatures_c, soc=None) -> RcTable:
         ok = t.converged[0].astype(np.float64)
         cols["converged"].append(np.interp(soc, t.soc, ok) >= 1.0)
     return RcTable(soc=soc, temperature_c=np.asarray(temperatures_c, dtype=np.float64),
-                   **{k: np.vstack(v) for k, v in cols.items()})
+                   **extra, **{k: np.vstack(v) for k, v in cols.items()})
 
 
 @dataclass(frozen=True)
@@ -282,6 +339,9 @@ class EcmModel:
     def __post_init__(self):
         if isinstance(self.ocv, OcvTable):
             object.__setattr__(self, "ocv", OcvOverTemperature.from_table(self.ocv))
+        for k in BRANCH_FIELDS:
+            if (getattr(self.charge, k) is None) != (getattr(self.discharge, k) is None):
+                raise ValueError(f"EcmModel: {k} in one direction's table only")
 
     def table(self, direction: str) -> RcTable:
         return self.charge if direction == "charge" else self.discharge
@@ -309,6 +369,9 @@ class EcmModel:
             d = {"temperature_c": _temps(t.temperature_c), "soc": _floats(t.soc)}
             for k in RC_FIELDS:
                 d[k] = _rows(getattr(t, k))
+            for k in BRANCH_FIELDS:
+                if getattr(t, k) is not None:
+                    d[k] = _floats(getattr(t, k))
             d["fit_error"] = _rows(t.fit_error)
             d["converged"] = [[bool(c) for c in row] for row in t.converged]
             return d
@@ -451,8 +514,19 @@ def model_from_json_dict(raw: Any, path=None) -> EcmModel:
                      else np.ones((n_t, soc.size), bool))
         if fit_error.shape != (n_t, soc.size) or converged.shape != (n_t, soc.size):
             raise InputError(path, f"{where}fit_error/converged do not match the table shape")
+        branch = {}
+        for k in BRANCH_FIELDS:
+            if k in t:
+                branch[k] = _f64(t[k] if isinstance(t[k], list) else [t[k]], where + k, path)
+                if branch[k].size != n_t:
+                    raise InputError(path, f"{where}{k} must have one value per temperature "
+                                           f"row ({n_t})")
+                if np.any(branch[k] < 0) or (k != "r_diff_ohm" and np.any(branch[k] <= 0)):
+                    raise InputError(path, f"{where}{k} must be positive")
+        if ("r_diff_ohm" in branch) != ("tau_diff_s" in branch):
+            raise InputError(path, f"{where}r_diff_ohm and tau_diff_s go together")
         tables[direction] = RcTable(soc=soc, fit_error=fit_error, converged=converged,
-                                    temperature_c=temps(t, n_t, where), **cols)
+                                    temperature_c=temps(t, n_t, where), **branch, **cols)
 
     effects_raw = raw.get("effects", [])
     effects: tuple = ()

@@ -9,8 +9,11 @@ The discrete step is defined here once; the generated C implements exactly this
 2. soc_k = soc_{k-1} + i_k * dt_k / (3600 * capacity_ah)       (soc_{-1} = soc0);
 3. parameters of that direction interpolated at (soc_k, T_k), bilinear and clamped to
    the table ends (T_k = the cell temperature of sample k, degC; ignored by one-row tables);
-4. a_j = exp(-dt_k / tau_j);  u_j = a_j * u_j + r_j * (1 - a_j) * i_k   (exact ZOH);
-5. v_k = ocv(soc_k, T_k) + r0 * i_k + u_fast + u_slow.
+4. a_j = exp(-dt_k / tau_j);  u_j = a_j * u_j + r_j * (1 - a_j) * i_k   (exact ZOH),
+   j = fast, slow and, where the table has it, diff (r_diff, tau_diff per temperature,
+   linear in T_k); with a Butler-Volmer fast branch (i0 per temperature, linear in T_k)
+   r_fast becomes r_fast * g_k, g_k = asinh(x_k) / x_k, x_k = max(|i_k| / i0, 1e-12);
+5. v_k = ocv(soc_k, T_k) + r0 * i_k + u_fast + u_slow [+ u_diff].
 
 A model with ``effects`` (added by ``ecmgen diagnose``) changes steps 2, 3 and 5 as
 defined in :mod:`ecmgen.model.effects`; without effects the step above is untouched.
@@ -41,6 +44,14 @@ class SimResult:
     u_slow_v: np.ndarray
     charging: np.ndarray          # bool, the direction used at each step
     extra_v: np.ndarray | None = None   # voltage added by effects (diagnose), if any
+    u_diff_v: np.ndarray | None = None  # voltage over the diffusion RC pair, if any
+
+
+def butler_volmer_factor(current_a, i0_a) -> np.ndarray:
+    """g = asinh(x) / x, x = max(|i| / i0, 1e-12): the fast branch's resistance factor
+    (1 at small currents, falling like log(x)/x at large ones)."""
+    x = np.maximum(np.abs(np.asarray(current_a, dtype=np.float64)) / i0_a, 1e-12)
+    return np.arcsinh(x) / x
 
 
 def step_inputs(model: EcmModel, time_s: np.ndarray, current_a: np.ndarray, soc0: float,
@@ -100,17 +111,25 @@ def simulate(model: EcmModel, time_s, current_a, soc0: float,
                                 temperature_c)
     a_fast = np.exp(-dt / p["tau_fast_s"])
     a_slow = np.exp(-dt / p["tau_slow_s"])
-    u_fast = rc_recurrence(a_fast, p["r_fast_ohm"] * (1.0 - a_fast) * current_a)
+    r_fast = p["r_fast_ohm"]
+    if "i0_a" in p:
+        r_fast = r_fast * butler_volmer_factor(current_a, p["i0_a"])
+    u_fast = rc_recurrence(a_fast, r_fast * (1.0 - a_fast) * current_a)
     u_slow = rc_recurrence(a_slow, p["r_slow_ohm"] * (1.0 - a_slow) * current_a)
     ocv = model.ocv.ocv_at(soc, temperature_c)
     v = ocv + p["r0_ohm"] * current_a + u_fast + u_slow
+    u_diff = None
+    if "r_diff_ohm" in p:
+        a_diff = np.exp(-dt / p["tau_diff_s"])
+        u_diff = rc_recurrence(a_diff, p["r_diff_ohm"] * (1.0 - a_diff) * current_a)
+        v = v + u_diff
     extra = None
     if model.effects:
         from .effects import effects_voltage  # diagnose stage, only when effects present
 
         extra = effects_voltage(model, time_s, current_a, soc, charging, temperature_c, p)
         v = v + extra
-    return SimResult(time_s, current_a, v, soc, ocv, u_fast, u_slow, charging, extra)
+    return SimResult(time_s, current_a, v, soc, ocv, u_fast, u_slow, charging, extra, u_diff)
 
 
 def initial_soc(model: EcmModel, series: TimeSeries) -> float:
