@@ -61,14 +61,15 @@ _RESERVED = {"ecmrt", "int", "float", "double", "char", "void", "static", "const
 
 
 def _find_dir(name: str) -> Path:
-    """templates/ and c_runtime/ live at the repository root (editable install); an
-    installed package may carry them as package data under ecmgen/_data/."""
+    """templates/ and c_runtime/: inside the installed package (a wheel or sdist carries
+    them as ecmgen/templates and ecmgen/c_runtime, see pyproject.toml), else at the
+    repository root (an editable install of a checkout, src/ecmgen -> ../../)."""
     here = Path(__file__).resolve().parents[1]    # the ecmgen package (this is ecmgen/c/)
-    for cand in (here / "_data" / name, here.parents[1] / name):
+    for cand in (here / name, here.parents[1] / name):
         if cand.is_dir():
             return cand
-    raise FileNotFoundError(f"ecmgen: {name}/ not found beside the package (looked in "
-                            f"{here / '_data'} and {here.parents[1]})")
+    raise FileNotFoundError(f"ecmgen: {name}/ not found (looked in {here} and "
+                            f"{here.parents[1]}): a broken installation")
 
 
 def templates_dir() -> Path:
