@@ -191,7 +191,10 @@ def test_column_map_from_toml():
     ({"time": "t", "current": "i", "voltage": "v", "current_sign": "negative"}, ["current_sign"]),
     ({"time": "t", "current": "i", "voltage": "v", "time_unit": "ms"}, ["time_unit"]),
     ({"time": "t", "current": "i"}, ["missing key", "voltage"]),
-    ({"time": "t", "current": 3, "voltage": "v"}, ["current", "column name"]),
+    ({"time": "t", "current": 0, "voltage": "v"}, ["current = 0", "counts from 1"]),
+    ({"time": "t", "current": True, "voltage": "v"}, ["current", "column name"]),
+    ({"time": "t", "current": "i", "voltage": "v", "header": False}, ["header = false", "position"]),
+    ({"time": 1, "current": 2, "voltage": 3, "header": "no"}, ["header", "true or false"]),
     ("not a table", ["must be a table"]),
 ])
 def test_column_map_from_toml_rejects(table, words):

@@ -36,18 +36,51 @@ def cmd_build(args) -> int:
     return 0
 
 
+def _dcir_with_config(args):
+    """The DC-IR table `build` would write for the config (its column mapping, capacity,
+    start SOC and [dcir] settings); a PULSES argument or an option overrides the config."""
+    from dataclasses import replace
+
+    from .config import load_config
+    from .pipeline import prepare
+
+    cfg = load_config(args.config)
+    if args.pulses is None and cfg.pulses is None:
+        raise InputError(cfg.path, "no data.pulses (a DC-IR table is not a pulse test); "
+                                   "give the pulse test file: ecmgen dcir PULSES --config ...")
+    over = {}
+    if args.pulses is not None:
+        over.update(pulses=Path(args.pulses).resolve(), dcir=None)
+    if args.capacity_ah is not None:
+        over["capacity_ah"] = args.capacity_ah
+    if args.soc0 is not None:
+        over["pulses_soc0"] = args.soc0
+    if args.times is not None:
+        over["times_s"] = tuple(args.times)
+    cfg = replace(cfg, **over)
+    return cfg.pulses, prepare(cfg).dcir
+
+
 def cmd_dcir(args) -> int:
-    from .data.dcir import extract_dcir, find_pulses
+    from .data.dcir import DEFAULT_TIMES_S, extract_dcir, find_pulses
     from .data.measure import read_timeseries
 
-    series = read_timeseries(args.pulses, capacity_ah=args.capacity_ah)
-    pulses = find_pulses(series, args.capacity_ah, soc0=args.soc0)
-    table = extract_dcir(series, pulses, args.times)
+    if args.config:
+        pulses_path, table = _dcir_with_config(args)
+    else:
+        if args.pulses is None or args.capacity_ah is None:
+            raise InputError(args.pulses, "give the pulse test and --capacity-ah (the cell "
+                                          "capacity), or --config CONFIG.toml")
+        pulses_path = Path(args.pulses)
+        series = read_timeseries(pulses_path, capacity_ah=args.capacity_ah)
+        soc0 = 1.0 if args.soc0 is None else args.soc0
+        pulses = find_pulses(series, args.capacity_ah, soc0=soc0)
+        table = extract_dcir(series, pulses, args.times or DEFAULT_TIMES_S)
     for n in () if args.quiet else table.notes:
         print(f"note: {n}", file=sys.stderr)
     if args.out:
         out = Path(args.out)
-        if out.resolve() == Path(args.pulses).resolve():
+        if out.resolve() == Path(pulses_path).resolve():
             raise InputError(out, "output would overwrite the input")
         table.write_csv(out)
         print(f"wrote {len(table)} pulses x {len(table.t_s)} times to {out}", file=sys.stderr)
@@ -87,9 +120,16 @@ def cmd_validate(args) -> int:
         from .config import load_config
         from .pipeline import read_series
 
-        series = read_series(load_config(args.config), Path(args.cycle), "cycle")
+        cfg = load_config(args.config)
+        if args.window_s is not None:   # the option wins over data.cycle_window_s
+            from dataclasses import replace
+
+            cfg = replace(cfg, cycle_window_s=None)
+        series = read_series(cfg, Path(args.cycle), "cycle")
     else:
         series = read_timeseries(args.cycle, capacity_ah=model.capacity_ah)
+    if args.window_s is not None:
+        series = series.window(*args.window_s)
     val = validate(model, series, args.soc0, args.temperature_c)
     if args.plot:
         from .plots import plot_validation
@@ -157,25 +197,30 @@ def parser() -> argparse.ArgumentParser:
     b.add_argument("config")
     b.add_argument("--out", help="output folder (default: ecmgen-out beside the config)")
     b.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    b.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    b.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
     b.add_argument("--no-plots", action="store_true")
     b.add_argument("--no-c", action="store_true", help="skip C generation")
     b.set_defaults(func=cmd_build)
 
     d = sub.add_parser("dcir", help="extract the DC-IR table of a pulse test")
-    d.add_argument("pulses")
-    d.add_argument("--capacity-ah", type=float, required=True)
-    d.add_argument("--soc0", type=float, default=1.0, help="SOC at the start of the test")
-    d.add_argument("--times", type=float, nargs="+", default=[0.1, 1.0, 3.0, 6.0, 10.0])
+    d.add_argument("pulses", nargs="?", help="the pulse test (default with --config: its "
+                                             "data.pulses)")
+    d.add_argument("--config", help="a build config: its column mapping, capacity, start "
+                                    "SOC and [dcir] settings (the table build writes)")
+    d.add_argument("--capacity-ah", type=float, help="cell capacity (needed without --config)")
+    d.add_argument("--soc0", type=float, help="SOC at the start of the test (default 1.0, "
+                                              "or as the build with --config)")
+    d.add_argument("--times", type=float, nargs="+",
+                   help="DC-IR times in s (default 0.1 1 3 6 10, or [dcir] times_s)")
     d.add_argument("--out", help="CSV path (default: stdout)")
-    d.add_argument("--quiet", action="store_true", help="no notes on stderr")
+    d.add_argument("-q", "--quiet", action="store_true", help="no notes on stderr")
     d.set_defaults(func=cmd_dcir)
 
     f = sub.add_parser("fit", help="fit a model.json from a config file")
     f.add_argument("config")
     f.add_argument("--method", choices=["ga", "lm", "curve"])
     f.add_argument("--out", default="model.json")
-    f.add_argument("--quiet", action="store_true")
+    f.add_argument("-q", "--quiet", action="store_true")
     f.set_defaults(func=cmd_fit)
 
     v = sub.add_parser("validate", help="simulate a model over a measured cycle")
@@ -187,7 +232,9 @@ def parser() -> argparse.ArgumentParser:
     v.add_argument("--json", action="store_true")
     v.add_argument("--plot", help="write measured vs simulated PNG here")
     v.add_argument("--config", help="a build config whose [data.columns] maps the cycle's CSV")
-    v.add_argument("--quiet", action="store_true", help="(no progress is shown anyway)")
+    v.add_argument("--window-s", type=float, nargs=2, metavar=("T0", "T1"),
+                   help="validate on the rows with T0 <= time <= T1 s (the file's own time)")
+    v.add_argument("-q", "--quiet", action="store_true", help="(no progress is shown anyway)")
     v.set_defaults(func=cmd_validate)
 
     c = sub.add_parser("codegen", help="write the C of a model.json (e.g. an augmented one)")
@@ -196,14 +243,14 @@ def parser() -> argparse.ArgumentParser:
     c.add_argument("--prefix", default="ecm", help="C symbol prefix")
     c.add_argument("--numeric", choices=["float", "fixed"], default="float")
     c.add_argument("--dt-s", type=float, help="fixed step in s (default: variable dt)")
-    c.add_argument("--quiet", action="store_true", help="do not list the files written")
+    c.add_argument("-q", "--quiet", action="store_true", help="do not list the files written")
     c.set_defaults(func=cmd_codegen)
 
     g = sub.add_parser("diagnose", help="find, add and check missing model effects")
     g.add_argument("config")
     g.add_argument("--out")
     g.add_argument("--json", action="store_true")
-    g.add_argument("--quiet", action="store_true")
+    g.add_argument("-q", "--quiet", action="store_true")
     g.add_argument("--no-plots", action="store_true")
     g.set_defaults(func=cmd_diagnose)
     return p

@@ -10,9 +10,12 @@
     cycle = "us06.mat"         # validation drive cycle
     soc0 = 1.0                 # optional; from the first rested voltage when absent
     extra_cycles = ["hwfet-a.mat"]   # optional further validation cycles
+    cycle_window_s = [t0, t1]  # optional: validate on this time window of each cycle file
+                               # (or a table: file name -> [t0, t1])
     [data.columns]             # optional column mapping for CSV files from other cyclers
     time = "Test_Time(s)"  current = "Current(A)"  voltage = "Voltage(V)"
-    [data.columns.pulses]      # or one mapping per file role (see COLUMN_ROLES)
+    header = false; time = 2 ...   (no header line: columns by 1-based position)
+    [data.columns.pulses]      # per file role (see COLUMN_ROLES): extends [data.columns]
     [dcir]   times_s = [0.1, 1, 3, 6, 10]   c_rate = "max" | "all" | 2.0
              min_rest_s = 30   max_pulse_s = 120   (what counts as a pulse from rest)
     [fit]    methods = ["ga", "lm", "curve"]   seed = 0   relax_s = 1800   best = "curve"
@@ -30,8 +33,12 @@ from typing import Any
 from .errors import InputError
 
 METHODS = ("ga", "lm", "curve")
-# [data.columns.<role>] maps the CSV columns of one file of the config
+# [data.columns.<role>] maps the CSV columns of one file of the config (it extends the
+# global [data.columns]); a role without its own table takes its fallback's
 COLUMN_ROLES = ("pulses", "ocv", "cycle", "extra_cycles", "judge")
+COLUMN_ROLE_FALLBACK = {"extra_cycles": "cycle", "judge": "cycle"}
+# the validation files, which data.cycle_window_s cuts
+WINDOW_ROLES = ("cycle", "extra_cycles", "judge")
 
 
 @dataclass(frozen=True)
@@ -60,6 +67,15 @@ class BuildConfig:
     c_numeric: tuple[str, ...] = ("float", "fixed")
     c_dt_s: float | None = None
     raw: dict = field(default_factory=dict, repr=False)
+    # data.cycle_window_s: (t0, t1) for every validation file, or resolved file -> (t0, t1)
+    cycle_window_s: tuple[float, float] | dict[Path, tuple[float, float]] | None = None
+
+    def window_for(self, path: Path) -> tuple[float, float] | None:
+        """The time window (s, the file's own time axis) for a validation file, if any."""
+        w = self.cycle_window_s
+        if isinstance(w, dict):
+            return w.get(Path(path).resolve())
+        return w
 
 
 def _table(d: dict, key: str, path: Path) -> dict:
@@ -95,6 +111,36 @@ def _file(base: Path, d: dict, key: str, path: Path) -> Path | None:
     if not p.is_file():
         raise InputError(path, f"data.{key} names a missing file: {v} (looked for {p})")
     return p
+
+
+def _window(value, path: Path, where: str) -> tuple[float, float]:
+    ok = (isinstance(value, list) and len(value) == 2 and
+          all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+              for v in value))
+    if not ok:
+        raise InputError(path, f"{where} must be [t0, t1], two times in s, got {value!r}")
+    t0, t1 = float(value[0]), float(value[1])
+    if not t0 < t1:
+        raise InputError(path, f"{where} = [{t0:g}, {t1:g}]: the start must come before "
+                               f"the end")
+    return t0, t1
+
+
+def _cycle_windows(data: dict, base: Path, path: Path):
+    """data.cycle_window_s: [t0, t1] for every validation file, or a table naming files."""
+    if "cycle_window_s" not in data:
+        return None
+    value = data["cycle_window_s"]
+    if not isinstance(value, dict):
+        return _window(value, path, "data.cycle_window_s")
+    windows = {}
+    for name, w in value.items():
+        p = (base / name).resolve()
+        if not p.is_file():
+            raise InputError(path, f"data.cycle_window_s names a missing file: {name} "
+                                   f"(looked for {p})")
+        windows[p] = _window(w, path, f"data.cycle_window_s.{name!r}")
+    return windows
 
 
 def load_config(path: str | Path) -> BuildConfig:
@@ -193,4 +239,4 @@ def load_config(path: str | Path) -> BuildConfig:
         relax_s=_number(fit, "relax_s", path, "fit", 1800.0, positive=True),
         best=best, c_prefix=prefix, c_numeric=tuple(numeric),
         c_dt_s=_number(c, "dt_s", path, "c", None),
-        raw=raw)
+        raw=raw, cycle_window_s=_cycle_windows(data, base, path))

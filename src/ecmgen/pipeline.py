@@ -21,7 +21,7 @@ from typing import Callable
 
 import numpy as np
 
-from .config import BuildConfig
+from .config import COLUMN_ROLE_FALLBACK, WINDOW_ROLES, BuildConfig
 from .data import dcir as dcir_mod
 from .data.measure import ColumnMap, TimeSeries, read_timeseries
 from .data.ocv import (OcvTable, looks_like_ocv_table, ocv_from_low_rate, ocv_from_pulse_rests,
@@ -73,16 +73,14 @@ class BuildResult:
 
 def read_series(cfg: BuildConfig, path: Path, role: str = "") -> TimeSeries:
     """Read a measurement file of the config. ``[data.columns]`` maps CSV columns from
-    another cycler, for every CSV, or per file role as ``[data.columns.cycle]`` etc.;
-    .mat files carry their own names."""
-    columns = None
-    table = cfg.columns or {}
-    if role in table and isinstance(table[role], dict):
-        columns = ColumnMap.from_table(table[role], cfg.path, f"[data.columns.{role}]")
-    elif table and not any(isinstance(v, dict) for v in table.values()) and \
-            path.suffix.lower() != ".mat":
-        columns = ColumnMap.from_table(table, cfg.path)
-    return read_timeseries(path, columns, capacity_ah=cfg.capacity_ah)
+    another cycler, for every CSV; ``[data.columns.<role>]`` extends it for one file role
+    (``extra_cycles`` and ``judge`` fall back to ``cycle``'s); .mat files carry their own
+    names. A validation file is cut to ``data.cycle_window_s`` when the config gives one."""
+    roles = (role, COLUMN_ROLE_FALLBACK[role]) if role in COLUMN_ROLE_FALLBACK else (role,)
+    columns = ColumnMap.for_file(cfg.columns, roles, cfg.path, path)
+    series = read_timeseries(path, columns, capacity_ah=cfg.capacity_ah)
+    window = cfg.window_for(path) if role in WINDOW_ROLES else None
+    return series if window is None else series.window(*window)
 
 
 def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:

@@ -52,6 +52,27 @@ class TimeSeries:
                           self.voltage_v[start:stop], cut(self.temperature_c),
                           cut(self.charge_ah), self.source, self.notes)
 
+    def window(self, t0_s: float, t1_s: float) -> "TimeSeries":
+        """The rows with ``t0_s <= time_s <= t1_s`` (the record's own time axis, s), e.g.
+        one cycle of a file that holds several. A reversed window, or one that leaves fewer
+        than 2 samples, is an InputError naming the file."""
+        where = self.source or None
+        span = f"the record runs from {self.time_s[0]:g} to {self.time_s[-1]:g} s"
+        if not t0_s < t1_s:
+            raise InputError(where, f"time window [{t0_s:g}, {t1_s:g}] s: the start must "
+                                    f"come before the end")
+        if t1_s < self.time_s[0] or t0_s > self.time_s[-1]:
+            raise InputError(where, f"time window [{t0_s:g}, {t1_s:g}] s lies outside the "
+                                    f"record ({span})")
+        ix = np.flatnonzero((self.time_s >= t0_s) & (self.time_s <= t1_s))
+        if ix.size < 2:
+            raise InputError(where, f"time window [{t0_s:g}, {t1_s:g}] s holds {ix.size} "
+                                    f"sample{'s' if ix.size != 1 else ''} ({span})")
+        cut = self.slice(int(ix[0]), int(ix[-1]) + 1)
+        note = f"cut to the time window {t0_s:g} .. {t1_s:g} s ({ix.size} samples)"
+        return TimeSeries(cut.time_s, cut.current_a, cut.voltage_v, cut.temperature_c,
+                          cut.charge_ah, cut.source, cut.notes + (note,))
+
     def coulomb_ah(self) -> np.ndarray:
         """Cumulative charge in Ah from 0 at the first sample: the logged Ah column where
         the file has one (re-zeroed), else the trapezoid integral of the current."""
@@ -68,7 +89,10 @@ TIME_UNITS_S = {"s": 1.0, "min": 60.0, "h": 3600.0}
 CURRENT_UNITS_A = {"A": 1.0, "mA": 1e-3}
 VOLTAGE_UNITS_V = {"V": 1.0, "mV": 1e-3}
 CHARGE_UNITS_AH = {"Ah": 1.0, "mAh": 1e-3}
-CURRENT_SIGNS = ("charge_positive", "discharge_positive")
+# current_sign: both names of each convention; the first of each pair is the one used inside
+CURRENT_SIGNS = {"charge_positive": "charge_positive", "discharge_negative": "charge_positive",
+                 "discharge_positive": "discharge_positive",
+                 "charge_negative": "discharge_positive"}
 
 # Plausibility limits for one cell; outside them the file is almost surely mislabelled.
 VOLTAGE_RANGE_V = (0.5, 6.0)
@@ -80,50 +104,66 @@ CANONICAL_HEADER = ("time_s", "current_a", "voltage_v", "temperature_c", "charge
 
 _UNIT_CHOICES = {"time_unit": TIME_UNITS_S, "current_unit": CURRENT_UNITS_A,
                  "voltage_unit": VOLTAGE_UNITS_V, "charge_unit": CHARGE_UNITS_AH,
-                 "current_sign": dict.fromkeys(CURRENT_SIGNS)}
+                 "current_sign": CURRENT_SIGNS}
 _NAME_KEYS = ("time", "current", "voltage", "temperature", "charge")
 _REQUIRED_KEYS = ("time", "current", "voltage")
 
 
 @dataclass(frozen=True)
 class ColumnMap:
-    """Which columns (CSV header names, or .mat field names) hold what, in which units.
+    """Which columns (CSV header names or 1-based positions, .mat field names) hold what,
+    in which units.
 
-    time, current, voltage  required column names
-    temperature             optional column name (degC)
-    charge                  optional cumulative-charge column name (counts up on charge
+    time, current, voltage  required: a column name, or its position (1 = first column)
+    temperature             optional column (degC)
+    charge                  optional cumulative-charge column (counts up on charge
                             after ``current_sign`` is applied to it too)
     time_unit     "s" | "min" | "h"
     current_unit  "A" | "mA"
     voltage_unit  "V" | "mV"
     charge_unit   "Ah" | "mAh"
-    current_sign  "charge_positive" (ecmgen's own convention; Arbin, CALCE, Digatron .mat)
-                  or "discharge_positive" (current AND charge are negated on reading)
+    current_sign  "charge_positive" = "discharge_negative" (ecmgen's own convention;
+                  Arbin, CALCE, Digatron .mat) or "discharge_positive" = "charge_negative"
+                  (current AND charge are negated on reading); stored as the first name
+    header        False: the CSV has no header line, every line is data and the columns
+                  are given by position
     """
 
-    time: str = "time_s"
-    current: str = "current_a"
-    voltage: str = "voltage_v"
-    temperature: str | None = None
-    charge: str | None = None
+    time: str | int = "time_s"
+    current: str | int = "current_a"
+    voltage: str | int = "voltage_v"
+    temperature: str | int | None = None
+    charge: str | int | None = None
     time_unit: str = "s"
     current_unit: str = "A"
     voltage_unit: str = "V"
     charge_unit: str = "Ah"
     current_sign: str = "charge_positive"
+    header: bool = True
 
     def __post_init__(self):
         problem = self._problem()
         if problem:
             raise InputError(None, problem)
+        object.__setattr__(self, "current_sign", CURRENT_SIGNS[self.current_sign])
 
     def _problem(self) -> str | None:
+        if not isinstance(self.header, bool):
+            return f"header must be true or false, got {self.header!r}"
         for key in _NAME_KEYS:
             value = getattr(self, key)
             if value is None and key not in _REQUIRED_KEYS:
                 continue
-            if not isinstance(value, str) or not value.strip():
-                return f"{key} must be a non-empty column name, got {value!r}"
+            if isinstance(value, int) and not isinstance(value, bool):
+                if value < 1:
+                    return (f"{key} = {value}: a column position counts from 1 (or give "
+                            f"the column name)")
+            elif not isinstance(value, str) or not value.strip():
+                return (f"{key} must be a non-empty column name or a 1-based column "
+                        f"position, got {value!r}")
+            elif not self.header:
+                return (f"{key} = {value!r}: with header = false the columns are given by "
+                        f"position ({key} = 1 for the first column)")
         for key, choices in _UNIT_CHOICES.items():
             value = getattr(self, key)
             if value not in choices:
@@ -158,19 +198,45 @@ class ColumnMap:
 
     from_table = from_toml  # alias: the pipeline passes the parsed [data.columns] table
 
-    def names(self) -> dict[str, str]:
-        """role -> column name, for the columns this map uses."""
+    @classmethod
+    def for_file(cls, table: dict | None, roles: tuple[str, ...], config_path,
+                 file: str | Path) -> "ColumnMap | None":
+        """The mapping of one file of a config, from its parsed ``[data.columns]`` table.
+
+        The global keys (``[data.columns]`` itself) apply to every CSV file; the first of
+        ``roles`` (e.g. ``("extra_cycles", "cycle")``) with its own
+        ``[data.columns.<role>]`` table extends them, key by key, and applies to a .mat
+        file too (whose fields the global CSV names would not match). None: no mapping,
+        the file's layout is recognised by its names."""
+        table = table or {}
+        common = {k: v for k, v in table.items() if not isinstance(v, dict)}
+        role = next((r for r in roles if isinstance(table.get(r), dict)), None)
+        if role is not None:
+            section = f"[data.columns.{role}]" + (" with [data.columns]" if common else "")
+            return cls.from_toml({**common, **table[role]}, config_path, section)
+        if common and not (Path(file).is_file() and _is_mat(Path(file))):
+            return cls.from_toml(common, config_path)
+        return None
+
+    def names(self) -> dict[str, str | int]:
+        """role -> column name (or 1-based position), for the columns this map uses."""
         return {k: getattr(self, k) for k in _NAME_KEYS if getattr(self, k) is not None}
 
 
 @dataclass(frozen=True)
 class _Layout:
-    """A known file layout: required names in ``columns``, optional ones picked if present."""
+    """A known set of column names: required names in ``columns``, optional ones picked if
+    present. ``name`` says what the names look like, not which machine wrote the file
+    (other cyclers' exports, e.g. Bitrode, can use the same names)."""
 
     name: str
     columns: ColumnMap
     temperature: tuple[str, ...] = ()
     charge: tuple[str, ...] = ()
+
+    def describe(self) -> str:
+        c = self.columns
+        return f"{self.name} ({c.time}, {c.current}, {c.voltage})"
 
     def resolve(self, found: list[str]) -> ColumnMap | None:
         if not all(n in found for n in (self.columns.time, self.columns.current,
@@ -187,21 +253,22 @@ class _Layout:
 
 
 # CSV layouts tried in order when no mapping is given. Arbin (and the CALCE exports, which
-# come from Arbin testers) log current negative on discharge, i.e. already charge-positive.
+# come from Arbin testers) log current negative on discharge, i.e. already charge-positive;
+# a file with these names is read that way, whichever cycler wrote it (the note says so).
 # Their Charge/Discharge_Capacity columns reset every cycle, so charge is left to the current.
 CSV_LAYOUTS = (
-    _Layout("ecmgen canonical", ColumnMap("time_s", "current_a", "voltage_v"),
+    _Layout("ecmgen's own columns", ColumnMap("time_s", "current_a", "voltage_v"),
             ("temperature_c",), ("charge_ah",)),
-    _Layout("Arbin", ColumnMap("Test_Time(s)", "Current(A)", "Voltage(V)"),
+    _Layout("Arbin/CALCE-style columns", ColumnMap("Test_Time(s)", "Current(A)", "Voltage(V)"),
             ("Temperature (C)_1",)),
     # CALCE low-rate OCV export: a single step, so Step_Time(s) is the only clock.
-    _Layout("Arbin single step (CALCE)", ColumnMap("Step_Time(s)", "Current(A)", "Voltage(V)"),
-            ("Temperature (C)_1",)),
+    _Layout("Arbin/CALCE-style single-step columns",
+            ColumnMap("Step_Time(s)", "Current(A)", "Voltage(V)"), ("Temperature (C)_1",)),
 )
 
 # Panasonic 18650PF (Digatron) `meas` struct: current and Ah are negative on discharge.
-MAT_LAYOUT = _Layout("Digatron .mat (meas struct)", ColumnMap("Time", "Current", "Voltage"),
-                     ("Battery_Temp_degC",), ("Ah",))
+MAT_LAYOUT = _Layout("Panasonic/Digatron-style meas struct",
+                     ColumnMap("Time", "Current", "Voltage"), ("Battery_Temp_degC",), ("Ah",))
 
 
 # --------------------------------------------------------------------------- reading
@@ -211,7 +278,7 @@ class _Raw:
     """Columns as found in the file, before conversion and checks."""
 
     kind: str                          # "column" (CSV) or "field" (.mat)
-    names: dict[str, str]              # role -> name in the file
+    names: dict[str, str]              # role -> how messages name it: "column 'I(A)'", "column 9"
     values: dict[str, np.ndarray]      # role -> raw float64 values
     where: Callable[[int], str]        # 0-based row -> "row 5 (line 6)"
     notes: list[str]
@@ -260,15 +327,16 @@ def _choose_layout(path: Path, found: list[str], kind: str, layouts) -> tuple[Co
     for layout in layouts:
         colmap = layout.resolve(found)
         if colmap is not None:
-            return colmap, layout.name
+            return colmap, layout.describe()
     listing = ", ".join(repr(n) for n in found) or "none"
     best = max(layouts, key=lambda lay: lay.present(found))
     if best.present(found) >= 2:
         # Nearly a known layout: name what is missing rather than refuse the whole file.
         missing = next(n for n in (best.columns.time, best.columns.current,
                                    best.columns.voltage) if n not in found)
-        raise InputError(path, f"missing {kind} {missing!r} ({best.name} layout); "
-                               f"{kind}s found: {listing}")
+        raise InputError(path, f"missing {kind} {missing!r} (the others of the "
+                               f"{best.describe()} are there); {kind}s found: {listing}; "
+                               f"otherwise map the {kind}s in [data.columns]")
     if kind == "field":
         expected = "a 'meas' struct with fields Time, Current, Voltage (Panasonic/Digatron)"
     else:
@@ -279,12 +347,46 @@ def _choose_layout(path: Path, found: list[str], kind: str, layouts) -> tuple[Co
                            f"units, current_sign) is needed")
 
 
+def _label(kind: str, name: str | int) -> str:
+    """How messages name a column: ``column 'Current(A)'``, or ``column 9`` by position."""
+    return f"{kind} {name}" if isinstance(name, int) else f"{kind} {name!r}"
+
+
 def _check_named(path: Path, colmap: ColumnMap, found: list[str], kind: str) -> None:
     listing = ", ".join(repr(n) for n in found) or "none"
     for role, name in colmap.names().items():
-        if name not in found:
+        if isinstance(name, int):
+            if kind == "field":
+                raise InputError(path, f"{role} = {name}: column positions apply to CSV "
+                                       f"files; a .mat file's fields are named")
+            if name > len(found):
+                raise InputError(path, f"{role} = {name} in [data.columns], but the file "
+                                       f"has {len(found)} columns")
+        elif name not in found:
             raise InputError(path, f"missing {kind} {name!r} (the {role} {kind} of "
                                    f"[data.columns]); {kind}s found: {listing}")
+
+
+def _is_number(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
+
+
+def _numbers_only(row: list[str]) -> bool:
+    """A line of numbers (data), not of column names: every non-empty cell is a number."""
+    cells = [c.strip() for c in row if c.strip()]
+    return bool(cells) and all(_is_number(c) for c in cells)
+
+
+def _headerless(path: Path, row: list[str], line: int) -> InputError:
+    shown = ", ".join(c.strip() for c in row[:4]) + (", ..." if len(row) > 4 else "")
+    return InputError(path, f"no header line: line {line} holds numbers ({shown}), not "
+                            f"column names; for a file without a header set header = false "
+                            f"in [data.columns] and give the columns by position, 1 = first "
+                            f"(e.g. time = 1, current = 2, voltage = 3)")
 
 
 def _read_csv(path: Path, columns: ColumnMap | None) -> tuple[_Raw, ColumnMap]:
@@ -292,57 +394,71 @@ def _read_csv(path: Path, columns: ColumnMap | None) -> tuple[_Raw, ColumnMap]:
     first = text.split("\n", 1)[0]
     delimiter = max((",", ";", "\t"), key=first.count)
     reader = csv.reader(io.StringIO(text), delimiter=delimiter)
+    has_header = columns is None or columns.header
     header = None
     rows: list[list[str]] = []
     lines: list[int] = []
     for row in reader:
         if not row or (len(row) == 1 and not row[0].strip()):
             continue  # blank line
-        if header is None:
+        if has_header and header is None:
+            if _numbers_only(row):
+                raise _headerless(path, row, reader.line_num)
             header = [name.strip() for name in row]
             continue
         rows.append(row)
         lines.append(reader.line_num)
-    if header is None:
+    if has_header and header is None:
         raise InputError(path, "empty file (no header line)")
+    if not has_header:
+        if not rows:
+            raise InputError(path, "empty file (no data lines)")
+        if not _numbers_only(rows[0]):
+            raise InputError(path, f"header = false in [data.columns], but line {lines[0]} "
+                                   f"holds names ({', '.join(c.strip() for c in rows[0][:4])}"
+                                   f"{', ...' if len(rows[0]) > 4 else ''}): a header line?")
+        header = [str(k) for k in range(1, len(rows[0]) + 1)]  # the positions
 
     notes = []
     if columns is None:
         colmap, layout = _choose_layout(path, header, "column", CSV_LAYOUTS)
-        notes.append(f"columns recognised as the {layout} layout")
+        notes.append(f"columns recognised by their names as {layout}; current taken as "
+                     f"positive on charge")
     else:
         colmap = columns
         _check_named(path, colmap, header, "column")
 
     for role, name in colmap.names().items():
-        if header.count(name) > 1:
+        if isinstance(name, str) and header.count(name) > 1:
             raise InputError(path, f"column {name!r} appears {header.count(name)} times "
                                    f"in the header")
 
     width = len(header)
     if any(len(r) != width for r in rows):
         i = next(i for i, r in enumerate(rows) if len(r) != width)
-        raise InputError(path, f"line {lines[i]} has {len(rows[i])} fields but the header "
-                               f"has {width} (a truncated row or a stray {delimiter!r}?)")
+        against = "the header has" if has_header else f"line {lines[0]} has"
+        raise InputError(path, f"line {lines[i]} has {len(rows[i])} fields but {against} "
+                               f"{width} (a truncated row or a stray {delimiter!r}?)")
 
     def where(i: int) -> str:
         return f"row {i + 1} (line {lines[i]})"
 
     values = {}
+    labels = {role: _label("column", name) for role, name in colmap.names().items()}
     for role, name in colmap.names().items():
-        j = header.index(name)
+        j = name - 1 if isinstance(name, int) else header.index(name)
         cells = [r[j] for r in rows]
         try:
             values[role] = np.array(cells, dtype=np.float64)
         except ValueError:
-            raise _non_numeric(path, name, cells, where) from None
-    return _Raw("column", colmap.names(), values, where, notes), colmap
+            raise _non_numeric(path, labels[role], cells, where) from None
+    return _Raw("column", labels, values, where, notes), colmap
 
 
 _DECIMAL_COMMA = re.compile(r"^\s*[-+]?\d+,\d+\s*$")
 
 
-def _non_numeric(path: Path, name: str, cells: list[str], where) -> InputError:
+def _non_numeric(path: Path, label: str, cells: list[str], where) -> InputError:
     for i, cell in enumerate(cells):
         try:
             np.float64(cell)
@@ -350,11 +466,11 @@ def _non_numeric(path: Path, name: str, cells: list[str], where) -> InputError:
         except ValueError:
             pass
         if not cell.strip():
-            return InputError(path, f"column {name!r}, {where(i)}: empty cell")
+            return InputError(path, f"{label}, {where(i)}: empty cell")
         hint = " (decimal comma? use '.')" if _DECIMAL_COMMA.match(cell) else ""
-        return InputError(path, f"column {name!r}, {where(i)}: {cell.strip()[:40]!r} "
+        return InputError(path, f"{label}, {where(i)}: {cell.strip()[:40]!r} "
                                 f"is not a number{hint}")
-    return InputError(path, f"column {name!r}: holds values that are not numbers")
+    return InputError(path, f"{label}: holds values that are not numbers")
 
 
 def _one_struct(value):
@@ -402,7 +518,7 @@ def _read_mat(path: Path, columns: ColumnMap | None) -> tuple[_Raw, ColumnMap]:
     notes = []
     if columns is None:
         colmap, layout = _choose_layout(path, found, "field", (MAT_LAYOUT,))
-        notes.append(f"fields read as the {layout} layout")
+        notes.append(f"fields read as the {layout}")
     else:
         colmap = columns
         _check_named(path, colmap, found, "field")
@@ -429,7 +545,8 @@ def _read_mat(path: Path, columns: ColumnMap | None) -> tuple[_Raw, ColumnMap]:
     def where(i: int) -> str:
         return f"row {i + 1}"
 
-    return _Raw("field", colmap.names(), values, where, notes), colmap
+    labels = {role: _label("field", name) for role, name in colmap.names().items()}
+    return _Raw("field", labels, values, where, notes), colmap
 
 
 # --------------------------------------------------------------------------- checks
@@ -443,7 +560,7 @@ def _finish(path: Path, raw: _Raw, colmap: ColumnMap, capacity_ah: float | None)
                                f"a measurement needs at least 2")
 
     def loc(role: str, i: int) -> str:
-        return f"{raw.kind} {raw.names[role]!r}, {raw.where(i)}"
+        return f"{raw.names[role]}, {raw.where(i)}"
 
     # Units and sign first, so every check below works in A, V, s, Ah.
     scale = {"time": TIME_UNITS_S[colmap.time_unit],
@@ -477,7 +594,7 @@ def _finish(path: Path, raw: _Raw, colmap: ColumnMap, capacity_ah: float | None)
     if back.any():
         i = int(np.argmax(back)) + 1
         hint = ""
-        if raw.names["time"].startswith("Step_Time"):
+        if str(colmap.time).startswith("Step_Time"):
             hint = " (Step_Time restarts at every step: use Test_Time or map [data.columns])"
         raise InputError(path, f"{loc('time', i)}: time goes backwards, {time[i]:.6g} s "
                                f"after {time[i - 1]:.6g} s{hint}")
@@ -537,8 +654,8 @@ def _check_charge_sign(path, values, names) -> None:
         return
     agree = float(np.mean(np.sign(d_charge[moving]) == np.sign(mid_current[moving])))
     if agree < 0.2:
-        raise InputError(path, f"column {names['charge']!r}: cumulative charge falls while "
-                               f"the current {names['current']!r} charges (agrees on only "
+        raise InputError(path, f"{names['charge']}: cumulative charge falls while "
+                               f"the current ({names['current']}) charges (agrees on only "
                                f"{agree:.0%} of samples): opposite sign conventions?")
 
 
