@@ -9,12 +9,13 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from conftest import REPO, make_pulse_test, synthetic_nca_model
+from conftest import CALCE, REPO, make_pulse_test, need, synthetic_nca_model
 from ecmgen.cli import main
 from ecmgen.config import load_config
 from ecmgen.data.measure import ColumnMap, TimeSeries, read_timeseries, write_timeseries_csv
@@ -361,7 +362,7 @@ def test_validate_window_option(tmp_path, cell, synthetic_model, capsys):
     assert err.count("\n") == 1 and "start must come before the end" in err
 
 
-# --------------------------------------------------------------------------- quiet
+# --------------------------------------------------------------------------- quiet, warnings
 
 @pytest.mark.parametrize("command", ["build", "dcir", "fit", "validate", "codegen",
                                      "diagnose"])
@@ -371,3 +372,72 @@ def test_every_command_takes_dash_q(command):
 
     sub = parser()._subparsers._group_actions[0].choices[command]
     assert "-q" in sub._option_string_actions
+
+
+def test_point_rows_with_an_unreached_time_does_not_warn():
+    """Before: 'RuntimeWarning: Mean of empty slice' for every DC-IR time that no pulse of
+    a SOC level reached (a slow logger, short pulses: the A123 builds)."""
+    from ecmgen.data.dcir import DcirTable
+    from ecmgen.pipeline import point_rows
+
+    r = np.array([[0.020, np.nan, 0.024], [0.021, np.nan, np.nan], [0.030, 0.031, 0.032]])
+    table = DcirTable(np.array([0.5, 0.5, 0.2]), np.array(["discharge"] * 3),
+                      np.array([1.0, 1.0, 1.0]), np.array([1.0, 3.0, 10.0]), r)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rows, _ = point_rows(table, "max")
+    np.testing.assert_allclose(rows.soc, [0.5, 0.2])      # levels from the top
+    np.testing.assert_allclose(rows.r_ohm[0], [0.0205, np.nan, 0.024])
+    np.testing.assert_allclose(rows.r_ohm[1], [0.030, 0.031, 0.032])
+
+
+def test_cli_keeps_remaining_warnings_off_stderr(monkeypatch, capsys, tmp_path):
+    import ecmgen.cli as cli
+
+    def noisy(args):
+        warnings.warn("something numerical", RuntimeWarning)
+        return 0
+
+    monkeypatch.setattr(cli, "cmd_codegen", noisy)          # parser() binds it per call
+    monkeypatch.setattr(sys, "warnoptions", [])
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        assert cli.main(["codegen", "m.json", "--out", str(tmp_path)]) == 0
+    assert seen == [] and capsys.readouterr().err == ""
+    monkeypatch.setattr(sys, "warnoptions", ["default"])   # a developer asked to see them
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        cli.main(["codegen", "m.json", "--out", str(tmp_path)])
+    assert [str(w.message) for w in seen] == ["something numerical"]
+
+
+A123_CONFIG = """[cell]
+capacity_ah = 1.1
+[data]
+pulses = "{d}/dynamics-dst-us06-fuds.csv"   # its 1.1 A discharge (1 C, 1370 s) from rest
+ocv = "{d}/ocv-charge-c22.csv"              # the C/22 charge branch (another cell)
+cycle = "{d}/dynamics-dst-us06-fuds.csv"
+[dcir]
+min_rest_s = 4
+max_pulse_s = 1500
+"""
+
+
+@pytest.mark.slow
+def test_a123_build_quiet_json_has_empty_stderr(tmp_path):
+    """The CALCE A123 cell: with the 5 s logger's DC-IR times the build succeeds with
+    nothing at all on stderr; with the default times it stops with exactly one line
+    (before: numpy's 'Mean of empty slice' warning, then an error naming no file)."""
+    d = need(CALCE)
+    cfg = tmp_path / "a123.toml"
+    cfg.write_text(A123_CONFIG.format(d=d) + "times_s = [5, 20, 60, 200, 600]\n")
+    r = run_cli("build", cfg, "--out", tmp_path / "out", "-q", "--json")
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    assert json.loads(r.stdout)["c"]["float"]["bit_exact_vs_reference"] is True
+
+    cfg.write_text(A123_CONFIG.format(d=d))
+    r = run_cli("build", cfg, "--out", tmp_path / "out2", "-q", "--json")
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr.count("\n") == 1
+    assert r.stderr.startswith(f"ecmgen: error: {d / 'dynamics-dst-us06-fuds.csv'}: ")
+    assert not (tmp_path / "out2").exists()

@@ -165,8 +165,7 @@ def point_rows(table: dcir_mod.DcirTable, c_rate) -> tuple[dcir_mod.DcirTable, l
             soc.append(float(np.mean(sel.soc[g])))
             direction.append(d)
             rate.append(float(np.mean(sel.c_rate[g])))
-            with np.errstate(all="ignore"):
-                r.append(np.nanmean(sel.r_ohm[g], axis=0))
+            r.append(_mean_of_finite(sel.r_ohm[g]))
     if c_rate == "all":
         notes.append("five-point fits use R(t) averaged over all C-rates of each SOC level")
     out = dcir_mod.DcirTable(np.array(soc), np.array(direction), np.array(rate), table.t_s,
@@ -174,8 +173,17 @@ def point_rows(table: dcir_mod.DcirTable, c_rate) -> tuple[dcir_mod.DcirTable, l
     return out, notes
 
 
-def _rc_tables(soc, direction, cols: dict[str, np.ndarray], fit_error, converged
-               ) -> tuple[RcTable, RcTable, list[str]]:
+def _mean_of_finite(rows: np.ndarray) -> np.ndarray:
+    """Column means over the finite values; NaN where a column has none (a DC-IR time no
+    pulse of the group reached), without numpy's "Mean of empty slice" warning."""
+    ok = np.isfinite(rows)
+    n = ok.sum(axis=0)
+    total = np.where(ok, rows, 0.0).sum(axis=0)
+    return np.where(n > 0, total / np.maximum(n, 1), np.nan)
+
+
+def _rc_tables(soc, direction, cols: dict[str, np.ndarray], fit_error, converged,
+               source: Path | None = None) -> tuple[RcTable, RcTable, list[str]]:
     """Per-direction RcTables; a direction without data takes the other's, with a note."""
     tables, notes = {}, []
     for d in ("charge", "discharge"):
@@ -190,7 +198,10 @@ def _rc_tables(soc, direction, cols: dict[str, np.ndarray], fit_error, converged
                             converged=np.asarray(converged)[ix],
                             **{k: np.asarray(v)[ix] for k, v in cols.items()})
     if not tables:
-        raise InputError(None, "no table cell could be fitted")
+        raise InputError(source, "no table cell could be fitted: no SOC level has an R(t) "
+                                 "value at every [dcir] times_s (pulses cut short, or too "
+                                 "short or too slowly logged for those times? [dcir] "
+                                 "c_rate = \"all\" uses every C-rate)")
     for d, other in (("charge", "discharge"), ("discharge", "charge")):
         if d not in tables:
             tables[d] = tables[other]
@@ -225,7 +236,8 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
         for m in point_methods:
             f = fits[m]
             cols = {k: getattr(f, k) for k in RC_FIELDS}
-            ch, dis, n2 = _rc_tables(rows.soc, rows.direction, cols, f.fitness_ohm, f.converged)
+            ch, dis, n2 = _rc_tables(rows.soc, rows.direction, cols, f.fitness_ohm,
+                                     f.converged, cfg.pulses or cfg.dcir)
             bad = int(np.sum(~f.converged))
             n3 = [f"{m}: {bad} of {f.converged.size} table cells did not converge"] if bad else []
             models[m] = EcmModel(charge=ch, discharge=dis, method=m,
@@ -248,7 +260,8 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
                  "search bound): left out, its neighbours are interpolated"
                  for s, d in zip(cf.soc[bad], cf.direction[bad])]
         cols = {k: np.where(bad, np.nan, v) for k, v in cols.items()}
-        ch, dis, n2 = _rc_tables(cf.soc, cf.direction, cols, cf.rms_error_v, cf.converged)
+        ch, dis, n2 = _rc_tables(cf.soc, cf.direction, cols, cf.rms_error_v, cf.converged,
+                                 cfg.pulses)
         n2 = n_bad + n2
         models["curve"] = EcmModel(charge=ch, discharge=dis, method="curve",
                                    notes=inputs.notes + tuple(n2), **common)
