@@ -12,6 +12,26 @@
     extra_cycles = ["hwfet-a.mat"]   # optional further validation cycles
     cycle_window_s = [t0, t1]  # optional: validate on this time window of each cycle file
                                # (or a table: file name -> [t0, t1])
+
+  or, for a model over temperature, one table per pulse test instead of data.pulses:
+
+    [[data.pulse_tests]]
+    file = "25degC/hppc.mat"   # the pulse test
+    soc0 = 1.0                 # optional, as data.pulses_soc0
+    temperature_c = 25         # optional: default the median cell temperature during
+                               # its pulses (the file's temperature column)
+    steps = "25degC/hppc-soc-steps.mat"   # optional: the SOC steps between its pulse sets
+    ocv = "pulses"             # optional: this test's OCV (default: data.ocv, which
+                               # defaults to "pulses" here: each test's own rests)
+    [[data.pulse_tests]]
+    file = "0degC/hppc.mat"
+    ...
+    (every test is fitted on its own, in parallel, and the tables are joined over
+    temperature, see ecmgen.model.temperature; the validation cycles may be at any
+    temperature, each simulated on its own cell temperature column)
+    [model]  temperature_step_c = 5   (the uniform temperature grid of the tables; 0 keeps
+             the measured breakpoints, linear between them)   warm_row_c = 45 (a derived
+             row at this temperature, Arrhenius-extrapolated; false: none)
     [data.columns]             # optional column mapping for CSV files from other cyclers
     time = "Test_Time(s)"  current = "Current(A)"  voltage = "Voltage(V)"
     header = false; time = 2 ...   (no header line: columns by 1-based position)
@@ -48,6 +68,9 @@ class BuildConfig:
     pulses: Path | None
     dcir: Path | None
     pulses_soc0: float | None     # None: from the OCV of the first rest (or 1.0)
+    # [[data.pulse_tests]] (a model over temperature); the data.pulses form is one test
+    # at an unknown temperature (and leaves this empty)
+    pulse_tests: tuple["PulseTest", ...]
     ocv: Path | None              # None: from the pulse-test rests
     ocv_soc0: float | None
     ocv_branch: str               # "both" | "charge" | "discharge"
@@ -66,6 +89,8 @@ class BuildConfig:
     c_prefix: str = "ecm"
     c_numeric: tuple[str, ...] = ("float", "fixed")
     c_dt_s: float | None = None
+    temperature_step_c: float = 5.0    # [model]: 0 = the measured breakpoints as they are
+    warm_row_c: float | None = 45.0    # [model]: derived warm row (None: none)
     raw: dict = field(default_factory=dict, repr=False)
     # data.cycle_window_s: (t0, t1) for every validation file, or resolved file -> (t0, t1)
     cycle_window_s: tuple[float, float] | dict[Path, tuple[float, float]] | None = None
@@ -76,6 +101,22 @@ class BuildConfig:
         if isinstance(w, dict):
             return w.get(Path(path).resolve())
         return w
+
+    @property
+    def over_temperature(self) -> bool:
+        """True for the [[data.pulse_tests]] form (tables over temperature)."""
+        return bool(self.pulse_tests)
+
+
+@dataclass(frozen=True)
+class PulseTest:
+    """One ``[[data.pulse_tests]]`` entry: a pulse test at one temperature."""
+
+    file: Path
+    soc0: float | None            # None: from the OCV of its first rest (or 1.0)
+    temperature_c: float | None   # None: the median cell temperature during its pulses
+    steps: Path | None            # the SOC-step record between its pulse sets, if any
+    ocv: Path | None              # None: from its own rests
 
 
 def _table(d: dict, key: str, path: Path) -> dict:
@@ -101,15 +142,15 @@ def _number(d: dict, key: str, path: Path, where: str, default=None, *, positive
     return float(v)
 
 
-def _file(base: Path, d: dict, key: str, path: Path) -> Path | None:
+def _file(base: Path, d: dict, key: str, path: Path, where: str = "data") -> Path | None:
     if key not in d:
         return None
     v = d[key]
     if not isinstance(v, str) or not v:
-        raise InputError(path, f"data.{key} must be a file name")
+        raise InputError(path, f"{where}.{key} must be a file name")
     p = (base / v).resolve()
     if not p.is_file():
-        raise InputError(path, f"data.{key} names a missing file: {v} (looked for {p})")
+        raise InputError(path, f"{where}.{key} names a missing file: {v} (looked for {p})")
     return p
 
 
@@ -143,6 +184,52 @@ def _cycle_windows(data: dict, base: Path, path: Path):
     return windows
 
 
+PULSE_TEST_KEYS = ("file", "soc0", "temperature_c", "steps", "ocv")
+TEMPERATURE_RANGE_C = (-60.0, 100.0)     # what a pulse test's temperature may be
+
+
+def _pulse_tests(data: dict, base: Path, path: Path, ocv: Path | None
+                 ) -> tuple[PulseTest, ...]:
+    """The [[data.pulse_tests]] entries (``ocv``: the data.ocv file, None for "pulses")."""
+    raw = data["pulse_tests"]
+    if not isinstance(raw, list) or not raw or not all(isinstance(e, dict) for e in raw):
+        raise InputError(path, "data.pulse_tests must be one or more [[data.pulse_tests]] "
+                               "tables (file = \"hppc.mat\", ...)")
+    tests: list[PulseTest] = []
+    for n, entry in enumerate(raw, 1):
+        where = f"data.pulse_tests[{n}]"
+        unknown = sorted(set(entry) - set(PULSE_TEST_KEYS))
+        if unknown:
+            raise InputError(path, f"{where}: unknown key(s) {unknown}; known: "
+                                   f"{', '.join(PULSE_TEST_KEYS)}")
+        if "file" not in entry:
+            raise InputError(path, f"{where}: missing file (the pulse test)")
+        file = _file(base, entry, "file", path, where)
+        temp = _number(entry, "temperature_c", path, where)
+        lo, hi = TEMPERATURE_RANGE_C
+        if temp is not None and not lo <= temp <= hi:
+            raise InputError(path, f"{where}.temperature_c must lie in {lo:g}..{hi:g} degC, "
+                                   f"got {temp:g}")
+        test_ocv = ocv
+        if "ocv" in entry:
+            test_ocv = None if entry["ocv"] == "pulses" else _file(base, entry, "ocv", path,
+                                                                   where)
+        test = PulseTest(file=file, soc0=_number(entry, "soc0", path, where,
+                                                 unit_interval=True),
+                         temperature_c=temp, steps=_file(base, entry, "steps", path, where),
+                         ocv=test_ocv)
+        for k, other in enumerate(tests, 1):
+            if other.file == file:
+                raise InputError(path, f"{where} names the same file as "
+                                       f"data.pulse_tests[{k}]: {entry['file']}")
+            if temp is not None and other.temperature_c is not None and \
+                    abs(other.temperature_c - temp) < 0.5:
+                raise InputError(path, f"{where}.temperature_c = {temp:g} is within 0.5 K of "
+                                       f"data.pulse_tests[{k}]: one test per temperature")
+        tests.append(test)
+    return tuple(tests)
+
+
 def load_config(path: str | Path) -> BuildConfig:
     path = Path(path)
     try:
@@ -152,22 +239,28 @@ def load_config(path: str | Path) -> BuildConfig:
     except tomllib.TOMLDecodeError as exc:
         raise InputError(path, f"not valid TOML ({exc})") from None
     base = path.resolve().parent
-    known = {"cell", "data", "dcir", "fit", "c", "diagnose"}
+    known = {"cell", "data", "dcir", "fit", "c", "diagnose", "model"}
     unknown = set(raw) - known
     if unknown:
         raise InputError(path, f"unknown section(s) {sorted(unknown)}; known: {sorted(known)}")
     cell, data = _table(raw, "cell", path), _table(raw, "data", path)
     dcir_t, fit, c = _table(raw, "dcir", path), _table(raw, "fit", path), _table(raw, "c", path)
+    model_t = _table(raw, "model", path)
     capacity = _number(cell, "capacity_ah", path, "cell", positive=True)
 
     pulses = _file(base, data, "pulses", path)
     dcir = _file(base, data, "dcir", path)
-    if (pulses is None) == (dcir is None):
-        raise InputError(path, "give exactly one of data.pulses (a pulse test) or data.dcir "
-                               "(a soc,direction,c_rate,t_s,r_ohm table)")
-    ocv_raw = data.get("ocv")
+    several = "pulse_tests" in data
+    if (pulses is not None) + (dcir is not None) + several != 1:
+        raise InputError(path, "give exactly one of data.pulses (a pulse test), "
+                               "[[data.pulse_tests]] (pulse tests at several temperatures) "
+                               "or data.dcir (a soc,direction,c_rate,t_s,r_ohm table)")
+    if several and "pulses_soc0" in data:
+        raise InputError(path, "data.pulses_soc0 goes with data.pulses; give soc0 in each "
+                               "[[data.pulse_tests]] table")
+    ocv_raw = data.get("ocv", "pulses" if several else None)
     if ocv_raw == "pulses":
-        if pulses is None:
+        if pulses is None and not several:
             raise InputError(path, "data.ocv = \"pulses\" needs data.pulses")
         ocv = None
     elif ocv_raw is None:
@@ -175,6 +268,7 @@ def load_config(path: str | Path) -> BuildConfig:
                                "or \"pulses\" for the rests of the pulse test)")
     else:
         ocv = _file(base, data, "ocv", path)
+    pulse_tests = _pulse_tests(data, base, path, ocv) if several else ()
     branch = data.get("ocv_branch", "both")
     if branch not in ("both", "charge", "discharge"):
         raise InputError(path, f"data.ocv_branch must be both, charge or discharge, got {branch!r}")
@@ -202,10 +296,11 @@ def load_config(path: str | Path) -> BuildConfig:
         raise InputError(path, f"dcir.c_rate must be \"max\", \"all\" or a C-rate, got {c_rate!r}")
 
     # the whole-curve fit needs the pulse test itself, a DC-IR table is not enough
-    methods = fit.get("methods", list(METHODS) if pulses is not None else ["ga", "lm"])
+    has_pulses = pulses is not None or several
+    methods = fit.get("methods", list(METHODS) if has_pulses else ["ga", "lm"])
     if not isinstance(methods, list) or not methods or any(m not in METHODS for m in methods):
         raise InputError(path, f"fit.methods must be a non-empty list from {list(METHODS)}")
-    if "curve" in methods and pulses is None:
+    if "curve" in methods and not has_pulses:
         raise InputError(path, "fit method \"curve\" needs the pulse test (data.pulses), "
                                "not only a DC-IR table")
     seed = fit.get("seed", 0)
@@ -224,9 +319,26 @@ def load_config(path: str | Path) -> BuildConfig:
     if not isinstance(prefix, str) or not prefix.isidentifier():
         raise InputError(path, f"c.prefix must be a C identifier, got {prefix!r}")
 
+    step = _number(model_t, "temperature_step_c", path, "model", 5.0)
+    if not 0.0 <= step <= 50.0:
+        raise InputError(path, f"model.temperature_step_c must lie in 0..50 K (0: the "
+                               f"measured breakpoints), got {step:g}")
+    warm = model_t.get("warm_row_c", 45.0)
+    if warm is not False:
+        warm = _number(model_t, "warm_row_c", path, "model", 45.0)
+        lo, hi = TEMPERATURE_RANGE_C
+        if not lo <= warm <= hi:
+            raise InputError(path, f"model.warm_row_c must lie in {lo:g}..{hi:g} degC (or "
+                                   f"false: no derived warm row), got {warm:g}")
+    unknown = sorted(set(model_t) - {"temperature_step_c", "warm_row_c"})
+    if unknown:
+        raise InputError(path, f"[model]: unknown key(s) {unknown}; known: "
+                               "temperature_step_c, warm_row_c")
+
     return BuildConfig(
         path=path, capacity_ah=capacity, pulses=pulses, dcir=dcir,
         pulses_soc0=_number(data, "pulses_soc0", path, "data", None, unit_interval=True),
+        pulse_tests=pulse_tests,
         ocv=ocv, ocv_soc0=_number(data, "ocv_soc0", path, "data", unit_interval=True),
         ocv_branch=branch,
         cycle=_file(base, data, "cycle", path),
@@ -239,4 +351,5 @@ def load_config(path: str | Path) -> BuildConfig:
         relax_s=_number(fit, "relax_s", path, "fit", 1800.0, positive=True),
         best=best, c_prefix=prefix, c_numeric=tuple(numeric),
         c_dt_s=_number(c, "dt_s", path, "c", None),
+        temperature_step_c=step, warm_row_c=None if warm is False else warm,
         raw=raw, cycle_window_s=_cycle_windows(data, base, path))

@@ -1,0 +1,115 @@
+"""[[data.pulse_tests]] and [model] in the build config: what they parse to, and every bad
+input as one line naming the config, exit code 2 and no output."""
+
+from __future__ import annotations
+
+import pytest
+
+from ecmgen.cli import main
+from ecmgen.config import load_config
+from ecmgen.errors import InputError
+
+HEAD = '[cell]\ncapacity_ah = 2.9\n[data]\ncycle = "cycle.csv"\n'
+
+
+def _test(file="a.csv", **kw):
+    lines = ["[[data.pulse_tests]]", f'file = "{file}"']
+    lines += [f"{k} = {v}" for k, v in kw.items()]
+    return "\n".join(lines) + "\n"
+
+
+@pytest.fixture
+def folder(tmp_path):
+    for name in ("a.csv", "b.csv", "c.csv", "steps.csv", "ocv.csv", "cycle.csv"):
+        (tmp_path / name).write_text("time_s,current_a,voltage_v\n0,0,3.7\n")
+    return tmp_path
+
+
+def _write(folder, text):
+    path = folder / "cell.toml"
+    path.write_text(text)
+    return path
+
+
+def test_pulse_tests_parse_with_their_defaults(folder):
+    cfg = load_config(_write(folder, HEAD + _test("a.csv", soc0=1.0) +
+                             _test("b.csv", temperature_c=-10, steps='"steps.csv"',
+                                   ocv='"ocv.csv"') + _test("c.csv", ocv='"pulses"')))
+    assert cfg.over_temperature and cfg.pulses is None and cfg.dcir is None
+    a, b, c = cfg.pulse_tests
+    assert a.file == folder / "a.csv" and a.soc0 == 1.0 and a.temperature_c is None
+    assert a.steps is None and a.ocv is None          # data.ocv defaults to "pulses" here
+    assert b.temperature_c == -10.0 and b.steps == folder / "steps.csv"
+    assert b.ocv == folder / "ocv.csv" and b.soc0 is None
+    assert c.ocv is None
+    assert cfg.methods == ("ga", "lm", "curve") and cfg.best == "curve"
+    assert cfg.temperature_step_c == 5.0 and cfg.warm_row_c == 45.0
+
+
+def test_a_global_ocv_file_applies_to_every_test_unless_one_says_otherwise(folder):
+    cfg = load_config(_write(folder, HEAD + 'ocv = "ocv.csv"\n' + _test("a.csv") +
+                             _test("b.csv", ocv='"pulses"')))
+    assert cfg.pulse_tests[0].ocv == folder / "ocv.csv" and cfg.pulse_tests[1].ocv is None
+
+
+def test_model_section(folder):
+    cfg = load_config(_write(folder, HEAD + _test() + "[model]\ntemperature_step_c = 0\n"
+                                                      "warm_row_c = false\n"))
+    assert cfg.temperature_step_c == 0.0 and cfg.warm_row_c is None
+    cfg = load_config(_write(folder, HEAD + _test() + "[model]\nwarm_row_c = 40\n"))
+    assert cfg.warm_row_c == 40.0
+
+
+def test_the_single_pulses_form_is_unchanged(folder):
+    cfg = load_config(_write(folder, HEAD + 'pulses = "a.csv"\nocv = "pulses"\n'))
+    assert cfg.pulse_tests == () and not cfg.over_temperature
+    assert cfg.pulses == folder / "a.csv"
+
+
+BAD = [
+    ('pulse_tests = "a.csv"\n', "data.pulse_tests must be"),
+    ("pulse_tests = []\n", "data.pulse_tests must be"),
+    ("[[data.pulse_tests]]\nsoc0 = 1.0\n", "data.pulse_tests[1]: missing file"),
+    (_test("nope.csv"), "data.pulse_tests[1].file names a missing file: nope.csv"),
+    (_test() + _test("b.csv", tempC=3), "data.pulse_tests[2]: unknown key(s) ['tempC']"),
+    (_test(temperature_c='"cold"'), "data.pulse_tests[1].temperature_c must be a number"),
+    (_test(temperature_c=-80), "temperature_c must lie in -60..100 degC"),
+    (_test(temperature_c="nan"), "temperature_c must be a number"),
+    (_test(temperature_c=0) + _test("b.csv", temperature_c=0.3), "within 0.5 K"),
+    (_test() + _test("a.csv"), "data.pulse_tests[2] names the same file as"),
+    (_test(soc0=1.5), "data.pulse_tests[1].soc0 is a SOC"),
+    (_test(steps='"nope.csv"'), "data.pulse_tests[1].steps names a missing file"),
+    (_test(ocv='"nope.csv"'), "data.pulse_tests[1].ocv names a missing file"),
+    (_test(file="a.csv", steps=3), "data.pulse_tests[1].steps must be a file name"),
+    ('pulses = "a.csv"\nocv = "pulses"\n' + _test(), "give exactly one of data.pulses"),
+    ('dcir = "a.csv"\n' + _test(), "give exactly one of data.pulses"),
+    ("pulses_soc0 = 1.0\n" + _test(), "give soc0 in each [[data.pulse_tests]]"),
+    (_test() + "[model]\ntemperature_step_c = -5\n", "model.temperature_step_c must lie"),
+    (_test() + "[model]\ntemperature_step_c = \"5K\"\n", "model.temperature_step_c must be"),
+    (_test() + "[model]\nwarm_row_c = true\n", "model.warm_row_c must be a number"),
+    (_test() + "[model]\nwarm_row_c = 200\n", "model.warm_row_c must lie"),
+    (_test() + "[model]\ngrid = 5\n", "[model]: unknown key(s) ['grid']"),
+]
+
+
+@pytest.mark.parametrize("body,needle", BAD, ids=[b[1][:40] for b in BAD])
+def test_bad_pulse_tests_and_model_section(folder, capsys, body, needle):
+    text = HEAD + body
+    cfg = _write(folder, text)
+    with pytest.raises(InputError) as exc:
+        load_config(cfg)
+    assert needle in str(exc.value)
+    # the command line: one line naming the config, exit code 2, nothing written
+    out = folder / "out"
+    assert main(["build", str(cfg), "--out", str(out), "--quiet"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    err = captured.err.strip()
+    assert err.count("\n") == 0 and err.startswith(f"ecmgen: error: {cfg}: "), err
+    assert needle in err
+    assert not out.exists()
+
+
+def test_model_must_be_a_table(folder):
+    with pytest.raises(InputError, match=r"\[model\] must be a table"):
+        load_config(_write(folder, "model = 5\n" + HEAD + _test()))
