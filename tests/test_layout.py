@@ -24,7 +24,7 @@ MAX_LINES = 800
 # the stages, lowest first; a unit may import only units of a lower level (and itself)
 LEVELS = [
     {"base": ("ecmgen._version", "ecmgen.errors", "ecmgen.files", "ecmgen.config",
-              "ecmgen.plotting")},
+              "ecmgen.plotting", "ecmgen.parallel")},
     {"data": ("ecmgen.data",)},
     {"fit": ("ecmgen.fit",)},
     {"model": ("ecmgen.model",)},

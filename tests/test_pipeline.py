@@ -87,7 +87,7 @@ def test_bundled_example_meets_the_accuracy_target(tmp_path):
     for m in ("ga", "lm"):
         assert 0.020 < val[m]["cycles"]["us06.mat"]["mae_v"] < 0.045
     assert any("discharge pulses only" in n for n in doc["notes"])
-    for png in ("dcir-fit.png", "curve-fit.png", "validation-curve-us06.png"):
+    for png in ("dcir-fit.png", "curve-fit.png", "validation-us06.png"):
         assert (tmp_path / "demo" / png).stat().st_size > 10_000
 
 

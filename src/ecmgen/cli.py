@@ -22,7 +22,7 @@ def _progress(enabled: bool):
 def cmd_build(args) -> int:
     from .config import load_config
     from .pipeline import build
-    from .report import build_json, validation_table
+    from .report import build_json, pulse_test_table, validation_table
 
     cfg = load_config(args.config)
     out = Path(args.out) if args.out else cfg.path.parent / "ecmgen-out"
@@ -31,6 +31,9 @@ def cmd_build(args) -> int:
     if args.json:
         print(json.dumps(build_json(result), indent=1))
     else:
+        if result.tests:
+            print(pulse_test_table(result))
+            print()
         print(validation_table(result))
         for n in result.models[result.best].notes:
             print(f"note: {n}")
@@ -95,17 +98,16 @@ def cmd_fit(args) -> int:
     from dataclasses import replace
 
     from .config import load_config
-    from .pipeline import fit_models, prepare
+    from .pipeline import _given, fit_all
 
     cfg = load_config(args.config)
     if args.method:
         cfg = replace(cfg, methods=(args.method,), best=args.method)
-    progress = _progress(not args.quiet)
-    models, _ = fit_models(cfg, prepare(cfg, progress), progress)
     out = Path(args.out)
-    if out.resolve() in {cfg.path.resolve()} | {p.resolve() for p in (cfg.pulses, cfg.ocv,
-                                                                       cfg.dcir) if p}:
+    if out.resolve() in _given(cfg):
         raise InputError(out, "output would overwrite an input file")
+    progress = _progress(not args.quiet)
+    models, _, _, _ = fit_all(cfg, progress)
     models[cfg.best].save(out)
     print(f"wrote {out} (method {cfg.best})", file=sys.stderr)
     return 0

@@ -15,13 +15,13 @@ import shutil
 import sys
 import tempfile
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
-from .config import COLUMN_ROLE_FALLBACK, WINDOW_ROLES, BuildConfig
+from .config import COLUMN_ROLE_FALLBACK, WINDOW_ROLES, BuildConfig, PulseTest
 from .data import dcir as dcir_mod
 from .data.measure import ColumnMap, TimeSeries, read_timeseries
 from .data.ocv import (OcvTable, looks_like_ocv_table, ocv_from_low_rate, ocv_from_pulse_rests,
@@ -30,6 +30,7 @@ from .errors import InputError
 from .files import file_sha256
 from .model.model import RC_FIELDS, EcmModel, InputRecord, RcTable
 from .model.simulate import Validation, validate
+from .parallel import Workers
 
 Progress = Callable[[str], None]
 
@@ -69,6 +70,8 @@ class BuildResult:
     out_dir: Path | None = None
     files: list[Path] = field(default_factory=list)
     c_report: dict | None = None
+    tests: list["TestFit"] = field(default_factory=list)   # [[data.pulse_tests]]: per test
+    timings: dict[str, float] = field(default_factory=dict)   # wall seconds per stage
 
 
 def read_series(cfg: BuildConfig, path: Path, role: str = "") -> TimeSeries:
@@ -269,48 +272,313 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
     return models, raw
 
 
-def validate_all(cfg: BuildConfig, models: dict[str, EcmModel], progress: Progress = _quiet
-                 ) -> dict[str, dict[str, Validation]]:
-    """Each model on the config's validation cycle(s); ``soc0`` applies to every cycle."""
-    cycles = ([(cfg.cycle, "cycle")] if cfg.cycle else []) + \
-        [(p, "extra_cycles") for p in cfg.extra_cycles]
-    out: dict[str, dict[str, Validation]] = {m: {} for m in models}
-    for path, role in cycles:
-        progress(f"validating on {path.name}")
-        series = read_series(cfg, path, role)
-        for m, model in models.items():
-            out[m][path.name] = validate(model, series, cfg.soc0)
+@dataclass
+class TestFit:
+    """One pulse test of a build over temperature: what its fits gave (a worker's result)."""
+
+    test: PulseTest
+    label: str                     # e.g. "25.8degC", "n9.9degC" (file names, notes)
+    temperature_c: float           # its table temperature (NaN: unknown, one test only)
+    temperature_from: str          # "configured" | "median cell temperature in its pulses"
+    inputs: Inputs                 # without the pulse-test record itself
+    models: dict[str, EcmModel]    # one-temperature models, per method
+    raw: dict                      # the raw fits (plots)
+    seconds: float                 # wall time of its fits
+    timings: dict[str, float] = field(default_factory=dict)   # seconds per step
+    pngs: dict[str, bytes] = field(default_factory=dict)      # its plots, if asked for
+
+
+def temperature_label(t: float) -> str:
+    """25.8 -> "25.8degC", -9.9 -> "n9.9degC" (the shared data's folder style)."""
+    if not np.isfinite(t):
+        return "unknownT"
+    return f"{'n' if t < 0 else ''}{abs(t):.1f}degC"
+
+
+def pulse_test_config(cfg: BuildConfig, test: PulseTest) -> BuildConfig:
+    """The one-test config of a [[data.pulse_tests]] entry: what prepare and fit_models
+    read (``pulse_tests`` then holds that one test, e.g. for its ``steps`` file)."""
+    return replace(cfg, pulses=test.file, pulses_soc0=test.soc0, ocv=test.ocv,
+                   pulse_tests=(test,))
+
+
+def pulses_temperature_c(inputs: Inputs) -> float | None:
+    """The median cell temperature over the samples of the complete pulses (None: the
+    record has no temperature column)."""
+    series = inputs.pulses_series
+    if series is None or series.temperature_c is None:
+        return None
+    ps = [p for p in inputs.pulses if not p.cut_short] or list(inputs.pulses)
+    ix = np.concatenate([np.arange(p.start, p.stop) for p in ps])
+    return float(np.median(series.temperature_c[ix]))
+
+
+def fit_pulse_test(cfg: BuildConfig, k: int, plots: bool = False,
+                   progress: Progress = _quiet) -> TestFit:
+    """Read, extract and fit pulse test ``k`` of the config, every method of the config
+    (and draw its fit plots, as PNG bytes, with ``plots``)."""
+    import time
+
+    t0 = time.perf_counter()
+    test = cfg.pulse_tests[k]
+    try:
+        fit = _fit_pulse_test(cfg, test, progress, t0)
+    except InputError as exc:
+        if exc.path is None:    # say which test it was
+            raise InputError(test.file, exc.message) from None
+        raise
+    if plots:
+        from .plots import fit_pngs
+
+        t1 = time.perf_counter()
+        fit.pngs = fit_pngs(fit.raw, f"-{fit.label}")
+        fit.timings["plots"] = time.perf_counter() - t1
+    fit.seconds = time.perf_counter() - t0
+    return fit
+
+
+def _fit_pulse_test(cfg: BuildConfig, test: PulseTest, progress: Progress, t0: float
+                    ) -> TestFit:
+    import time
+
+    sub = pulse_test_config(cfg, test)
+    inputs = prepare(sub, progress)
+    if test.temperature_c is not None:
+        temp, source = float(test.temperature_c), "configured"
+    else:
+        measured = pulses_temperature_c(inputs)
+        if measured is None and len(cfg.pulse_tests) > 1:
+            raise InputError(test.file, "no cell temperature column to take the test's "
+                                        "temperature from: give temperature_c in its "
+                                        "[[data.pulse_tests]] table")
+        temp = np.nan if measured is None else measured
+        source = "median cell temperature in its pulses"
+    # the files by the names the notes use (tests of one cell share file names)
+    names = _test_file_names(cfg)
+    files = {"ocv": sub.ocv, "pulses": sub.pulses, "steps": test.steps}
+    records = tuple(replace(r, name=names.get(files[r.role], r.name))
+                    if files.get(r.role) is not None else r for r in inputs.records)
+    inputs = replace(inputs, records=records)
+    timings = {"read, pulses, DC-IR, OCV": time.perf_counter() - t0}
+    models, raw = {}, {}
+    for m in cfg.methods:   # one at a time, for the timings
+        t1 = time.perf_counter()
+        got, got_raw = fit_models(replace(sub, methods=(m,)), inputs, progress)
+        models.update(got)
+        for key, value in got_raw.items():
+            if isinstance(value, dict) and isinstance(raw.get(key), dict):
+                raw[key].update(value)
+            else:
+                raw[key] = value
+        timings[m] = time.perf_counter() - t1
+    return TestFit(test=test, label=temperature_label(temp), temperature_c=temp,
+                   temperature_from=source, inputs=replace(inputs, pulses_series=None),
+                   models=models, raw=raw, seconds=time.perf_counter() - t0, timings=timings)
+
+
+def _test_file_names(cfg: BuildConfig) -> dict[Path, str]:
+    """Short, distinct names for the files of the pulse tests (see short_names)."""
+    files = list(dict.fromkeys(p for t in cfg.pulse_tests for p in (t.file, t.steps, t.ocv)
+                               if p is not None))
+    return dict(zip(files, short_names(files)))
+
+
+def _workers_for(cfg: BuildConfig, workers: int) -> Workers:
+    """The processes of a build: ``workers`` for several pulse tests, else this one."""
+    return Workers(workers if len(cfg.pulse_tests) > 1 else 1)
+
+
+def fit_pulse_tests(cfg: BuildConfig, progress: Progress = _quiet,
+                    workers: Workers | int = 2, plots: bool = False) -> list[TestFit]:
+    """fit_pulse_test for every [[data.pulse_tests]] entry, in config order, on the
+    ``workers`` (or that many processes; see ecmgen.parallel): each test is fitted whole
+    by one process, so the results do not depend on scheduling."""
+    if not isinstance(workers, Workers):
+        with _workers_for(cfg, workers) as pool:
+            return fit_pulse_tests(cfg, progress, pool, plots)
+    n = len(cfg.pulse_tests)
+    if workers.parallel:
+        progress(f"fitting {n} pulse tests on {workers.processes} processes")
+    tasks = [workers.submit(fit_pulse_test, cfg, k, plots) for k in range(n)]
+    out = []
+    try:
+        for k, task in enumerate(tasks):
+            label = f"pulse test {k + 1}"
+            fit = task.result(lambda msg: progress(f"[{label}] {msg}"))
+            progress(f"[{label}] {cfg.pulse_tests[k].file.name}: {fit.label}, fitted in "
+                     f"{fit.seconds:.1f} s")
+            out.append(fit)
+    except BaseException:
+        workers.cancel(tasks)
+        raise
     return out
 
 
+def fit_all(cfg: BuildConfig, progress: Progress = _quiet, *, workers: Workers | int = 2,
+            plots: bool = False):
+    """Every method's model of the config: (models, raw fits, inputs, tests).
+
+    The data.pulses / data.dcir form: one model per method as prepare + fit_models give it
+    (``tests`` empty). [[data.pulse_tests]]: every test fitted (fit_pulse_tests, its fit
+    plots drawn there with ``plots``) and each method's models joined over temperature
+    (model.temperature); ``inputs`` and ``raw`` are then those of the warmest test,
+    ``tests`` has them all."""
+    if not cfg.over_temperature:
+        inputs = prepare(cfg, progress)
+        models, raw = fit_models(cfg, inputs, progress)
+        return models, raw, inputs, []
+    from .model.temperature import assemble_over_temperature
+
+    tests = fit_pulse_tests(cfg, progress, workers, plots)
+    temps = [t.temperature_c for t in tests]
+    names = _test_file_names(cfg)
+    labels = [names[t.test.file] for t in tests]
+    models = {}
+    for m in cfg.methods:
+        try:
+            models[m] = assemble_over_temperature(
+                [t.models[m] for t in tests], temps, step_c=cfg.temperature_step_c,
+                warm_c=cfg.warm_row_c, labels=labels)
+        except ValueError as exc:
+            raise InputError(cfg.path, str(exc)) from None
+    warm = tests[int(np.nanargmax(temps))] if np.isfinite(temps).any() else tests[0]
+    return models, warm.raw, warm.inputs, tests
+
+
+def short_names(paths) -> list[str]:
+    """Names for files of the config: the file name, or as many of its last path parts as
+    it takes to tell files of the same name apart (e.g. 0degC/us06.mat)."""
+    paths = [Path(p) for p in paths]
+    depth = 1
+    while True:
+        labels = ["/".join(p.parts[-depth:]) for p in paths]
+        if len(set(labels)) == len(labels) or depth > max(len(p.parts) for p in paths):
+            return labels
+        depth += 1
+
+
+def validate_cycle(cfg: BuildConfig, path: Path, role: str, label: str,
+                   models: dict[str, EcmModel], plot_best: str | None = None,
+                   progress: Progress = _quiet) -> tuple[dict[str, Validation], bytes | None]:
+    """Every model on one validation cycle (read once), and with ``plot_best`` (the
+    method of model.json) its validation plot as PNG bytes."""
+    progress(f"validating on {label}")
+    series = read_series(cfg, path, role)
+    if series.temperature_c is None and any(m.needs_temperature for m in models.values()):
+        raise InputError(path, "no cell temperature column: the model has tables over "
+                               "temperature and each validation cycle needs its cell "
+                               "temperature (a temperature_c column, or a mapped one "
+                               "in [data.columns])")
+    vals = {m: validate(model, series, cfg.soc0) for m, model in models.items()}
+    png = None
+    if plot_best is not None:
+        from .plots import validation_png
+
+        png = validation_png(vals, label, plot_best)
+    return vals, png
+
+
+def _cycles(cfg: BuildConfig) -> list[tuple[Path, str, str]]:
+    paths = ([cfg.cycle] if cfg.cycle else []) + list(cfg.extra_cycles)
+    roles = (["cycle"] if cfg.cycle else []) + ["extra_cycles"] * len(cfg.extra_cycles)
+    return list(zip(paths, roles, short_names(paths))) if paths else []
+
+
+def validate_all(cfg: BuildConfig, models: dict[str, EcmModel], progress: Progress = _quiet,
+                 *, workers: Workers | None = None, plot_best: str | None = None):
+    """Each model on the config's validation cycle(s); ``soc0`` applies to every cycle.
+    A model over temperature runs on each cycle's own cell temperature column.
+
+    Returns {method: {cycle name: Validation}}; with ``plot_best`` also the validation
+    plots, ({...}, {cycle name: PNG bytes}). The cycles run on ``workers`` if given."""
+    workers = workers or Workers(1)
+    cycles = _cycles(cfg)
+    tasks = [workers.submit(validate_cycle, cfg, path, role, label, models, plot_best)
+             for path, role, label in cycles]
+    out: dict[str, dict[str, Validation]] = {m: {} for m in models}
+    pngs: dict[str, bytes] = {}
+    try:
+        for (_, _, label), task in zip(cycles, tasks):
+            vals, png = task.result(progress)
+            for m, v in vals.items():
+                out[m][label] = v
+            if png is not None:
+                pngs[label] = png
+    except BaseException:
+        workers.cancel(tasks)
+        raise
+    return (out, pngs) if plot_best is not None else out
+
+
 def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
-          plots: bool = True, c_code: bool = True) -> BuildResult:
-    """Run the whole chain and write the outputs into ``out_dir``."""
+          plots: bool = True, c_code: bool = True, workers: int = 2) -> BuildResult:
+    """Run the whole chain and write the outputs into ``out_dir``. ``workers``: processes
+    for a build over temperature (the pulse tests, the validation cycles and their plots;
+    1: all here, one after the other); see ecmgen.parallel for scripts."""
+    import time
+
+    clock = {"t": time.perf_counter()}
+    timings: dict[str, float] = {}
+
+    def lap(stage: str) -> None:
+        now = time.perf_counter()
+        timings[stage] = timings.get(stage, 0.0) + now - clock["t"]
+        clock["t"] = now
+
     out_dir = Path(out_dir).resolve()
-    given = {p.resolve() for p in (cfg.path, cfg.pulses, cfg.dcir, cfg.ocv, cfg.cycle,
-                                   *cfg.extra_cycles) if p is not None}
-    inputs = prepare(cfg, progress)
-    models, raw = fit_models(cfg, inputs, progress)
-    result = BuildResult(models=models, best=cfg.best, inputs=inputs,
-                         curve_fit=raw.get("curve_fit"), point_fits=raw.get("point_fits", {}),
-                         point_table=raw.get("point_table"))
-    result.validations = validate_all(cfg, models, progress)
-
-    with _staged(out_dir, given) as (staging, files):
-        inputs.dcir.write_csv(staging / "dcir.csv")
-        for m, model in models.items():
-            model.save(staging / f"model-{m}.json")
-        models[cfg.best].save(staging / "model.json")
-        if c_code and cfg.c_numeric:
-            result.c_report = _write_c(cfg, result, staging, progress)
+    given = _given(cfg)
+    with _workers_for(cfg, workers) as pool:
+        models, raw, inputs, tests = fit_all(cfg, progress, workers=pool, plots=plots)
+        lap("fit")
+        result = BuildResult(models=models, best=cfg.best, inputs=inputs,
+                             curve_fit=raw.get("curve_fit"),
+                             point_fits=raw.get("point_fits", {}),
+                             point_table=raw.get("point_table"), tests=tests,
+                             timings=timings)
+        param_tasks = {}
         if plots:
-            from .plots import write_build_plots
+            from .plots import parameters_png
 
-            progress("writing plots")
-            write_build_plots(result, staging)
-        from .report import write_build_report
+            measured = sorted(t.temperature_c for t in tests) if tests else None
+            param_tasks = {m: pool.submit(parameters_png, model, measured)
+                           for m, model in models.items()}
+        validated = validate_all(cfg, models, progress, workers=pool,
+                                 plot_best=cfg.best if plots else None)
+        result.validations, cycle_pngs = validated if plots else (validated, {})
+        lap("validate" + (" + plots" if plots else ""))
 
-        write_build_report(cfg, result, staging)
+        with _staged(out_dir, given) as (staging, files):
+            if tests:
+                for t in tests:
+                    t.inputs.dcir.write_csv(staging / f"dcir-{t.label}.csv")
+            else:
+                inputs.dcir.write_csv(staging / "dcir.csv")
+            for m, model in models.items():
+                model.save(staging / f"model-{m}.json")
+            models[cfg.best].save(staging / "model.json")
+            lap("write")
+            if c_code and cfg.c_numeric:
+                result.c_report = _write_c(cfg, result, staging, progress)
+                lap("c")
+            if plots:
+                from .plots import fit_pngs
+
+                progress("writing plots")
+                pngs = dict(fit_pngs(raw)) if not tests else {}
+                for t in tests:
+                    pngs.update(t.pngs)
+                for m, task in param_tasks.items():
+                    pngs[f"parameters-{m}.png"] = task.result(progress)
+                for label, png in cycle_pngs.items():
+                    stem = label.replace("/", "-").rsplit(".", 1)[0]
+                    pngs[f"validation-{stem}.png"] = png
+                for name, png in pngs.items():
+                    (staging / name).write_bytes(png)
+                lap("plots")
+            from .report import write_build_report
+
+            write_build_report(cfg, result, staging)
+    lap("write")
     result.files = files
     result.out_dir = out_dir
     return result
@@ -371,11 +639,9 @@ def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _qu
         if not judge_path.is_file():
             raise InputError(cfg.path, f"diagnose.judge names a missing file: {judge_name}")
     out_dir = Path(out_dir).resolve()
-    given = {p.resolve() for p in (cfg.path, cfg.pulses, cfg.dcir, cfg.ocv, cfg.cycle,
-                                   judge_path, *cfg.extra_cycles) if p is not None}
-    inputs = prepare(cfg, progress)
+    given = _given(cfg) | ({judge_path.resolve()} if judge_path is not None else set())
     fit_cfg = cfg if cfg.methods == (cfg.best,) else _only_method(cfg, cfg.best)
-    models, _ = fit_models(fit_cfg, inputs, progress)
+    models, _, _, _ = fit_all(fit_cfg, progress)
     base = models[cfg.best]
     fit_series = read_series(cfg, cfg.cycle, "cycle")
     judge = read_series(cfg, judge_path, "judge") if judge_path is not None else None
@@ -388,6 +654,12 @@ def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _qu
 
 
 def _only_method(cfg: BuildConfig, method: str) -> BuildConfig:
-    from dataclasses import replace
-
     return replace(cfg, methods=(method,))
+
+
+def _given(cfg: BuildConfig) -> set[Path]:
+    """Every file the config names (outputs must never replace one)."""
+    files = [cfg.path, cfg.pulses, cfg.dcir, cfg.ocv, cfg.cycle, *cfg.extra_cycles]
+    for t in cfg.pulse_tests:
+        files += [t.file, t.steps, t.ocv]
+    return {p.resolve() for p in files if p is not None}

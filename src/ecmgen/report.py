@@ -1,29 +1,67 @@
-"""Text outputs of a build: the validation table (terminal and report.md) and --json."""
+"""Text outputs of a build: the validation table (terminal and report.md) and --json.
+
+A build over temperature reports per cycle and method, each cycle with the range of its
+cell temperature, and lists its pulse tests (temperature breakpoints)."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from .files import write_atomic
 
 
-def validation_rows(result) -> list[tuple[str, str, float, float, float, float]]:
-    """(method, cycle, mae_mv, rmse_mv, max_mv, mae_soc_gt_10_mv) for every pair."""
+def _t_range(v) -> tuple[float, float] | None:
+    r = v.temperature_range_c
+    return None if r is None else (float(r[0]), float(r[1]))
+
+
+def _temps(values) -> list[float | None]:
+    return [float(x) if math.isfinite(x) else None for x in values]
+
+
+def validation_rows(result) -> list[tuple]:
+    """(method, cycle, mae_mv, rmse_mv, max_mv, mae_soc_gt_10_mv, (t_min, t_max) | None)
+    for every pair, cycle by cycle (the order of the config), methods in config order."""
     rows = []
-    for method, vals in result.validations.items():
-        for cycle, v in vals.items():
+    cycles = list(dict.fromkeys(c for vals in result.validations.values() for c in vals))
+    for cycle in cycles:
+        for method, vals in result.validations.items():
+            if cycle not in vals:
+                continue
+            v = vals[cycle]
             rows.append((method, cycle, v.overall.mae_v * 1e3, v.overall.rmse_v * 1e3,
-                         v.overall.max_abs_v * 1e3, v.soc_above_10.mae_v * 1e3))
+                         v.overall.max_abs_v * 1e3, v.soc_above_10.mae_v * 1e3, _t_range(v)))
     return rows
 
 
 def validation_table(result) -> str:
-    head = f"{'method':<7} {'cycle':<16} {'MAE mV':>8} {'RMSE mV':>8} {'max mV':>8} {'MAE SOC>10% mV':>15}"
+    rows = validation_rows(result)
+    width = max([16] + [len(r[1]) for r in rows])
+    with_t = any(r[6] is not None for r in rows)
+    head = (f"{'method':<7} {'cycle':<{width}} {'MAE mV':>8} {'RMSE mV':>8} {'max mV':>8} "
+            f"{'MAE SOC>10% mV':>15}" + (f" {'cell degC':>13}" if with_t else ""))
     lines = [head, "-" * len(head)]
-    for m, c, mae, rmse, mx, mae10 in validation_rows(result):
+    for m, c, mae, rmse, mx, mae10, tr in rows:
         star = " *" if m == result.best else ""
-        lines.append(f"{m:<7} {c:<16} {mae:8.2f} {rmse:8.2f} {mx:8.1f} {mae10:15.2f}{star}")
+        t = ""
+        if with_t:
+            t = " " + (f"{f'{tr[0]:.1f}..{tr[1]:.1f}':>13}" if tr else f"{'-':>13}")
+        lines.append(f"{m:<7} {c:<{width}} {mae:8.2f} {rmse:8.2f} {mx:8.1f} {mae10:15.2f}"
+                     f"{t}{star}")
     lines.append(f"(* = model.json, method '{result.best}')")
+    return "\n".join(lines)
+
+
+def pulse_test_table(result) -> str:
+    """The pulse tests of a build over temperature: one line per temperature breakpoint."""
+    head = f"{'temperature':>12}  {'from':<8} {'pulses':>6} {'DC-IR rows':>10} {'fit s':>6}  file"
+    lines = [head, "-" * len(head)]
+    for t in sorted(result.tests, key=lambda t: t.temperature_c):
+        src = "config" if t.temperature_from == "configured" else "pulses"
+        lines.append(f"{t.temperature_c:9.1f} degC  {src:<8} {len(t.inputs.pulses):6d} "
+                     f"{len(t.inputs.dcir):10d} {t.seconds:6.1f}  {t.test.file.name} "
+                     f"({t.test.file.parent.name})")
     return "\n".join(lines)
 
 
@@ -37,8 +75,12 @@ def build_json(result) -> dict:
         entry = first.overall.as_dict()
         entry["soc_above_10"] = first.soc_above_10.as_dict()
         entry["soc0"] = first.soc0
-        entry["cycles"] = {name: dict(v.overall.as_dict(), soc0=v.soc0)
-                           for name, v in vals.items()}
+        entry["cycles"] = {}
+        for name, v in vals.items():
+            tr = _t_range(v)
+            entry["cycles"][name] = dict(
+                v.overall.as_dict(), soc0=v.soc0,
+                temperature_c=None if tr is None else {"min": tr[0], "max": tr[1]})
         validation[method] = entry
     doc = {
         "model": str(out_dir / "model.json") if out_dir else None,
@@ -47,6 +89,15 @@ def build_json(result) -> dict:
         "validation": validation,
         "notes": list(result.models[result.best].notes),
     }
+    if result.tests:
+        best = result.models[result.best]
+        doc["temperature"] = {
+            "pulse_tests": [{"file": str(t.test.file), "temperature_c": t.temperature_c,
+                             "temperature_from": t.temperature_from, "fit_s": t.seconds}
+                            for t in result.tests],
+            "table_temperatures_c": _temps(best.discharge.temperature_c),
+            "ocv_temperatures_c": _temps(best.ocv.temperature_c),   # null: any temperature
+        }
     if result.c_report is not None:
         doc["c"] = result.c_report
     return doc
@@ -58,9 +109,18 @@ def write_build_report(cfg, result, out_dir: Path) -> Path:
         "# ecmgen build report", "",
         f"config: `{cfg.path.name}`  capacity: {cfg.capacity_ah:g} Ah  methods: "
         f"{', '.join(cfg.methods)}  seed: {cfg.seed}", "",
-        "## Validation (simulated - measured voltage)", "", "```", validation_table(result),
-        "```", "", "## Notes", "",
     ]
+    if result.tests:
+        grid = best.discharge.temperature_c
+        lines += ["## Pulse tests (temperature breakpoints)", "", "```", pulse_test_table(result),
+                  "```", "", f"Tables over {grid.size} temperature rows "
+                  f"({grid[0]:g}..{grid[-1]:g} degC), OCV over "
+                  f"{best.ocv.n_temperatures} rows; see the notes.", ""]
+    lines += ["## Validation (simulated - measured voltage)", ""]
+    if result.tests:
+        lines += ["Each cycle is simulated on its own measured cell temperature; "
+                  "`cell degC` is its range.", ""]
+    lines += ["```", validation_table(result), "```", "", "## Notes", ""]
     lines += [f"- {n}" for n in best.notes] or ["- none"]
     lines += ["", "## Inputs", ""]
     lines += [f"- {r.role}: `{r.name}` sha256 {r.sha256[:16]}…" for r in best.inputs]

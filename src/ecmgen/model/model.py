@@ -68,10 +68,26 @@ def interp_2d(temperature_grid: np.ndarray, soc_grid: np.ndarray, values: np.nda
         return np.interp(soc, soc_grid, values[0])
     k, w = _grid_weights(temperature_grid, temperature_c)
     k, w = np.broadcast_to(k, soc.shape), np.broadcast_to(w, soc.shape)
-    rows = np.stack([np.interp(soc, soc_grid, row) for row in values])   # (n_t, ...)
-    lo = np.take_along_axis(rows, k[None, ...], axis=0)[0]
-    hi = np.take_along_axis(rows, (k + 1)[None, ...], axis=0)[0]
+    lo, hi = _rows_at(values, k, lambda row: np.interp(soc, soc_grid, row))
     return lo + (hi - lo) * w
+
+
+def _rows_at(values: np.ndarray, k: np.ndarray, along_soc) -> tuple[np.ndarray, np.ndarray]:
+    """``along_soc(row)`` of rows k and k + 1 at every sample, evaluating only the rows
+    that some sample uses (a cycle touches a few rows of a fine temperature grid)."""
+    lo = np.empty(k.shape)
+    hi = np.empty(k.shape)
+    if k.size == 0:
+        return lo, hi
+    first, last = int(k.min()), int(k.max())
+    for r in range(first, last + 2):
+        at_lo, at_hi = k == r, k == r - 1
+        if not (at_lo.any() or at_hi.any()):
+            continue
+        v = np.broadcast_to(along_soc(values[r]), k.shape)
+        lo[at_lo] = v[at_lo]
+        hi[at_hi] = v[at_hi]
+    return lo, hi
 
 
 def interp_2d_soc_slope(temperature_grid: np.ndarray, soc_grid: np.ndarray,
@@ -90,9 +106,7 @@ def interp_2d_soc_slope(temperature_grid: np.ndarray, soc_grid: np.ndarray,
         return row_slope(values[0])
     k, w = _grid_weights(temperature_grid, temperature_c)
     k, w = np.broadcast_to(k, soc.shape), np.broadcast_to(w, soc.shape)
-    rows = np.stack([row_slope(row) for row in values])
-    lo = np.take_along_axis(rows, k[None, ...], axis=0)[0]
-    hi = np.take_along_axis(rows, (k + 1)[None, ...], axis=0)[0]
+    lo, hi = _rows_at(values, k, row_slope)
     return lo + (hi - lo) * w
 
 

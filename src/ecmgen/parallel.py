@@ -1,0 +1,144 @@
+"""Independent tasks of a build on a few processes, with the build's own rules kept.
+
+:class:`Workers` runs module-level functions either here, one after the other
+(``processes <= 1``), or on a pool of freshly started ("spawn") processes. Either way:
+
+- results come back in the order the tasks were given, and each task runs whole in one
+  process, so the results do not depend on scheduling;
+- a task's progress messages (the ``progress`` callable it is given) and its Python
+  warnings are collected and handed back to this process when its result is taken:
+  messages through the caller's ``progress``, warnings re-issued here, so that the
+  warning filters of the caller (the command line's, pytest's ``-W error``) apply;
+- an :class:`~ecmgen.errors.InputError` raised by a task is raised again here, as itself;
+- a spawned worker uses one BLAS thread (OPENBLAS/OMP/MKL_NUM_THREADS, unless set):
+  the processes already use the cores.
+
+The pool starts on the first task given to it (a build with one pulse test never starts
+it). Scripts that call it must guard their top level with ``if __name__ == "__main__":``
+(Python's rule for started processes); notebooks and the command line need nothing.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from contextlib import contextmanager
+from typing import Any, Callable
+
+from .errors import InputError
+
+_WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+def _quiet(_msg: str) -> None:
+    pass
+
+
+def run_collected(fn: Callable, args: tuple) -> tuple:
+    """Run ``fn(*args, progress=<collector>)``; returns (status, value, messages, warnings)
+    with status "ok" (value = the result) or "input" (value = (path, message))."""
+    messages: list[str] = []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            value = fn(*args, progress=messages.append)
+            status = "ok"
+        except InputError as exc:
+            status, value = "input", (exc.path, exc.message)
+    found = [(str(w.message), w.category, w.filename, w.lineno) for w in caught]
+    return status, value, messages, found
+
+
+class Task:
+    """One submitted task; :meth:`result` gives its value (in this process)."""
+
+    def __init__(self, future=None, done: tuple | None = None):
+        self._future, self._done = future, done
+
+    def result(self, progress: Callable[[str], None] = _quiet) -> Any:
+        status, value, messages, found = (self._done if self._done is not None
+                                          else self._future.result())
+        for msg in messages:
+            progress(msg)
+        for message, category, filename, lineno in found:
+            warnings.warn_explicit(message, category, filename, lineno)
+        if status == "input":
+            raise InputError(*value)
+        return value
+
+
+class Workers:
+    """Run tasks here (``processes <= 1``) or on up to ``processes`` spawned processes.
+    Use as a context manager; the pool (if any) is shut down on exit."""
+
+    def __init__(self, processes: int = 2):
+        self.processes = max(1, int(processes))
+        self._pool = None
+
+    @property
+    def parallel(self) -> bool:
+        return self.processes > 1
+
+    def submit(self, fn: Callable, *args) -> Task:
+        """``fn(*args, progress=...)`` (a module-level function: it is pickled by name)."""
+        if not self.parallel:
+            return Task(done=run_collected(fn, args))
+        if self._pool is None:
+            self._start()
+        return Task(future=self._pool.submit(run_collected, fn, args))
+
+    def map(self, fn: Callable, arg_tuples, progress: Callable[[str], None] = _quiet
+            ) -> list:
+        """``fn`` over every argument tuple; the results in order."""
+        tasks = [self.submit(fn, *a) for a in arg_tuples]
+        try:
+            return [t.result(progress) for t in tasks]
+        except BaseException:
+            self.cancel(tasks)
+            raise
+
+    @staticmethod
+    def cancel(tasks) -> None:
+        for t in tasks:
+            if t._future is not None:
+                t._future.cancel()
+
+    def _start(self) -> None:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        # workers are spawned as tasks arrive and read the environment when they start:
+        # it holds until the pool is closed
+        self._env = _worker_environment()
+        self._env.__enter__()
+        self._pool = ProcessPoolExecutor(max_workers=self.processes,
+                                         mp_context=multiprocessing.get_context("spawn"))
+
+    def close(self) -> None:
+        if self._pool is not None:
+            try:
+                self._pool.shutdown(wait=True, cancel_futures=True)
+            finally:
+                self._pool = None
+                self._env.__exit__(None, None, None)
+
+    def __enter__(self) -> "Workers":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+@contextmanager
+def _worker_environment():
+    old = {k: os.environ.get(k) for k in _WORKER_ENV}
+    for k, v in _WORKER_ENV.items():
+        os.environ.setdefault(k, v)
+    try:
+        yield
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
