@@ -36,7 +36,7 @@ class Pulse:
     c_rate: float            # |current| / capacity, rounded to 0.01
     soc: float               # SOC at the rest sample before the edge
     duration_s: float
-    cut_short: bool          # shorter than the sibling pulses / the requested times
+    cut_short: bool          # stopped by a voltage limit (see flag_cut_short)
 
 
 @dataclass(frozen=True)
@@ -181,14 +181,36 @@ def find_pulses(series: TimeSeries, capacity_ah: float, *, soc0: float,
                                         f"by coulomb counting from soc0 = {soc0:g} with "
                                         f"{capacity_ah:g} Ah: check the start SOC "
                                         "(data.pulses_soc0) and cell.capacity_ah")
-    # a pulse is cut short when it ends well before its siblings of the same C-rate
-    # and direction (a voltage limit stopped it)
-    flagged = []
-    for p in pulses:
-        sib = [q.duration_s for q in pulses if q.c_rate == p.c_rate and q.direction == p.direction]
-        typical = float(np.median(sib))
-        flagged.append(replace(p, cut_short=bool(p.duration_s < 0.95 * typical)))
-    return flagged
+    return flag_cut_short(series, pulses)
+
+
+def flag_cut_short(series: TimeSeries, pulses: list[Pulse], *, rel_duration: float = 0.95,
+                   limit_margin_v: float = 0.02) -> list[Pulse]:
+    """Mark the pulses a voltage limit stopped (``cut_short``).
+
+    A pulse is cut short when it lasts less than ``rel_duration`` x the median duration
+    over ALL pulses of the file (the nominal pulse length; a median over the pulses of one
+    C-rate fails when most of them are cut, as the 6C pulses of a cold test), or when the
+    file shows a voltage limit and the pulse came within ``limit_margin_v`` of it. The
+    file shows a limit when a pulse cut by the duration rule ended within the margin of the
+    file's lowest (discharge) or highest (charge) voltage; a test that never hit a limit
+    has none, and its deepest pulse is not flagged for being the deepest."""
+    if not pulses:
+        return []
+    v = series.voltage_v
+    nominal = float(np.median([p.duration_s for p in pulses]))
+    short = [p.duration_s < rel_duration * nominal for p in pulses]
+    v_lo, v_hi = float(np.min(v)), float(np.max(v))
+    lo = [float(np.min(v[p.start:p.stop])) <= v_lo + limit_margin_v for p in pulses]
+    hi = [float(np.max(v[p.start:p.stop])) >= v_hi - limit_margin_v for p in pulses]
+    limit_lo = any(s and a and p.direction == "discharge" for s, a, p in zip(short, lo, pulses))
+    limit_hi = any(s and b and p.direction == "charge" for s, b, p in zip(short, hi, pulses))
+    out = []
+    for p, s, a, b in zip(pulses, short, lo, hi):
+        at_limit = (a and limit_lo and p.direction == "discharge") or \
+            (b and limit_hi and p.direction == "charge")
+        out.append(replace(p, cut_short=bool(s or at_limit)))
+    return out
 
 
 def extract_dcir(series: TimeSeries, pulses: list[Pulse],
