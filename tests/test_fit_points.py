@@ -343,3 +343,72 @@ def test_casadi_jacobian_matches_finite_differences():
     model = curve_r_ohm(fit, PAPER_T)
     np.testing.assert_allclose(r[:, 1:] * data.scale[:, None], (model - data.r)[:, 1:], atol=1e-15)
     np.testing.assert_allclose(c * data.scale, fit.r0_ohm, atol=1e-15)
+
+
+# --------------------------------------------------------------------------------------
+# which rows the five-point fits take (five_point_rows)
+# --------------------------------------------------------------------------------------
+def _table(rows):
+    """A DcirTable from (soc, c_rate, R(t) row) triples, discharge."""
+    from ecmgen.data.dcir import DcirTable
+
+    return DcirTable(np.array([r[0] for r in rows]), np.array(["discharge"] * len(rows)),
+                     np.array([r[1] for r in rows]), PAPER_T, np.array([r[2] for r in rows]))
+
+
+def test_five_point_rows_take_the_highest_complete_c_rate_per_level():
+    full = TABLE1_R[0]
+    cut = np.array([full[0], full[1], np.nan, np.nan, np.nan])   # reached 1 s only
+    table = _table([(0.90, 1.0, full), (0.90, 6.0, 1.1 * full),
+                    (0.50, 1.0, full), (0.49, 6.0, cut), (0.49, 4.0, 1.2 * full),
+                    (0.10, 1.0, cut), (0.10, 2.0, cut)])
+    with np_warnings_as_errors():
+        rows, notes = fp.five_point_rows(table, "max")
+    assert rows.soc.tolist() == pytest.approx([0.9, 0.49])
+    assert rows.c_rate.tolist() == [6.0, 4.0]
+    assert np.all(np.isfinite(rows.r_ohm))
+    assert np.allclose(rows.r_ohm[1], 1.2 * full)
+    assert any("6C at SOC 0.90, 4C at SOC 0.49" in n for n in notes)
+    assert any("no complete pulse at SOC 0.100" in n and "interpolated" in n for n in notes)
+    near, _ = fp.five_point_rows(table, 2.0)
+    assert near.c_rate.tolist() == [1.0, 1.0]
+    every, _ = fp.five_point_rows(table, "all")
+    assert len(every) == 3 and np.isfinite(every.r_ohm[2, :2]).all()
+
+
+def np_warnings_as_errors():
+    import warnings
+
+    ctx = warnings.catch_warnings()
+    ctx.__enter__()
+    warnings.simplefilter("error")
+
+    class _Exit:
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            ctx.__exit__(*exc)
+            return False
+    return _Exit()
+
+
+@pytest.mark.parametrize("temp,levels,rates", [("n10degC", 11, {4.0, 2.0, 1.0, 0.5}),
+                                               ("n20degC", 10, {2.0, 1.0, 0.5})])
+def test_cold_pulse_tests_give_a_row_at_every_level(temp, levels, rates):
+    """At -10/-20 degC the voltage limit cuts most 4C/6C pulses: the file's top rate has
+    no complete row (once 'no table cell could be fitted' after numpy's 'Mean of empty
+    slice'); the highest complete rate per level has one at every level."""
+    from conftest import SHARED_DATA, need
+    from ecmgen.data.dcir import extract_dcir, find_pulses
+    from ecmgen.data.measure import read_timeseries
+
+    path = need(SHARED_DATA / f"panasonic-18650pf-{temp}" / "hppc.mat")
+    series = read_timeseries(path, capacity_ah=2.9)
+    with np_warnings_as_errors():
+        table = extract_dcir(series, find_pulses(series, 2.9, soc0=1.0))
+        rows, notes = fp.five_point_rows(table, "max")
+        fit = fit_ga(rows.t_s, rows.r_ohm, seed=0)
+    assert len(rows) == levels and set(rows.c_rate) == rates
+    assert np.all(np.isfinite(rows.r_ohm)) and np.all(np.isfinite(fit.r0_ohm))
+    assert not any("no complete pulse" in n for n in notes)

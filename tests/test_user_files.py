@@ -378,17 +378,21 @@ def test_point_rows_with_an_unreached_time_does_not_warn():
     """Before: 'RuntimeWarning: Mean of empty slice' for every DC-IR time that no pulse of
     a SOC level reached (a slow logger, short pulses: the A123 builds)."""
     from ecmgen.data.dcir import DcirTable
-    from ecmgen.pipeline import point_rows
+    from ecmgen.fit.points import five_point_rows
 
     r = np.array([[0.020, np.nan, 0.024], [0.021, np.nan, np.nan], [0.030, 0.031, 0.032]])
     table = DcirTable(np.array([0.5, 0.5, 0.2]), np.array(["discharge"] * 3),
                       np.array([1.0, 1.0, 1.0]), np.array([1.0, 3.0, 10.0]), r)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        rows, _ = point_rows(table, "max")
+        rows, _ = five_point_rows(table, "all")
+        best, notes = five_point_rows(table, "max")
     np.testing.assert_allclose(rows.soc, [0.5, 0.2])      # levels from the top
     np.testing.assert_allclose(rows.r_ohm[0], [0.0205, np.nan, 0.024])
     np.testing.assert_allclose(rows.r_ohm[1], [0.030, 0.031, 0.032])
+    # "max" takes complete rows only: the 0.5 level has none and is named
+    np.testing.assert_allclose(best.soc, [0.2])
+    assert any("no complete pulse at SOC 0.500" in n for n in notes)
 
 
 def test_cli_keeps_remaining_warnings_off_stderr(monkeypatch, capsys, tmp_path):

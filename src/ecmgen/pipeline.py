@@ -34,9 +34,6 @@ from .parallel import Workers
 
 Progress = Callable[[str], None]
 
-SOC_LEVEL_GAP = 0.025   # pulses closer than this in SOC belong to one pulse set
-
-
 def _quiet(_msg: str) -> None:
     pass
 
@@ -134,57 +131,6 @@ def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
     return Inputs(q, ocv, table, series, pulses, tuple(records), tuple(notes))
 
 
-def point_rows(table: dcir_mod.DcirTable, c_rate) -> tuple[dcir_mod.DcirTable, list[str]]:
-    """The rows the five-point fits use: one per SOC level and direction.
-
-    ``c_rate="max"``: the highest C-rate of each direction (the paper's choice);
-    a number: the nearest C-rate; ``"all"``: R(t) averaged over the C-rates of a level."""
-    notes: list[str] = []
-    keep = np.zeros(len(table), bool)
-    for d in ("charge", "discharge"):
-        in_d = table.direction == d
-        if not in_d.any():
-            continue
-        rates = np.unique(table.c_rate[in_d])
-        if c_rate == "all":
-            keep |= in_d
-            continue
-        pick = rates.max() if c_rate == "max" else rates[np.argmin(np.abs(rates - c_rate))]
-        keep |= in_d & (table.c_rate == pick)
-        notes.append(f"five-point fits use the {pick:g}C {d} pulses")
-    sel = table.select(keep)
-    # merge rows of one SOC level (one pulse set) and direction
-    soc, direction, rate, r = [], [], [], []
-    for d in ("charge", "discharge"):
-        ix = np.flatnonzero(sel.direction == d)
-        ix = ix[np.argsort(-sel.soc[ix])]
-        groups: list[list[int]] = []
-        for k in ix:
-            if groups and abs(sel.soc[groups[-1][0]] - sel.soc[k]) <= SOC_LEVEL_GAP:
-                groups[-1].append(k)
-            else:
-                groups.append([k])
-        for g in groups:
-            soc.append(float(np.mean(sel.soc[g])))
-            direction.append(d)
-            rate.append(float(np.mean(sel.c_rate[g])))
-            r.append(_mean_of_finite(sel.r_ohm[g]))
-    if c_rate == "all":
-        notes.append("five-point fits use R(t) averaged over all C-rates of each SOC level")
-    out = dcir_mod.DcirTable(np.array(soc), np.array(direction), np.array(rate), table.t_s,
-                             np.array(r), table.notes)
-    return out, notes
-
-
-def _mean_of_finite(rows: np.ndarray) -> np.ndarray:
-    """Column means over the finite values; NaN where a column has none (a DC-IR time no
-    pulse of the group reached), without numpy's "Mean of empty slice" warning."""
-    ok = np.isfinite(rows)
-    n = ok.sum(axis=0)
-    total = np.where(ok, rows, 0.0).sum(axis=0)
-    return np.where(n > 0, total / np.maximum(n, 1), np.nan)
-
-
 def _rc_tables(soc, direction, cols: dict[str, np.ndarray], fit_error, converged,
                source: Path | None = None) -> tuple[RcTable, RcTable, list[str]]:
     """Per-direction RcTables; a direction without data takes the other's, with a note."""
@@ -218,6 +164,7 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
     """Fit every method of the config; returns the models and the raw fits (for plots)."""
     from .fit.ga import fit_ga
     from .fit.lm import fit_lm
+    from .fit.points import five_point_rows
 
     models: dict[str, EcmModel] = {}
     raw: dict = {}
@@ -225,7 +172,7 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
                   inputs=inputs.records, direction_deadband_a=0.01 * inputs.capacity_ah)
     point_methods = [m for m in cfg.methods if m in ("ga", "lm")]
     if point_methods:
-        rows, n = point_rows(inputs.dcir, cfg.c_rate)
+        rows, n = five_point_rows(inputs.dcir, cfg.c_rate)
         raw["point_table"] = rows
         fits = {}
         if "ga" in point_methods:

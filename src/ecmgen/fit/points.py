@@ -250,3 +250,100 @@ def _bounds_for(data: _Data, bounds: Bounds | None) -> Bounds:
     if not isinstance(bounds, Bounds):
         raise TypeError(f"bounds must be a Bounds, got {type(bounds).__name__}")
     return bounds
+
+
+# --------------------------------------------------------------------------------------
+# which DC-IR rows the five-point fits take
+# --------------------------------------------------------------------------------------
+SOC_LEVEL_GAP = 0.025     # pulses closer than this in SOC belong to one pulse set (level)
+
+
+def soc_levels(soc, direction, gap: float = SOC_LEVEL_GAP) -> list[np.ndarray]:
+    """Row indices grouped into SOC levels (pulse sets), per direction (charge first), each
+    direction by falling SOC: a level takes the rows within ``gap`` of its first row."""
+    soc = np.asarray(soc, dtype=np.float64)
+    direction = np.asarray(direction)
+    groups: list[list[int]] = []
+    for d in ("charge", "discharge"):
+        ix = np.flatnonzero(direction == d)
+        ix = ix[np.argsort(-soc[ix], kind="stable")]
+        start = len(groups)
+        for k in ix:
+            if len(groups) > start and abs(soc[groups[-1][0]] - soc[k]) <= gap:
+                groups[-1].append(int(k))
+            else:
+                groups.append([int(k)])
+    return [np.array(g) for g in groups]
+
+
+def _mean_of_finite(rows: np.ndarray) -> np.ndarray:
+    """Column means over the finite values; NaN where a column has none (no warning)."""
+    ok = np.isfinite(rows)
+    n = ok.sum(axis=0)
+    total = np.where(ok, rows, 0.0).sum(axis=0)
+    return np.where(n > 0, total / np.maximum(n, 1), np.nan)
+
+
+def _ranges(items: list[tuple[float, float]]) -> str:
+    """'6C at SOC 1.00-0.20, 4C at 0.15' from (soc, rate) pairs in level order."""
+    parts: list[list] = []
+    for soc, rate in items:
+        if parts and parts[-1][0] == rate:
+            parts[-1][2] = soc
+        else:
+            parts.append([rate, soc, soc])
+    return ", ".join(f"{r:g}C at SOC {a:.2f}" + (f"-{b:.2f}" if b != a else "")
+                     for r, a, b in parts)
+
+
+def five_point_rows(table, c_rate="max") -> tuple:
+    """The DC-IR rows the five-point fits (GA, LM) use: one per SOC level and direction.
+
+    A row is complete when it has R(t) at every time of the table (a pulse cut short by a
+    voltage limit is not in the table at all, :func:`ecmgen.data.dcir.extract_dcir`).
+    ``c_rate="max"``: at each level the highest C-rate whose pulses are complete (the
+    paper's "highest C-rate" where the test has it); a number: the complete C-rate nearest
+    to it; ``"all"``: R(t) averaged over every C-rate of the level. A level without a
+    complete pulse is left out (the tables interpolate over it) and named in the notes.
+    Returns (table of the chosen rows, notes)."""
+    from ..data.dcir import DcirTable
+
+    notes: list[str] = []
+    soc, direction, rate, r = [], [], [], []
+    complete = np.all(np.isfinite(table.r_ohm), axis=1)
+    for d in ("charge", "discharge"):
+        picked, missing = [], []
+        for g in soc_levels(table.soc, table.direction):
+            if table.direction[g[0]] != d:
+                continue
+            level = float(np.mean(table.soc[g]))
+            if c_rate == "all":
+                use = g
+            else:
+                ok = g[complete[g]]
+                if ok.size == 0:
+                    missing.append(level)
+                    continue
+                rates = table.c_rate[ok]
+                pick = rates.max() if c_rate == "max" else \
+                    rates[np.argmin(np.abs(rates - float(c_rate)))]
+                use = ok[rates == pick]
+                picked.append((level, float(pick)))
+            soc.append(float(np.mean(table.soc[use])))
+            direction.append(d)
+            rate.append(float(np.mean(table.c_rate[use])))
+            r.append(_mean_of_finite(table.r_ohm[use]))
+        if picked:
+            what = "the highest C-rate with complete pulses" if c_rate == "max" else \
+                f"the complete C-rate nearest {float(c_rate):g}C"
+            notes.append(f"five-point fits, {d}: {what} at each SOC level: {_ranges(picked)}")
+        if missing:
+            notes.append(f"five-point fits, {d}: no complete pulse at SOC "
+                         f"{', '.join(f'{s:.3f}' for s in missing)}: those levels are left "
+                         "out and interpolated from their neighbours")
+    if c_rate == "all":
+        notes.append("five-point fits use R(t) averaged over all C-rates of each SOC level")
+    n_t = table.t_s.size
+    out = DcirTable(np.array(soc), np.array(direction, dtype=str), np.array(rate),
+                    table.t_s, np.array(r).reshape(len(r), n_t), table.notes)
+    return out, notes
