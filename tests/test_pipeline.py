@@ -80,7 +80,8 @@ def test_bundled_example_meets_the_accuracy_target(tmp_path):
     assert res.returncode == 0, res.stderr
     doc = json.loads(res.stdout)
     val = doc["validation"]
-    # whole-curve fit: <= 22 mV MAE on both drive cycles (measured 20.4 and 15.2 mV)
+    # whole-test fit: <= 22 mV MAE on both drive cycles (measured 19.8 and 16.4 mV; the
+    # per-level window fit before it: 20.4 and 15.2 mV)
     for cycle in ("us06.mat", "hwfet-a.mat"):
         assert val["curve"]["cycles"][cycle]["mae_v"] <= 0.022
     # the paper's five-point methods land at about 30 mV on these NCA cycles

@@ -41,20 +41,19 @@ def plot_dcir_fits(table, fits: dict, path: Path) -> Path:
 
 
 def plot_curve_fits(curve_fit, path: Path) -> Path:
-    """Whole-curve fit: measured vs fitted voltage change over each pulse + relaxation."""
+    """Whole-test fit: measured vs fitted voltage over each SOC level's pulses and rests."""
     plt = _plt()
-    fig, axes, _ = _panels(plt, len(curve_fit.soc))
-    for k, ax in enumerate(axes):
-        for t, meas, fit in curve_fit.windows[k]:
-            ax.plot(t, meas * 1e3, "k", lw=0.6)
-            ax.plot(t, fit * 1e3, "r", lw=0.8)
+    fig, axes, _ = _panels(plt, len(curve_fit.windows))
+    for ax, (soc, direction, rms, parts) in zip(axes, curve_fit.windows):
+        for t, meas, fit in parts:
+            ax.plot(t, meas, "k", lw=0.6)
+            ax.plot(t, fit, "r", lw=0.8)
         ax.set_xscale("symlog", linthresh=10)
-        ax.set_title(f"{curve_fit.direction[k]} SOC {curve_fit.soc[k] * 100:.0f} % "
-                     f"rms {curve_fit.rms_error_v[k] * 1e3:.1f} mV", fontsize=8)
+        ax.set_title(f"{direction} SOC {soc * 100:.0f} % rms {rms * 1e3:.1f} mV", fontsize=8)
         ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
-    axes[0].set_ylabel("ΔV [mV]")
-    fig.suptitle("Whole-curve fit: measured (black) vs fitted (red) pulse + relaxation")
+    axes[0].set_ylabel("V")
+    fig.suptitle("Whole-test fit: measured (black) vs fitted (red), each SOC level")
     _panel_layout(fig)
     fig.savefig(path, dpi=90)
     plt.close(fig)

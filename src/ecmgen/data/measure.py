@@ -659,6 +659,22 @@ def _check_charge_sign(path, values, names) -> None:
                                f"{agree:.0%} of samples): opposite sign conventions?")
 
 
+# --------------------------------------------------------------------------- direction
+
+def charging_direction(current_a: np.ndarray, deadband_a: float) -> np.ndarray:
+    """Per sample, True where a model runs on its charge table: charge when the current
+    exceeds +deadband, discharge below -deadband, the last decided direction in between
+    (discharge before any). The simulator's rule (:mod:`ecmgen.model.simulate`, step 1),
+    shared with the fit that must reproduce it."""
+    current_a = np.asarray(current_a, dtype=np.float64)
+    sign = np.where(current_a > deadband_a, 1.0, np.where(current_a < -deadband_a, -1.0, np.nan))
+    if sign.size and np.isnan(sign[0]):
+        sign[0] = -1.0
+    idx = np.where(np.isnan(sign), 0, np.arange(sign.size))
+    np.maximum.accumulate(idx, out=idx)
+    return sign[idx] > 0
+
+
 # --------------------------------------------------------------------------- writing
 
 def write_timeseries_csv(series: TimeSeries, path: str | Path) -> Path:

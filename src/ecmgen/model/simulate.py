@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..data.measure import TimeSeries
+from ..data.measure import TimeSeries, charging_direction
 from ..errors import InputError
 from .model import EcmModel
 from .rc import rc_recurrence
@@ -59,14 +59,7 @@ def step_inputs(model: EcmModel, time_s: np.ndarray, current_a: np.ndarray, soc0
     """Quantities of steps 1-3 for every sample: dt, soc, direction and parameters."""
     dt = np.diff(time_s, prepend=time_s[0])
     soc = soc0 + np.cumsum(current_a * dt) / (3600.0 * model.capacity_ah)
-    db = model.direction_deadband_a
-    sign = np.where(current_a > db, 1.0, np.where(current_a < -db, -1.0, np.nan))
-    if np.isnan(sign[0]):
-        sign[0] = -1.0
-    # forward-fill the last decided direction
-    idx = np.where(np.isnan(sign), 0, np.arange(sign.size))
-    np.maximum.accumulate(idx, out=idx)
-    charging = sign[idx] > 0
+    charging = charging_direction(current_a, model.direction_deadband_a)
     pc = model.charge.at(soc, temperature_c)
     pd = model.discharge.at(soc, temperature_c)
     params = {k: np.where(charging, pc[k], pd[k]) for k in pc}
