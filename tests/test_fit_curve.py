@@ -196,3 +196,33 @@ def test_no_butler_volmer_branch_without_a_current_dependence():
     one = fit_exchange_current(_pulse_table(with_branches(synthetic_nca_model()),
                                             rates=(2.0,)), 2.9)
     assert one.i0_a is None and "two C-rates" in one.notes[0]
+
+
+def test_build_merges_the_steps_file_of_a_pulse_test(tmp_path):
+    """[[data.pulse_tests]] steps = ...: prepare reads it, the curve fit merges it."""
+    from ecmgen.config import load_config
+    from ecmgen.data.measure import write_timeseries_csv
+    from ecmgen.pipeline import fit_models, prepare
+
+    truth = synthetic_nca_model()
+    full, _ = make_pulse_test(truth, soc_levels=LEVELS, c_rates=(1.0, 4.0), log_moves=True)
+    gapped, _ = make_pulse_test(truth, soc_levels=LEVELS, c_rates=(1.0, 4.0))
+    k = np.flatnonzero(~np.isin(full.time_s, gapped.time_s))[::30]
+    write_timeseries_csv(gapped, tmp_path / "pulses.csv")
+    write_timeseries_csv(TimeSeries(full.time_s[k] - 100.0, full.current_a[k],
+                                    full.voltage_v[k], None, full.charge_ah[k]),
+                         tmp_path / "steps.csv")
+    np.savetxt(tmp_path / "ocv.csv", np.column_stack([truth.ocv.soc, truth.ocv.ocv_v[0]]),
+               delimiter=",", header="soc,ocv_v", comments="")
+    cfg_path = tmp_path / "cell.toml"
+    cfg_path.write_text('[cell]\ncapacity_ah = 2.9\n[data]\nocv = "ocv.csv"\n'
+                        '[[data.pulse_tests]]\nfile = "pulses.csv"\nsoc0 = 1.0\n'
+                        'steps = "steps.csv"\n[fit]\nmethods = ["curve"]\n')
+    cfg = load_config(cfg_path)
+    from ecmgen.pipeline import pulse_test_config
+
+    inputs = prepare(pulse_test_config(cfg, cfg.pulse_tests[0]))
+    assert inputs.steps is not None and [r.role for r in inputs.records][-1] == "steps"
+    models, raw = fit_models(pulse_test_config(cfg, cfg.pulse_tests[0]), inputs)
+    assert any("merged into 3 of the pulse test's 3 unlogged gaps" in n
+               for n in models["curve"].notes)

@@ -133,7 +133,14 @@ def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
     else:
         table = dcir_mod.read_dcir_csv(cfg.dcir)
         records.append(InputRecord("dcir", cfg.dcir.name, file_sha256(cfg.dcir)))
-    return Inputs(q, ocv, table, series, pulses, tuple(records), tuple(notes))
+    steps = None
+    steps_file = cfg.pulse_tests[0].steps if len(cfg.pulse_tests) == 1 else None
+    if steps_file is not None and series is not None:
+        # the SOC steps between the pulse sets, logged apart (the curve fit merges them)
+        progress(f"reading SOC steps {steps_file.name}")
+        steps = read_series(cfg, steps_file, "pulses")      # the pulse test's cycler
+        records.append(InputRecord("steps", steps_file.name, file_sha256(steps_file)))
+    return Inputs(q, ocv, table, series, pulses, tuple(records), tuple(notes), steps)
 
 
 def _rc_tables(soc, direction, cols: dict[str, np.ndarray], fit_error, converged,
