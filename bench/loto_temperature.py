@@ -8,8 +8,8 @@ resampled onto a uniform 5 K grid, the rests' OCV per temperature -- and validat
 with ecmgen.model.simulate.validate on each cycle's measured cell temperature
 (soc0 = 1.0): all four pulse tests, and leave-one-temperature-out (LOTO).
 
-:func:`assemble_arrhenius_5k` is a stand-in for the pipeline's assembly (the pipe
-engineer's, issue 8 item 3): replace it when that lands.
+:func:`assemble_arrhenius_5k` was the stand-in for the pipeline's assembly;
+``--pipeline-assembly`` uses ecmgen.model.temperature.assemble_over_temperature instead.
 
 Cells: MAE / RMSE / max |error| in mV.
 
@@ -117,6 +117,20 @@ def assemble_arrhenius_5k(parts, *, t_hi_c: float = 45.0, step_k: float = 5.0,
                     direction_deadband_a=0.01 * capacity_ah)
 
 
+def assemble_pipeline(parts, *, t_hi_c: float = 45.0, capacity_ah: float = CAPACITY_AH
+                      ) -> EcmModel:
+    """The same parts through the pipeline's assembly (ecmgen.model.temperature)."""
+    from ecmgen.model.temperature import assemble_over_temperature
+
+    models = [EcmModel(capacity_ah=capacity_ah, ocv=p["ocv"],
+                       charge=RcTable(**p["curve"].rc_columns("charge")),
+                       discharge=RcTable(**p["curve"].rc_columns("discharge")),
+                       method="curve", direction_deadband_a=0.01 * capacity_ah)
+              for p in parts]
+    return assemble_over_temperature(models, [p["temperature_c"] for p in parts],
+                                     warm_c=t_hi_c)
+
+
 _CYCLE_CACHE: dict = {}
 
 
@@ -169,6 +183,8 @@ def main(argv=None):
     ap.add_argument("--rows-per-decade", type=float, default=20.0)
     ap.add_argument("--min-weight-s", type=float, default=1.0)
     ap.add_argument("--lag", type=int, default=0, help="samples of current-to-voltage lag")
+    ap.add_argument("--pipeline-assembly", action="store_true",
+                    help="assemble with ecmgen.model.temperature instead of the stand-in")
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
     parts = {}
@@ -191,12 +207,13 @@ def main(argv=None):
         parts[temp] = dict(temperature_c=f.temperature_c, curve=c, ocv=f.ocv)
     print(f"fits: {time.perf_counter() - t0:.1f} s\n")
     print(header())
-    model = assemble_arrhenius_5k(list(parts.values()), t_hi_c=a.t_hi)
+    assemble = assemble_pipeline if a.pipeline_assembly else assemble_arrhenius_5k
+    model = assemble(list(parts.values()), t_hi_c=a.t_hi)
     print(row("all 4", validate_on(model, TEMPS, a.lag)), flush=True)
     if not a.no_loto:
         loto = {}
         for temp in TEMPS:
-            m = assemble_arrhenius_5k([p for k, p in parts.items() if k != temp], t_hi_c=a.t_hi)
+            m = assemble([p for k, p in parts.items() if k != temp], t_hi_c=a.t_hi)
             loto.update(validate_on(m, (temp,), a.lag))
         print(row("LOTO", loto), flush=True)
     print(f"\ntotal {time.perf_counter() - t0:.1f} s")
