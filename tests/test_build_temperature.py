@@ -152,3 +152,19 @@ def test_a_cycle_without_temperature_is_refused_for_a_model_over_temperature(pro
     assert main(["build", str(cfg), "--out", str(tmp_path / "out"), "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith(f"ecmgen: error: {plain}: no cell temperature column"), err
+
+
+def test_diagnose_on_a_model_over_temperature(project, tmp_path):
+    """diagnose fits the base model from all pulse tests (over temperature) and runs it on
+    the cycle's cell temperature; the truth has no missing effect to find."""
+    from ecmgen.cli import main
+
+    folder, cfg_path, _ = project
+    cfg = folder / "diag.toml"
+    cfg.write_text(cfg_path.read_text().replace('methods = ["lm", "curve"]',
+                                                'methods = ["curve"]'))
+    out = tmp_path / "diag"
+    assert main(["diagnose", str(cfg), "--out", str(out), "--quiet", "--no-plots"]) == 0
+    base = json.loads((out / "model-base.json").read_text())
+    assert len(base["rc"]["discharge"]["temperature_c"]) > 1
+    assert base["method"] == "curve"

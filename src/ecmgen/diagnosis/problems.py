@@ -17,7 +17,8 @@ import numpy as np
 from ..data.measure import TimeSeries
 from ..model import effects as fx
 from ..model.effects import KELVIN
-from ..model.model import RC_FIELDS, EcmModel
+from ..errors import InputError
+from ..model.model import BRANCH_FIELDS, RC_FIELDS, EcmModel
 from ..model.simulate import step_inputs
 
 
@@ -75,7 +76,9 @@ def _neutral(name: str, ctx: dict) -> dict[str, float]:
 
 class _Problem:
     """Residual (simulated - measured) and its Jacobian for a set of effects whose
-    parameters are partly free. Mirrors ecmgen.model.simulate + ecmgen.model.effects exactly."""
+    parameters are partly free. Mirrors ecmgen.model.simulate + ecmgen.model.effects exactly,
+    also for a base model over temperature (its tables read at the record's cell
+    temperature) and with the diffusion pair and the Butler-Volmer fast branch."""
 
     def __init__(self, model: EcmModel, data: TimeSeries, soc0: float,
                  effects: list[tuple[str, dict[str, float], dict[str, _Spec]]]):
@@ -101,7 +104,15 @@ class _Problem:
                 else:
                     self.const.append((k, pname))
         self.values = [dict(v) for _, v, _ in effects]
-        dt, soc, charging, _ = step_inputs(model, self.t, self.i, self.soc0)
+        # a model over temperature reads its tables at the record's cell temperature
+        self.table_temp = self.temp if model.needs_temperature else None
+        if model.needs_temperature and self.temp is None:
+            raise InputError(data.source, "no cell temperature column: the model has tables "
+                                          "over temperature")
+        dt, soc, charging, _ = step_inputs(model, self.t, self.i, self.soc0, self.table_temp)
+        # the optional branches of the base model (per temperature): a diffusion RC pair
+        # and the Butler-Volmer factor of the fast branch
+        self.branches = [k for k in BRANCH_FIELDS if getattr(model.discharge, k) is not None]
         self.dt = dt
         self.charging = charging
         self.s = np.where(charging, 1.0, -1.0)
@@ -150,7 +161,7 @@ class _Problem:
             par[k][pname] = pf[j]
         for j, (k, pname) in enumerate(self.const):
             par[k][pname] = pc[j]
-        rows = ["dt", "i", "s", "ocv"] + list(RC_FIELDS)
+        rows = ["dt", "i", "s", "ocv"] + list(RC_FIELDS) + self.branches
         if self.has_cap:
             rows += ["q", "soc"] + ["d_ocv"] + ["d_" + k for k in RC_FIELDS]
         if self.has_temp:
@@ -158,7 +169,7 @@ class _Problem:
         self.rows = rows
         u = ca.SX.sym("u", len(rows))
         U = {r: u[j] for j, r in enumerate(rows)}
-        states = ["u_fast", "u_slow"]
+        states = ["u_fast", "u_slow"] + (["u_diff"] if "r_diff_ohm" in self.branches else [])
         for k, name in enumerate(self.names):
             if name in (fx.Hysteresis.name, fx.ExtraRc.name):
                 states.append(f"{name}#{k}")
@@ -189,11 +200,18 @@ class _Problem:
                                                     - 1.0 / (par[k]["t_ref_c"] + KELVIN)))
                 for key in ("r0_ohm", "r_fast_ohm", "r_slow_ohm"):
                     p[key] = p[key] * f
+        if "i0_a" in self.branches:       # after the effects, as the simulator
+            xb = ca.fmax(ca.fabs(i) / U["i0_a"], 1e-12)
+            p["r_fast_ohm"] = p["r_fast_ohm"] * (ca.asinh(xb) / xb)
         a_f = ca.exp(-dt / p["tau_fast_s"])
         a_s = ca.exp(-dt / p["tau_slow_s"])
         nxt = {"u_fast": a_f * X["u_fast"] + p["r_fast_ohm"] * (1 - a_f) * i,
                "u_slow": a_s * X["u_slow"] + p["r_slow_ohm"] * (1 - a_s) * i}
         v = ocv + p["r0_ohm"] * i + nxt["u_fast"] + nxt["u_slow"]
+        if "u_diff" in X:
+            a_d = ca.exp(-dt / U["tau_diff_s"])
+            nxt["u_diff"] = a_d * X["u_diff"] + U["r_diff_ohm"] * (1 - a_d) * i
+            v = v + nxt["u_diff"]
         for k, name in enumerate(self.names):
             key = f"{name}#{k}"
             if name == fx.Hysteresis.name:
@@ -229,10 +247,10 @@ class _Problem:
                 scale *= v["capacity_scale"]
         soc = self.soc0 + self.q_as / (3600.0 * m.capacity_ah * scale)
         ch = self.charging
-        temp = self.temp if m.needs_temperature else None
+        temp = self.table_temp
         pc_, pd_ = m.charge.at(soc, temp), m.discharge.at(soc, temp)
         cols = {"dt": self.dt, "i": i, "s": self.s, "ocv": m.ocv.ocv_at(soc, temp)}
-        for k in RC_FIELDS:
+        for k in (*RC_FIELDS, *self.branches):
             cols[k] = np.where(ch, pc_[k], pd_[k])
         if self.has_cap:
             cols["q"] = self.q_as
