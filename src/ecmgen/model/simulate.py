@@ -60,9 +60,19 @@ def step_inputs(model: EcmModel, time_s: np.ndarray, current_a: np.ndarray, soc0
     dt = np.diff(time_s, prepend=time_s[0])
     soc = soc0 + np.cumsum(current_a * dt) / (3600.0 * model.capacity_ah)
     charging = charging_direction(current_a, model.direction_deadband_a)
-    pc = model.charge.at(soc, temperature_c)
-    pd = model.discharge.at(soc, temperature_c)
-    params = {k: np.where(charging, pc[k], pd[k]) for k in pc}
+    # each direction's table at its own samples only (the same values as evaluating both
+    # everywhere and choosing; a cycle without regeneration never reads the charge table)
+    temps = None if temperature_c is None else np.broadcast_to(
+        np.asarray(temperature_c, dtype=np.float64), soc.shape)
+    params: dict[str, np.ndarray] = {}
+    for table, mask in ((model.charge, charging), (model.discharge, ~charging)):
+        if not mask.any():
+            continue
+        p = table.at(soc[mask], None if temps is None else temps[mask])
+        for k, v in p.items():
+            params.setdefault(k, np.empty(soc.shape))[mask] = v
+    if not params:      # no samples
+        params = {k: np.empty(0) for k in model.discharge.at(soc, temps)}
     return dt, soc, charging, params
 
 
