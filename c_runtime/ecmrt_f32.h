@@ -1,32 +1,46 @@
 /*
- * ecmrt_f32.h - ecmgen C runtime, numeric = "float" (IEEE-754 binary32).
+ * ecmrt_f32.h - ecmgen C runtime, numeric = "float" (IEEE-754 binary32): the one step of
+ * every model, with compile-time switches for what the model has.
  *
- * Included once by a generated <prefix>_ecm.c after it defines
- *     ECMRT_VARIABLE_DT   1: step(state, i, dt), coefficients 1 - exp(-dt/tau) at run time
- *                         0: step(state, i), D = 1/(1 - exp(-dt/tau)) precomputed for the
+ * Included once by a generated <prefix>_ecm.c after it defines (each switch 0 or 1)
+ *     ECMRT_STATE         the model's state type (<prefix>_state_t of <prefix>_ecm.h)
+ *     ECMRT_VARIABLE_DT   1: step(state, i, T, dt), coefficients 1 - exp(-dt/tau) at run time
+ *                         0: step(state, i, T), D = 1/(1 - exp(-dt/tau)) precomputed for the
  *                            build's dt and interpolated; the step divides by D
- * All functions are static inline: no external symbols, so several models link together.
+ *     ECMRT_TEMP          1: tables over (temperature, SOC), one temperature grid m->t for all
+ *                            of them (state k_t); 0: one row, the temperature is not looked up
+ *     ECMRT_OCV_SHARED    1: the OCV is on the SOC grid of both directions' tables and takes
+ *                            their segment and weight (no search of its own, no state k_ocv)
+ *     ECMRT_DIFF          diffusion RC pair (state u_diff), r_diff and tau_diff per temperature
+ *     ECMRT_BV            Butler-Volmer fast branch: r_fast times asinh(x)/x, x = |i| / i0(T)
+ *     ECMRT_FX_HYST       effect hysteresis (state h)
+ *     ECMRT_FX_XRC        effect extra_rc (state u_x)
+ *     ECMRT_FX_CDR        effect current_dependent_resistance
+ *     ECMRT_FX_ARR        effect temperature_dependence (Arrhenius factor on r0, r_fast, r_slow)
+ * (capacity_error needs no code: the generator folds it into k_soc.) A plain model (all
+ * switches 0) compiles to the 2RC step alone. All functions are static inline: no external
+ * symbols, so several models link together.
  *
- * Bit-for-bit reproducibility (host == Cortex-M4F == ecmgen.cref.simulate_f32) rests on:
+ * Bit-for-bit reproducibility (host == Cortex-M4F == ecmgen.c.cref.simulate_f32) rests on:
  *   - only + - * / on float, each rounded once (compile with -ffp-contract=off, never
  *     -ffast-math; FLT_EVAL_METHOD must be 0, checked below);
- *   - no libm: exp is ecmrt_f32_one_minus_exp_neg() below, built from those operations;
- *   - a fixed order of operations, mirrored line by line in src/ecmgen/cref.py.
+ *   - no libm: exp, log, sqrt are built here from those operations;
+ *   - a fixed order of operations, mirrored line by line in src/ecmgen/c/cref.py.
  */
 #ifndef ECMRT_F32_H
 #define ECMRT_F32_H
 
 #include <float.h>
-#ifndef ECMRT_NEED_F32_STATE
-#define ECMRT_NEED_F32_STATE
-#endif
 #include "ecmrt.h"
 
-#if ECMRT_VERSION != 1
+#if ECMRT_VERSION != 2
 #error "ecmrt_f32.h does not match ecmrt.h"
 #endif
-#ifndef ECMRT_VARIABLE_DT
-#error "define ECMRT_VARIABLE_DT (0 or 1) before including ecmrt_f32.h"
+#if !defined(ECMRT_STATE) || !defined(ECMRT_VARIABLE_DT) || !defined(ECMRT_TEMP) || \
+    !defined(ECMRT_OCV_SHARED) || \
+    !defined(ECMRT_DIFF) || !defined(ECMRT_BV) || !defined(ECMRT_FX_HYST) || \
+    !defined(ECMRT_FX_XRC) || !defined(ECMRT_FX_CDR) || !defined(ECMRT_FX_ARR)
+#error "ecmrt_f32.h needs the ECMRT_* configuration macros of a generated <prefix>_ecm.c"
 #endif
 #if !defined(FLT_EVAL_METHOD) || FLT_EVAL_METHOD != 0
 #error "float expressions must be evaluated in float (FLT_EVAL_METHOD == 0), e.g. SSE or an FPv4-SP FPU"
@@ -37,74 +51,118 @@
 #define ECMRT_F32_SOC_MIN (-2.0f)
 #define ECMRT_F32_SOC_MAX 2.0f
 #define ECMRT_F32_DT_MAX 32767.0f
+/* temperature_dependence: the temperature saturates to [-40, 85] degC (NaN: -40) */
+#define ECMRT_F32_ARR_T_MIN (-40.0f)
+#define ECMRT_F32_ARR_T_MAX 85.0f
 
-/* One SOC grid: n breakpoints x (strictly increasing) and inv_dx[k] = 1 / (x[k+1] - x[k]). */
+#define ECMRT_BRANCHES (ECMRT_DIFF || ECMRT_BV)
+/* values per temperature row of a direction's branch table: r_diff, k_diff (tau_diff or D),
+ * i0 - those present, in this order, each a pair (y, y[next row] - y) */
+#define ECMRT_NB (2u * (unsigned)ECMRT_DIFF + (unsigned)ECMRT_BV)
+#define ECMRT_B_RD 0u
+#define ECMRT_B_KD 2u
+#define ECMRT_B_I0 (4u * (unsigned)ECMRT_DIFF)
+
+/* One grid: n breakpoints x (strictly increasing) and inv_dx[k] = 1 / (x[k+1] - x[k]). */
 typedef struct {
     const float *x;
     const float *inv_dx;
     uint8_t n;
 } ecmrt_f32_grid_t;
 
-/* Parameters of one current direction: ECMRT_NPAR values per breakpoint, row after row,
- * rows[ECMRT_NPAR * k + ECMRT_P_*], so that one base pointer serves every interpolation.
- * Each parameter is a pair (y[k], y[k+1] - y[k]): the value and the float32 difference to
- * the next breakpoint (the subtraction done once by the generator, in float32, so the
- * interpolation gives the same bits as subtracting at run time; 0 in the last row).
- * ECMRT_P_KF / ECMRT_P_KS hold the time constants tau in s (ECMRT_VARIABLE_DT = 1) or
- * D = 1/(1 - exp(-dt/tau)) (ECMRT_VARIABLE_DT = 0). */
-#define ECMRT_NPAR 10u
+/* Parameters of one current direction: ECMRT_NPAR values per SOC breakpoint, breakpoint after
+ * breakpoint, then (ECMRT_TEMP) temperature row after temperature row:
+ * rows[ECMRT_NPAR * (n * row + k) + ECMRT_P_*], so that one base pointer serves every
+ * interpolation. Each parameter is a pair (y[k], y[k+1] - y[k]): the value and the float32
+ * difference to the next SOC breakpoint (the subtraction done once by the generator, in
+ * float32, so the interpolation gives the same bits as subtracting at run time; 0 at the
+ * last breakpoint). ECMRT_P_KF / ECMRT_P_KS hold the time constants tau in s
+ * (ECMRT_VARIABLE_DT = 1) or D = 1/(1 - exp(-dt/tau)) (ECMRT_VARIABLE_DT = 0). With
+ * ECMRT_OCV_SHARED the OCV (on the same SOC grid) is a sixth parameter of every row, and
+ * the model has no OCV table of its own. */
+#define ECMRT_NPAR (10u + 2u * (unsigned)ECMRT_OCV_SHARED)
 #define ECMRT_P_R0 0u
 #define ECMRT_P_RF 2u
 #define ECMRT_P_KF 4u
 #define ECMRT_P_RS 6u
 #define ECMRT_P_KS 8u
+#define ECMRT_P_OCV 10u               /* ECMRT_OCV_SHARED: the OCV as a sixth parameter */
 
 typedef struct {
-    ecmrt_f32_grid_t g;
+    ecmrt_f32_grid_t g;       /* SOC breakpoints of this direction */
     const float *rows;
+#if ECMRT_BRANCHES
+    const float *branch;      /* [temperature row][ECMRT_NB pairs] */
+#endif
 } ecmrt_f32_dir_t;
 
 typedef struct {
+#if ECMRT_TEMP
+    ecmrt_f32_grid_t t;       /* temperature breakpoints, degC, of every table */
+#endif
+#if !ECMRT_OCV_SHARED
     ecmrt_f32_grid_t ocv_g;
-    const float *ocv;         /* pairs (ocv[k], ocv[k+1] - ocv[k]), as the rows */
+    const float *ocv;         /* pairs (ocv[k], ocv[k+1] - ocv[k]), temperature row after row */
+#endif
     ecmrt_f32_dir_t dir[2];   /* [ECMRT_DISCHARGE], [ECMRT_CHARGE] */
     float deadband_a;         /* |i| <= deadband keeps the last direction */
     float i_max_a;            /* current is saturated to [-i_max_a, i_max_a] */
     float k_soc;              /* 1/(3600 Q) per A*s (variable dt) or dt/(3600 Q) per A (fixed dt) */
+#if ECMRT_FX_HYST
+    float h_init;             /* hysteresis: initial_state */
+    float h_k;                /* 1/(3600 decay_ah) per A*s (variable dt) or dt/(3600 decay_ah) per A */
+    float h_m;                /* m_v, V */
+    float h_m0;               /* m0_v, V */
+    float h_ref;              /* ocv_table_state */
+#endif
+#if ECMRT_FX_XRC
+    float x_r;                /* extra_rc: r_ohm */
+    float x_k;                /* tau_s (variable dt) or D = 1/(1 - exp(-dt/tau_s)) (fixed dt) */
+#endif
+#if ECMRT_FX_CDR
+    float g_scale;            /* current_dependent_resistance: scale_at_zero */
+    float g_inv_i0;           /* 1 / i0_a */
+#endif
+#if ECMRT_FX_ARR
+    float a_k;                /* temperature_dependence: activation_k, K */
+    float a_inv_ref;          /* 1 / (t_ref_c + 273.15) */
+#endif
 } ecmrt_f32_model_t;
 
-/* Segment k (0 <= k <= n-2) holding soc, returned in *hint, and the weight w in [0, 1] of
- * x[k+1]; SOC outside the grid gives w = 0 at the first point or w = 1 at the last (clamped
- * interpolation). The search walks from *hint (the last step's segment): exact whatever the
- * hint, and O(1) when SOC moves little (the usual case costs two comparisons: the table
- * ends are only looked at when the walk reaches them). */
-static inline float ecmrt_f32_locate(const ecmrt_f32_grid_t *g, float soc, uint8_t *hint)
+/* Segment k (0 <= k <= n-2) holding v, returned in *kp, and the weight w in [0, 1] of
+ * x[k+1]; v outside the grid gives w = 0 at the first point or w = 1 at the last (clamped
+ * interpolation), NaN counts as below the grid. The search walks from *kp (the last step's
+ * segment, a hint kept in the state): exact whatever the hint, and O(1) when v moves little
+ * (the usual case costs two comparisons: the table ends are only looked at when the walk
+ * reaches them). *kp is a local of the step: the hints go back to the state at its end, so
+ * that no uint8_t store (which may alias anything) forces the tables to be reloaded. */
+static inline float ecmrt_f32_locate(const ecmrt_f32_grid_t *g, float v, unsigned *kp)
 {
     const float *x = g->x;
     const unsigned last = (unsigned)g->n - 2u;
-    unsigned k = *hint;
+    unsigned k = *kp;
     if (k > last) {
         k = last;                           /* a corrupted hint costs a longer walk only */
     }
-    if (soc < x[k]) {
+    if (!(v >= x[k])) {
         do {
             if (k == 0u) {
-                *hint = 0u;                 /* soc < x[0] */
+                *kp = 0u;                   /* v < x[0], or NaN */
                 return 0.0f;
             }
             k--;
-        } while (soc < x[k]);
-    } else if (soc >= x[k + 1u]) {
+        } while (!(v >= x[k]));
+    } else if (v >= x[k + 1u]) {
         do {
             if (k == last) {
-                *hint = (uint8_t)last;      /* soc >= x[n-1] */
+                *kp = last;                 /* v >= x[n-1] */
                 return 1.0f;
             }
             k++;
-        } while (soc >= x[k + 1u]);
+        } while (v >= x[k + 1u]);
     }
-    *hint = (uint8_t)k;                     /* x[k] <= soc < x[k+1] (or soc NaN) */
-    return (soc - x[k]) * g->inv_dx[k];
+    *kp = k;                                /* x[k] <= v < x[k+1] */
+    return (v - x[k]) * g->inv_dx[k];
 }
 
 /* y[k] + (y[k+1] - y[k]) w from a pair (y[k], y[k+1] - y[k]) of a table */
@@ -113,12 +171,56 @@ static inline float ecmrt_f32_lerp(const float *yd, float w)
     return yd[0] + yd[1] * w;
 }
 
+#if ECMRT_TEMP
+/* bilinear: the pair of the row and the pair one temperature row (stride) further, each
+ * linear in SOC, then linear in temperature */
+static inline float ecmrt_f32_lerp2(const float *yd, unsigned stride, float w, float wt)
+{
+    const float a = yd[0] + yd[1] * w;
+    const float b = yd[stride] + yd[stride + 1u] * w;
+    return a + (b - a) * wt;
+}
+#define ECMRT_F32_AT(p, off) ecmrt_f32_lerp2((p) + (off), st, w, wt)
+#define ECMRT_F32_TV(b, j) ((b)[j] + (b)[(j) + 1u] * wt)
+#else
+#define ECMRT_F32_AT(p, off) ecmrt_f32_lerp((p) + (off), w)
+#define ECMRT_F32_TV(b, j) ((b)[j])
+#endif
+
+/* exp(-x) = s (1 + q) for 0 <= x < 87: x = n ln2 + r, |r| <= ln2/2 (Cody-Waite: n * LN2_HI
+ * is exact for n < 256; n = 0, r = x below ln2/2), s = 2^-n built exactly (a normal
+ * number), q = exp(-r) - 1 by its Taylor series to t^7 (t = -r); returns q, s in *sp. */
+static inline float ecmrt_f32_exp_neg_parts(float x, float *sp)
+{
+    int32_t n = 0;
+    float fn, r = x, t, q;
+    union {
+        uint32_t u;
+        float f;
+    } bits;
+    if (!(x < 0.346573591f)) {
+        n = (int32_t)(x * 1.44269502f + 0.5f);
+        fn = (float)n;
+        r = (x - fn * 0.693145752f) - fn * 1.42860677e-06f;
+    }
+    t = -r;
+    q = 1.98412701e-04f;                    /* 1/5040 */
+    q = 1.38888892e-03f + t * q;            /* 1/720 */
+    q = 8.33333377e-03f + t * q;            /* 1/120 */
+    q = 4.16666679e-02f + t * q;            /* 1/24 */
+    q = 1.66666672e-01f + t * q;            /* 1/6 */
+    q = 0.5f + t * q;
+    q = 1.0f + t * q;
+    bits.u = (uint32_t)(127 - n) << 23;
+    *sp = bits.f;
+    return t * q;
+}
+
 /* c = 1 - exp(-x) for x = dt/tau >= 0, to ~1 ulp, from + - * and exact powers of two.
  * x <= 0 or NaN gives 0; x >= 87 gives 1. (Also the effects' exp, in both dt modes.) */
 static inline float ecmrt_f32_one_minus_exp_neg(float x)
 {
-    int32_t n;
-    float fn, r, t, q, s;
+    float q, s;
     union {
         uint32_t u;
         float f;
@@ -133,40 +235,110 @@ static inline float ecmrt_f32_one_minus_exp_neg(float x)
         q = x * q - 1.0f;
         return -(x * q);
     }
-    if (x < 0.346573591f) {                 /* ln2/2: no reduction needed (n = 0, r = x) */
-        if (!(x > 0.0f)) {
-            return 0.0f;                    /* x <= 0 (-0, negative) */
-        }
-        n = 0;
-        r = x;
-    } else if (!(x < 87.0f)) {
+    if (!(x > 0.0f)) {
+        return 0.0f;                        /* x <= 0 (-0, negative) */
+    }
+    if (!(x < 87.0f)) {
         return x == x ? 1.0f : 0.0f;        /* exp(-87) < 2^-125: c rounds to 1; NaN: 0 */
-    } else {
-        /* x = n ln2 + r, |r| <= ln2/2 (Cody-Waite: n * LN2_HI is exact for n < 256) */
-        n = (int32_t)(x * 1.44269502f + 0.5f);
-        fn = (float)n;
-        r = (x - fn * 0.693145752f) - fn * 1.42860677e-06f;
     }
-    /* q = exp(-r) - 1, Taylor series to t^7 in Horner form (t = -r, |t| < 0.35) */
-    t = -r;
-    q = 1.98412701e-04f;                    /* 1/5040 */
-    q = 1.38888892e-03f + t * q;            /* 1/720 */
-    q = 8.33333377e-03f + t * q;            /* 1/120 */
-    q = 4.16666679e-02f + t * q;            /* 1/24 */
-    q = 1.66666672e-01f + t * q;            /* 1/6 */
-    q = 0.5f + t * q;
-    q = 1.0f + t * q;
-    q = t * q;
-    if (n == 0) {
-        return -q;
-    }
-    /* exp(-x) = s (1 + q), s = 2^-n (1 <= n <= 126: a normal number, built exactly) */
-    bits.u = (uint32_t)(127 - n) << 23;
-    s = bits.f;
-    return (1.0f - s) - s * q;
+    q = ecmrt_f32_exp_neg_parts(x, &s);
+    return (1.0f - s) - s * q;              /* s = 1 (n = 0): exactly -q */
 }
 
-static inline void ecmrt_f32_init(ecmrt_f32_state_t *s, float soc0)
+#if ECMRT_FX_ARR
+/* f = exp(a_k (1/(T + 273.15) - 1/(t_ref + 273.15))), T saturated to [-40, 85] degC (NaN:
+ * -40); exp(y) as exp(-(-y)) for y <= 0, 1/exp(-y) for y > 0 */
+static inline float ecmrt_f32_arrhenius(const ecmrt_f32_model_t *m, float temp)
+{
+    float y, q, s;
+    if (!(temp >= ECMRT_F32_ARR_T_MIN)) {
+        temp = ECMRT_F32_ARR_T_MIN;
+    } else if (temp > ECMRT_F32_ARR_T_MAX) {
+        temp = ECMRT_F32_ARR_T_MAX;
+    }
+    y = (1.0f / (temp + 273.149994f) - m->a_inv_ref) * m->a_k;
+    if (y > 0.0f) {
+        q = ecmrt_f32_exp_neg_parts(y, &s);
+        return 1.0f / (s + s * q);
+    }
+    q = ecmrt_f32_exp_neg_parts(-y, &s);
+    return s + s * q;
+}
+#endif
+
+#if ECMRT_FX_CDR || ECMRT_BV
+/* sqrt(w) for 1 <= w < 2^100: bit-trick start, four Newton steps (deterministic, <= 1 ulp) */
+static inline float ecmrt_f32_sqrt(float w)
+{
+    union {
+        uint32_t u;
+        float f;
+    } bits;
+    float r;
+    bits.f = w;
+    bits.u = (bits.u >> 1) + 0x1FBD1DF5u;
+    r = bits.f;
+    r = 0.5f * (r + w / r);
+    r = 0.5f * (r + w / r);
+    r = 0.5f * (r + w / r);
+    r = 0.5f * (r + w / r);
+    return r;
+}
+
+/* log(1 + y) for 0 <= y < 2^100: 1 + y = 2^n m, m in [sqrt(1/2), sqrt(2)) (n = 0 and
+ * m - 1 = y exactly below sqrt(2) - 1), log = n ln2 + 2 atanh(f / (2 + f)), f = m - 1,
+ * atanh by its series to t^13 (|t| < 0.172: error < 1e-9 relative). */
+static inline float ecmrt_f32_log1p(float y)
+{
+    union {
+        uint32_t u;
+        float f;
+    } bits;
+    int32_t n;
+    float f, t, t2, p;
+    if (y < 0.414213568f) {
+        n = 0;
+        f = y;
+    } else {
+        bits.f = 1.0f + y;
+        n = (int32_t)((bits.u >> 23) & 0xFFu) - 127;
+        bits.u = (bits.u & 0x007FFFFFu) | 0x3F800000u;   /* m in [1, 2) */
+        f = bits.f;
+        if (f > 1.41421354f) {
+            f = f * 0.5f;
+            n = n + 1;
+        }
+        f = f - 1.0f;
+    }
+    t = f / (2.0f + f);
+    t2 = t * t;
+    p = 7.69230798e-02f;                    /* 1/13 */
+    p = 9.09090936e-02f + t2 * p;           /* 1/11 */
+    p = 1.11111112e-01f + t2 * p;           /* 1/9 */
+    p = 1.42857149e-01f + t2 * p;           /* 1/7 */
+    p = 2.00000003e-01f + t2 * p;           /* 1/5 */
+    p = 3.33333343e-01f + t2 * p;           /* 1/3 */
+    p = (2.0f * t) + (2.0f * t) * (t2 * p);
+    if (n == 0) {
+        return p;
+    }
+    return ((float)n * 0.693145752f + p) + (float)n * 1.42860677e-06f;
+}
+
+/* asinh(x) for 1e-12 <= x <= 1e9: log1p(x + x^2/(sqrt(x^2+1)+1)); *xp = max(x, 1e-12) */
+static inline float ecmrt_f32_asinh(float *xp)
+{
+    float x = *xp, x2;
+    if (!(x > 1.0e-12f)) {
+        x = 1.0e-12f;
+    }
+    *xp = x;
+    x2 = x * x;
+    return ecmrt_f32_log1p(x + x2 / (ecmrt_f32_sqrt(x2 + 1.0f) + 1.0f));
+}
+#endif
+
+static inline void ecmrt_f32_init(const ecmrt_f32_model_t *m, ECMRT_STATE *s, float soc0)
 {
     if (soc0 != soc0) {
         soc0 = 0.0f;                        /* NaN */
@@ -177,27 +349,32 @@ static inline void ecmrt_f32_init(ecmrt_f32_state_t *s, float soc0)
     }
     s->soc = soc0;
     s->soc_c = 0.0f;
-    s->u_fast = 0.0f;
-    s->u_slow = 0.0f;
-    s->charging = (uint8_t)ECMRT_DISCHARGE;
-    s->k_ocv = 0u;
-    s->k_dir[0] = 0u;
-    s->k_dir[1] = 0u;
+    ecmrt_state_init_common(s);
+#if ECMRT_FX_HYST
+    s->h = m->h_init;
+#endif
+#if ECMRT_TEMP
+    s->t_in = 0x7FC00000u;                  /* a NaN: its row and weight are k_t = 0, w_t = 0 */
+    s->w_t = 0.0f;
+#endif
+    (void)m;
 }
 
-/* One step of the discrete 2RC model (src/ecmgen/simulate.py), current i in A (positive =
- * charge) held over the step; returns the terminal voltage in V. */
+/* One step of the discrete model (src/ecmgen/model/simulate.py and, for the effects,
+ * model/effects.py): current i in A (positive = charge) held over the step, cell
+ * temperature temp in degC; returns the terminal voltage in V. */
 #if ECMRT_VARIABLE_DT
-static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ecmrt_f32_state_t *s,
-                                   float i, float dt)
+static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, float i,
+                                   float temp, float dt)
 #else
-static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ecmrt_f32_state_t *s, float i)
+static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, float i,
+                                   float temp)
 #endif
 {
     const ecmrt_f32_dir_t *d;
     const float *row;
-    unsigned dir;
-    float soc, y, w, r0, rf, rs, uf, us, ocv;
+    unsigned dir = s->charging, kd, ko = ECMRT_HINT_OCV(s), kt = ECMRT_HINT_T(s);
+    float soc, y, w, r0, rf, rs, uf, us, ocv, v;
     union {
         uint32_t u;
         float f;
@@ -206,6 +383,34 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ecmrt_f32_state_t
     float cf, cs;
 #else
     float df, ds;
+#endif
+#if ECMRT_TEMP
+    float wt;
+    unsigned st;
+#endif
+#if ECMRT_BRANCHES
+    const float *br;
+#endif
+#if ECMRT_DIFF
+    float rd, ud;
+#endif
+#if ECMRT_FX_HYST || ECMRT_FX_CDR || ECMRT_BV
+    float ai;
+#endif
+#if ECMRT_FX_CDR || ECMRT_BV
+    float x, g;
+#endif
+#if ECMRT_FX_ARR
+    float f;
+#endif
+#if ECMRT_FX_HYST
+    float sg, ch, h, vh;
+#endif
+#if ECMRT_FX_XRC
+    float ux;
+#endif
+#if !ECMRT_TEMP && !ECMRT_FX_ARR
+    (void)temp;                             /* one temperature row: not looked up */
 #endif
 
     /* 0. saturate the inputs (NaN current counts as 0 A) */
@@ -220,13 +425,15 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ecmrt_f32_state_t
         dt = (dt > 0.0f) ? ECMRT_F32_DT_MAX : 0.0f;     /* +-0, negative and NaN: 0 */
     }
 #endif
+#if ECMRT_FX_HYST || ECMRT_FX_CDR || ECMRT_BV
+    ai = i < 0.0f ? -i : i;
+#endif
     /* 1. direction, with a deadband that keeps the last one */
     if (i > m->deadband_a) {
-        s->charging = (uint8_t)ECMRT_CHARGE;
+        dir = ECMRT_CHARGE;
     } else if (i < -m->deadband_a) {
-        s->charging = (uint8_t)ECMRT_DISCHARGE;
+        dir = ECMRT_DISCHARGE;
     }
-    dir = s->charging;
     /* 2. SOC first (the parameters are looked up at the new SOC); Kahan-compensated sum,
      *    so a long run of equal small increments does not drift */
 #if ECMRT_VARIABLE_DT
@@ -247,22 +454,79 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ecmrt_f32_state_t
         }
     }
     s->soc = soc;
-    /* 3. parameters of that direction, linear in SOC, clamped at the table ends */
+    /* 3. parameters of that direction, linear in SOC (and in temperature), clamped at the
+     *    table ends; below the first temperature breakpoint or NaN: the first row */
     d = &m->dir[dir];
-    w = ecmrt_f32_locate(&d->g, soc, &s->k_dir[dir]);
-    row = d->rows + ECMRT_NPAR * (unsigned)s->k_dir[dir];
-    r0 = ecmrt_f32_lerp(row + ECMRT_P_R0, w);
-    rf = ecmrt_f32_lerp(row + ECMRT_P_RF, w);
-    rs = ecmrt_f32_lerp(row + ECMRT_P_RS, w);
-#if ECMRT_VARIABLE_DT
-    cf = ecmrt_f32_one_minus_exp_neg(dt / ecmrt_f32_lerp(row + ECMRT_P_KF, w));
-    cs = ecmrt_f32_one_minus_exp_neg(dt / ecmrt_f32_lerp(row + ECMRT_P_KS, w));
+    kd = s->k_dir[dir];
+#if ECMRT_TEMP
+    /* the temperature's row and weight: kept with the temperature they belong to, so that
+     * a temperature read less often than the step runs is searched once (exact: both are a
+     * function of the temperature; a corrupted k_t is clamped as a hint is) */
+    bits.f = temp;
+    if (bits.u == s->t_in) {
+        wt = s->w_t;
+        if (kt > (unsigned)m->t.n - 2u) {
+            kt = (unsigned)m->t.n - 2u;
+        }
+    } else {
+        wt = ecmrt_f32_locate(&m->t, temp, &kt);
+        s->t_in = bits.u;
+        s->w_t = wt;
+    }
+    st = ECMRT_NPAR * (unsigned)d->g.n;
+    w = ecmrt_f32_locate(&d->g, soc, &kd);
+    row = d->rows + st * kt + ECMRT_NPAR * kd;
 #else
-    df = ecmrt_f32_lerp(row + ECMRT_P_KF, w);
-    ds = ecmrt_f32_lerp(row + ECMRT_P_KS, w);
+    w = ecmrt_f32_locate(&d->g, soc, &kd);
+    row = d->rows + ECMRT_NPAR * kd;
 #endif
-    w = ecmrt_f32_locate(&m->ocv_g, soc, &s->k_ocv);
-    ocv = ecmrt_f32_lerp(m->ocv + 2u * (unsigned)s->k_ocv, w);
+#if ECMRT_BRANCHES
+#if ECMRT_TEMP
+    br = d->branch + 2u * ECMRT_NB * kt;
+#else
+    br = d->branch;
+#endif
+#endif
+    r0 = ECMRT_F32_AT(row, ECMRT_P_R0);
+    rf = ECMRT_F32_AT(row, ECMRT_P_RF);
+    rs = ECMRT_F32_AT(row, ECMRT_P_RS);
+#if ECMRT_VARIABLE_DT
+    cf = ecmrt_f32_one_minus_exp_neg(dt / ECMRT_F32_AT(row, ECMRT_P_KF));
+    cs = ecmrt_f32_one_minus_exp_neg(dt / ECMRT_F32_AT(row, ECMRT_P_KS));
+#else
+    df = ECMRT_F32_AT(row, ECMRT_P_KF);
+    ds = ECMRT_F32_AT(row, ECMRT_P_KS);
+#endif
+    /* 3'. parameter effects and the Butler-Volmer branch, in this order */
+#if ECMRT_FX_CDR
+    x = ai * m->g_inv_i0;                   /* g = scale asinh(x)/x, x = max(|i|/i0, 1e-12) */
+    g = m->g_scale * ecmrt_f32_asinh(&x);
+    g = g / x;
+    r0 = r0 * g;
+    rf = rf * g;
+#endif
+#if ECMRT_FX_ARR
+    f = ecmrt_f32_arrhenius(m, temp);
+    r0 = r0 * f;
+    rf = rf * f;
+    rs = rs * f;
+#endif
+#if ECMRT_BV
+    x = ai / ECMRT_F32_TV(br, ECMRT_B_I0);  /* r_fast asinh(x)/x, x = max(|i|/i0(T), 1e-12) */
+    g = ecmrt_f32_asinh(&x);
+    rf = rf * (g / x);
+#endif
+#if ECMRT_OCV_SHARED
+    ocv = ECMRT_F32_AT(row, ECMRT_P_OCV);
+#else
+    w = ecmrt_f32_locate(&m->ocv_g, soc, &ko);
+#if ECMRT_TEMP
+    ocv = ecmrt_f32_lerp2(m->ocv + 2u * ((unsigned)m->ocv_g.n * kt + ko), 2u * (unsigned)m->ocv_g.n,
+                          w, wt);
+#else
+    ocv = ecmrt_f32_lerp(m->ocv + 2u * ko, w);
+#endif
+#endif
     /* 4. exact ZOH: u = a u + r (1 - a) i, written u + c (r i - u) with c = 1 - a = 1/D */
     uf = s->u_fast;
     us = s->u_slow;
@@ -276,7 +540,51 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ecmrt_f32_state_t
     s->u_fast = uf;
     s->u_slow = us;
     /* 5. terminal voltage */
-    return ((ocv + r0 * i) + uf) + us;
+    v = ((ocv + r0 * i) + uf) + us;
+#if ECMRT_DIFF
+    rd = ECMRT_F32_TV(br, ECMRT_B_RD);      /* the diffusion pair: as the others */
+    ud = s->u_diff;
+#if ECMRT_VARIABLE_DT
+    ud = ud + ecmrt_f32_one_minus_exp_neg(dt / ECMRT_F32_TV(br, ECMRT_B_KD)) * (rd * i - ud);
+#else
+    ud = ud + (rd * i - ud) / ECMRT_F32_TV(br, ECMRT_B_KD);
+#endif
+    s->u_diff = ud;
+    v = v + ud;
+#endif
+    /* 4', 5'. voltage effects */
+#if ECMRT_FX_HYST
+    sg = dir == ECMRT_CHARGE ? 1.0f : -1.0f;
+#if ECMRT_VARIABLE_DT
+    ch = ecmrt_f32_one_minus_exp_neg((ai * dt) * m->h_k);
+#else
+    ch = ecmrt_f32_one_minus_exp_neg(ai * m->h_k);
+#endif
+    h = s->h;
+    h = h + ch * (sg - h);
+    s->h = h;
+    vh = m->h_m * (h - m->h_ref) + m->h_m0 * (sg - m->h_ref);
+#endif
+#if ECMRT_FX_XRC
+    ux = s->u_x;
+#if ECMRT_VARIABLE_DT
+    ux = ux + ecmrt_f32_one_minus_exp_neg(dt / m->x_k) * (m->x_r * i - ux);
+#else
+    ux = ux + (m->x_r * i - ux) / m->x_k;
+#endif
+    s->u_x = ux;
+#endif
+#if ECMRT_FX_HYST && ECMRT_FX_XRC
+    v = v + (vh + ux);
+#elif ECMRT_FX_HYST
+    v = v + vh;
+#elif ECMRT_FX_XRC
+    v = v + ux;
+#endif
+    ecmrt_hints_store(s, dir, kd, ko, kt);   /* last (see ecmrt_f32_locate) */
+    return v;
 }
 
+#undef ECMRT_F32_AT
+#undef ECMRT_F32_TV
 #endif /* ECMRT_F32_H */

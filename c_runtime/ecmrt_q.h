@@ -1,43 +1,52 @@
 /*
  * ecmrt_q.h - ecmgen C runtime, numeric = "fixed": int32 Q formats, int64 intermediates,
- * no floating point anywhere.
+ * no floating point and no 64-bit division anywhere; the one step of every model, with
+ * compile-time switches for what the model has.
  *
- * Included once by a generated <prefix>_ecm.c after it defines (value = raw / 2^Q):
- *     ECMRT_VARIABLE_DT   1: step(state, i, dt) with dt in Q16 s, 1 - exp(-dt/tau) computed
- *                            in integers at run time; 0: step(state, i), D = 1/(1 - exp(-dt/tau))
- *                            tables precomputed, c = 1/D by one integer division
+ * Included once by a generated <prefix>_ecm.c after it defines (value = raw / 2^Q)
+ *     ECMRT_STATE, ECMRT_VARIABLE_DT, ECMRT_TEMP, ECMRT_OCV_SHARED, ECMRT_DIFF, ECMRT_BV, ECMRT_FX_HYST,
+ *     ECMRT_FX_XRC, ECMRT_FX_CDR, ECMRT_FX_ARR   as for ecmrt_f32.h, and
  *     ECMRT_Q_I           current, A
  *     ECMRT_Q_V           voltages: OCV table, RC voltages, output
- *     ECMRT_Q_G           inverse breakpoint spacings inv_dx (w = (soc - x[k]) * inv_dx >> Q_G)
+ *     ECMRT_Q_G           inverse SOC breakpoint spacings inv_dx (w = (soc - x[k]) inv_dx >> Q_G)
  *     ECMRT_Q_R0, ECMRT_Q_RF, ECMRT_Q_RS   resistance tables, ohm
- *     ECMRT_Q_T           time-constant tables, s                (variable dt)
- *     ECMRT_SH_RATE       shift of i * k_soc to the SOC rate      (variable dt)
- *     ECMRT_Q_DF, ECMRT_Q_DS   D = 1/(1 - exp(-dt/tau)) tables    (fixed dt)
- *     ECMRT_Q_CF, ECMRT_Q_CS   c = 1/D formed at run time           (fixed dt)
  *     ECMRT_SH_DSOC       scale of the SOC increment: 2^SH_DSOC units = 1 LSB of Q30
+ *     ECMRT_Q_T           time-constant tables (and tau_diff, tau_x), s    (variable dt)
+ *     ECMRT_SH_RATE       shift of i * k_soc to the SOC rate               (variable dt)
+ *     ECMRT_Q_DF, ECMRT_Q_DS   D = 1/(1 - exp(-dt/tau)) tables             (fixed dt)
+ *     ECMRT_Q_CF, ECMRT_Q_CS   c = 1/D formed at run time                  (fixed dt)
+ *   with ECMRT_TEMP:  ECMRT_Q_GT   inverse temperature breakpoint spacings (per Q8 degC)
+ *   with ECMRT_DIFF:  ECMRT_Q_RD   r_diff; fixed dt: ECMRT_Q_DD, ECMRT_Q_CD (D and c of the pair)
+ *   with ECMRT_BV:    ECMRT_Q_I0 (i0), ECMRT_BV_QX (x = |i|/i0), ECMRT_BV_K = Q_I0 - Q_I + BV_QX
+ *   hysteresis:       ECMRT_FX_SH_HR (variable dt), ECMRT_FX_SH_HX, ECMRT_FX_SH_HM
+ *   extra_rc:         ECMRT_FX_SH_XR
+ *   current_dependent_resistance: ECMRT_FX_SH_GX, ECMRT_FX_CDR_QX, ECMRT_FX_CDR_QG
+ *   temperature_dependence: ECMRT_FX_ARR_QB, ECMRT_FX_ARR_QF
  * Fixed by the runtime: SOC, breakpoints and interpolation weights Q30; dt Q16 (variable dt);
- * run-time c Q30.
+ * temperature Q8 degC (ECMRT_Q_TEMP); run-time c (variable dt) Q30.
  *
  * Arithmetic: every product is formed in int64 from int32 operands whose ranges the code
  * generator has checked cannot overflow; results are rounded (half up, ECMRT_RSHR) and
  * saturated back to int32 (ecmrt_q_sat32). Right shifts of negative values are arithmetic
  * (implementation-defined in C99, true of GCC, Clang, IAR and Arm Compiler; checked below);
- * nothing left-shifts a negative value. src/ecmgen/cref.py mirrors every operation.
+ * nothing left-shifts a negative value. Reciprocals (1/tau, 1/D, 1/i0, 1/T) come from a
+ * 65-entry seed table and one Newton step (ecmrt_q_recip): no division at all.
+ * src/ecmgen/c/cref.py mirrors every operation.
  */
 #ifndef ECMRT_Q_H
 #define ECMRT_Q_H
 
-#ifndef ECMRT_NEED_Q_STATE
-#define ECMRT_NEED_Q_STATE
-#endif
 #include "ecmrt.h"
 
-#if ECMRT_VERSION != 1
+#if ECMRT_VERSION != 2
 #error "ecmrt_q.h does not match ecmrt.h"
 #endif
-#if !defined(ECMRT_VARIABLE_DT) || !defined(ECMRT_Q_I) || !defined(ECMRT_Q_V) || \
-    !defined(ECMRT_Q_G) || !defined(ECMRT_Q_R0) || !defined(ECMRT_Q_RF) || !defined(ECMRT_Q_RS) || \
-    !defined(ECMRT_SH_DSOC)
+#if !defined(ECMRT_STATE) || !defined(ECMRT_VARIABLE_DT) || !defined(ECMRT_TEMP) || \
+    !defined(ECMRT_OCV_SHARED) || \
+    !defined(ECMRT_DIFF) || !defined(ECMRT_BV) || !defined(ECMRT_FX_HYST) || \
+    !defined(ECMRT_FX_XRC) || !defined(ECMRT_FX_CDR) || !defined(ECMRT_FX_ARR) || \
+    !defined(ECMRT_Q_I) || !defined(ECMRT_Q_V) || !defined(ECMRT_Q_G) || !defined(ECMRT_Q_R0) || \
+    !defined(ECMRT_Q_RF) || !defined(ECMRT_Q_RS) || !defined(ECMRT_SH_DSOC)
 #error "ecmrt_q.h needs the ECMRT_* configuration macros of a generated <prefix>_ecm.c"
 #endif
 
@@ -50,37 +59,94 @@ typedef char ecmrt_q_check_asr[((((int32_t)-1) >> 1) == -1 && (((int64_t)-8) >> 
 
 /* x / 2^n rounded half up, n >= 1 a constant; x is int64 and |x| < 2^63 - 2^(n-1) */
 #define ECMRT_RSHR(x, n) (((x) + ((int64_t)1 << ((n) - 1))) >> (n))
+/* the same for a shift n >= 1 known at run time: ((x >> (n-1)) + 1) >> 1 is
+ * (x + 2^(n-1)) >> n exactly, without forming 2^(n-1) */
+#define ECMRT_RSHRV(x, n) ((((x) >> ((n) - 1u)) + 1) >> 1)
+
+#define ECMRT_BRANCHES (ECMRT_DIFF || ECMRT_BV)
+/* values per temperature row of a direction's branch table: r_diff (Q_RD), k_diff (tau_diff
+ * in Q_T or D in Q_DD), i0 (Q_I0) - those present, in this order */
+#define ECMRT_NB (2u * (unsigned)ECMRT_DIFF + (unsigned)ECMRT_BV)
+#define ECMRT_B_RD 0u
+#define ECMRT_B_KD 1u
+#define ECMRT_B_I0 (2u * (unsigned)ECMRT_DIFF)
 
 typedef struct {
-    const int32_t *x;        /* Q30 breakpoints */
-    const int32_t *inv_dx;   /* 2^(30+Q_G) / (x[k+1] - x[k]), rounded */
+    const int32_t *x;        /* breakpoints: SOC Q30, temperature Q8 */
+    const int32_t *inv_dx;   /* 2^(30 + Q_G) / (x[k+1] - x[k]), rounded */
     uint8_t n;
 } ecmrt_q_grid_t;
 
-/* Parameters of one direction, ECMRT_NPAR values per breakpoint row after row (as in
- * ecmrt_f32.h): r0 (Q_R0), r_fast (Q_RF), k_fast, r_slow (Q_RS), k_slow, where k is tau in
- * Q_T s (variable dt) or D = 1/(1 - exp(-dt/tau)) in Q_DF / Q_DS (fixed dt). */
-#define ECMRT_NPAR 5u
+/* Parameters of one direction, ECMRT_NPAR values per SOC breakpoint, breakpoint after
+ * breakpoint, then temperature row after row (as in ecmrt_f32.h, plain values): r0 (Q_R0),
+ * r_fast (Q_RF), k_fast, r_slow (Q_RS), k_slow, where k is tau in Q_T s (variable dt) or
+ * D = 1/(1 - exp(-dt/tau)) in Q_DF / Q_DS (fixed dt); with ECMRT_OCV_SHARED the OCV too. */
+#define ECMRT_NPAR (5u + (unsigned)ECMRT_OCV_SHARED)
 #define ECMRT_P_R0 0u
 #define ECMRT_P_RF 1u
 #define ECMRT_P_KF 2u
 #define ECMRT_P_RS 3u
 #define ECMRT_P_KS 4u
+#define ECMRT_P_OCV 5u                /* ECMRT_OCV_SHARED: the OCV (Q_V) as a sixth parameter */
 
 typedef struct {
     ecmrt_q_grid_t g;
     const int32_t *rows;
+#if ECMRT_BRANCHES
+    const int32_t *branch;   /* [temperature row][ECMRT_NB] */
+#endif
 } ecmrt_q_dir_t;
 
 typedef struct {
+#if ECMRT_TEMP
+    ecmrt_q_grid_t t;        /* temperature breakpoints (Q8 degC) of every table */
+#endif
+#if !ECMRT_OCV_SHARED
     ecmrt_q_grid_t ocv_g;
-    const int32_t *ocv;      /* Q_V */
+    const int32_t *ocv;      /* Q_V, temperature row after row */
+#endif
     ecmrt_q_dir_t dir[2];    /* [ECMRT_DISCHARGE], [ECMRT_CHARGE] */
     int32_t deadband;        /* Q_I, >= 0 */
     int32_t k_soc;           /* 1/(3600 Q) (variable dt) or dt/(3600 Q) (fixed dt), scaled */
+#if ECMRT_BV
+    const int32_t *bv_tab;   /* asinh(x)/x in Q30 at the nodes of ecmrt_q_gtab */
+#endif
+#if ECMRT_FX_HYST
+    int32_t h_init;          /* hysteresis: initial_state, Q30 */
+    int32_t h_k;             /* 1/(3600 decay_ah) per A*s (variable dt) or dt/(3600 decay_ah) per A */
+    int32_t h_m;             /* m_v */
+    int32_t h_m0;            /* m0_v */
+    int32_t h_ref;           /* ocv_table_state, Q30 */
+#endif
+#if ECMRT_FX_XRC
+    int32_t x_r;             /* extra_rc: r_ohm */
+    int32_t x_k;             /* tau_s in Q_T (variable dt) or c_x = 1 - exp(-dt/tau_s) in Q30 (fixed dt) */
+#endif
+#if ECMRT_FX_CDR
+    int32_t g_k;             /* current_dependent_resistance: 1/i0_a */
+    const int32_t *g_tab;    /* scale asinh(x)/x in Q(CDR_QG) at the nodes of ecmrt_q_gtab */
+#endif
+#if ECMRT_FX_ARR
+    int32_t a_b;             /* temperature_dependence: B = activation_k / 233.15 K, Q(ARR_QB) */
+    int32_t a_fmax;          /* F = the factor at -40 degC, Q(ARR_QF) */
+#endif
 } ecmrt_q_model_t;
 
-static inline int32_t ecmrt_q_sat32(int64_t x)
+/* the hot helpers of the step: inlined even where the compiler would rather call them,
+ * unless the build optimises for size (-Os) */
+#if defined(__GNUC__) && !defined(__OPTIMIZE_SIZE__)
+#define ECMRT_Q_HOT static inline __attribute__((always_inline))
+#else
+#define ECMRT_Q_HOT static inline
+#endif
+/* helpers used at several places of the step: one copy when optimising for size */
+#if defined(__GNUC__) && defined(__OPTIMIZE_SIZE__)
+#define ECMRT_Q_SHARED static __attribute__((noinline, unused))
+#else
+#define ECMRT_Q_SHARED static inline
+#endif
+
+ECMRT_Q_SHARED int32_t ecmrt_q_sat32(int64_t x)
 {
     if (x > (int64_t)INT32_MAX) {
         return INT32_MAX;
@@ -91,59 +157,145 @@ static inline int32_t ecmrt_q_sat32(int64_t x)
     return (int32_t)x;
 }
 
-/* As ecmrt_f32_locate: segment in *hint, returns the weight w in Q30, 0 <= w <= 2^30. */
-static inline int32_t ecmrt_q_locate(const ecmrt_q_grid_t *g, int32_t soc, uint8_t *hint)
+/* As ecmrt_f32_locate: segment in *kp (a local hint), returns the weight w in Q30,
+ * 0 <= w <= 2^30; inv_dx scaled by 2^(30 + qg). */
+static inline int32_t ecmrt_q_locate(const ecmrt_q_grid_t *g, int32_t v, unsigned *kp, int qg)
 {
     const int32_t *x = g->x;
     const unsigned last = (unsigned)g->n - 2u;
-    unsigned k;
+    unsigned k = *kp;
     int64_t w;
-    if (soc <= x[0]) {
-        *hint = 0u;
-        return 0;
-    }
-    if (soc >= x[last + 1u]) {
-        *hint = (uint8_t)last;
-        return ECMRT_ONE30;
-    }
-    k = *hint;
     if (k > last) {
-        k = last;
+        k = last;                           /* a corrupted hint costs a longer walk only */
     }
-    while (soc < x[k]) {
-        k--;
+    if (v < x[k]) {
+        do {
+            if (k == 0u) {
+                *kp = 0u;                   /* v < x[0] */
+                return 0;
+            }
+            k--;
+        } while (v < x[k]);
+    } else if (v >= x[k + 1u]) {
+        do {
+            if (k == last) {
+                *kp = last;                 /* v >= x[n-1] */
+                return ECMRT_ONE30;
+            }
+            k++;
+        } while (v >= x[k + 1u]);
     }
-    while (soc >= x[k + 1u]) {
-        k++;
-    }
-    *hint = (uint8_t)k;
-    /* here x[k] <= soc < x[k+1] <= 2^30: the difference is in [0, 2^30) */
-    w = ECMRT_RSHR((int64_t)(soc - x[k]) * g->inv_dx[k], ECMRT_Q_G);
+    *kp = k;
+    /* here x[k] <= v < x[k+1]: the difference is below the grid's span (< 2^31) */
+    w = ECMRT_RSHR((int64_t)(v - x[k]) * g->inv_dx[k], qg);
     return w > (int64_t)ECMRT_ONE30 ? ECMRT_ONE30 : (int32_t)w;
 }
 
 /* y[0] + (y[stride] - y[0]) w (y = &table[k]); table values are >= 0, so the difference
  * fits int32 */
-static inline int32_t ecmrt_q_lerp(const int32_t *y, unsigned stride, int32_t w)
+ECMRT_Q_SHARED int32_t ecmrt_q_lerp(const int32_t *y, unsigned stride, int32_t w)
 {
     return y[0] + (int32_t)ECMRT_RSHR((int64_t)(y[stride] - y[0]) * w, ECMRT_Q30);
 }
 
-#if ECMRT_VARIABLE_DT
-#if !defined(ECMRT_Q_T) || !defined(ECMRT_SH_RATE)
-#error "variable-dt fixed point needs ECMRT_Q_T and ECMRT_SH_RATE"
+#if ECMRT_TEMP
+#ifndef ECMRT_Q_GT
+#error "a model over temperature needs ECMRT_Q_GT"
 #endif
-#if (26 + ECMRT_Q_T - ECMRT_Q_D) < 0 || (26 + ECMRT_Q_T - ECMRT_Q_D) > 31
-#error "ECMRT_Q_T out of range (code generator bug)"
+/* Bilinear interpolation with the four corner weights of the cell (Q30, >= 0, summing to
+ * exactly 2^30): c[0] (SOC k, row t), c[1] (k+1, t), c[2] (k, t+1), c[3] (k+1, t+1), from
+ * the SOC weight w and the temperature weight wt. */
+static inline void ecmrt_q_corners(int32_t *c, int32_t w, int32_t wt)
+{
+    const int32_t wt1 = ECMRT_ONE30 - wt;
+    c[1] = (int32_t)ECMRT_RSHR((int64_t)w * wt1, ECMRT_Q30);
+    c[3] = (int32_t)ECMRT_RSHR((int64_t)w * wt, ECMRT_Q30);
+    c[0] = wt1 - c[1];
+    c[2] = wt - c[3];
+}
+
+/* sum of the corners y[0], y[stride_s], y[stride_t], y[stride_t + stride_s] times their
+ * weights (table values >= 0 and < 2^31: the sum is below 2^61) */
+static inline int32_t ecmrt_q_bilerp(const int32_t *y, unsigned stride_s, unsigned stride_t,
+                                     const int32_t *c)
+{
+    return (int32_t)ECMRT_RSHR((int64_t)y[0] * c[0] + (int64_t)y[stride_s] * c[1] +
+                               (int64_t)y[stride_t] * c[2] + (int64_t)y[stride_t + stride_s] * c[3],
+                               ECMRT_Q30);
+}
+#define ECMRT_Q_AT(p, off) ecmrt_q_bilerp((p) + (off), ECMRT_NPAR, st, cw)
+#define ECMRT_Q_TV(b, j) ecmrt_q_lerp((b) + (j), ECMRT_NB, wt)
+#else
+#define ECMRT_Q_AT(p, off) ecmrt_q_lerp((p) + (off), ECMRT_NPAR, w)
+#define ECMRT_Q_TV(b, j) ((b)[j])
 #endif
-/* x = dt/tau is formed in Q26; exp(-x) < 2^-31 for x >= 21.5 (c = 1 exactly in Q30) */
-#define ECMRT_X_SCALE ((int64_t)1 << (26 + ECMRT_Q_T - ECMRT_Q_D))
+
+
+/* number of leading zero bits of x != 0 */
+static inline unsigned ecmrt_q_clz32(uint32_t x)
+{
+#if defined(__GNUC__) && defined(__SIZEOF_INT__) && __SIZEOF_INT__ == 4
+    return (unsigned)__builtin_clz(x);
+#else
+    unsigned n = 0u;
+    if (x < 0x10000u) { n += 16u; x <<= 16; }
+    if (x < 0x1000000u) { n += 8u; x <<= 8; }
+    if (x < 0x10000000u) { n += 4u; x <<= 4; }
+    if (x < 0x40000000u) { n += 2u; x <<= 2; }
+    if (x < 0x80000000u) { n += 1u; }
+    return n;
+#endif
+}
+
+/* 1/d for 1 <= d < 2^31, without division: d = m 2^-(s-1) with m in [2^30, 2^31) (s the
+ * leading zeros of d), 1/m from a seed table of 2^31/(1 + j/64) interpolated linearly
+ * (relative error < 6.2e-5) and one Newton step r (2 - m r) (relative error < 1e-8, the
+ * result never above 1/m); returns r in (2^30, 2^31] with 1/d = r 2^-sh, sh = 62 - s. */
+ECMRT_Q_HOT uint32_t ecmrt_q_recip(uint32_t d, unsigned *sh)
+{
+    static const uint32_t tab[65] = {
+        2147483648u, 2114445438u, 2082408386u, 2051327664u, 2021161080u, 1991868891u,
+        1963413621u, 1935759908u, 1908874354u, 1882725390u, 1857283155u, 1832519380u,
+        1808407283u, 1784921474u, 1762037865u, 1739733588u, 1717986918u, 1696777203u,
+        1676084798u, 1655891006u, 1636178018u, 1616928864u, 1598127366u, 1579758086u,
+        1561806289u, 1544257904u, 1527099483u, 1510318170u, 1493901668u, 1477838209u,
+        1462116526u, 1446725826u, 1431655765u, 1416896428u, 1402438301u, 1388272257u,
+        1374389535u, 1360781718u, 1347440720u, 1334358772u, 1321528399u, 1308942414u,
+        1296593901u, 1284476201u, 1272582903u, 1260907830u, 1249445032u, 1238188770u,
+        1227133513u, 1216273925u, 1205604855u, 1195121335u, 1184818564u, 1174691910u,
+        1164736894u, 1154949189u, 1145324612u, 1135859120u, 1126548799u, 1117389866u,
+        1108378657u, 1099511628u, 1090785345u, 1082196484u, 1073741824u
+    };
+    const unsigned s = ecmrt_q_clz32(d);
+    const uint32_t m = d << (s - 1u);
+    const unsigned j = (unsigned)(m >> 24) - 64u;
+    const uint32_t r = tab[j] - (uint32_t)(((uint64_t)(tab[j] - tab[j + 1u]) * (m & 0xFFFFFFu)) >> 24);
+    const uint64_t e = ((uint64_t)1 << 62) - (uint64_t)m * r;     /* (2 - m r) in Q61 */
+    *sh = 62u - s;
+    return (uint32_t)(((uint64_t)r * (e >> 30)) >> 31);
+}
+
+/* exp(-x) < 2^-31 for x >= 21.5 in Q26 (c = 1 exactly in Q30) */
 #define ECMRT_XMAX_Q26 ((int64_t)1442840576)       /* 21.5 * 2^26 */
 #define ECMRT_LOG2E_Q30 ((int64_t)1549082005)      /* log2(e) * 2^30 */
 #define ECMRT_LN2_Q30 ((int64_t)744261118)         /* ln(2) * 2^30 */
+#define ECMRT_XSMALL_Q26 ((int64_t)1 << 21)        /* 2^-5 */
 
-/* c = 1 - exp(-dt/tau) in Q30, dt in Q16 s (>= 0), tau in Q_T s (> 0). */
-static inline int32_t ecmrt_q_one_minus_exp_neg(int32_t dt, int32_t tau)
+/* c = 1 - exp(-x) in Q30 for 0 <= x < 2^-5 given in Q30 (the usual dt/tau): the series
+ * x (1 - x (1/2 - x (1/6 - x/24))) (truncation < 2^-26.9 relative) */
+ECMRT_Q_HOT int32_t ecmrt_q_one_minus_exp_neg_small(int64_t x30)
+{
+    int32_t q;
+    q = 178956971 - (int32_t)ECMRT_RSHR(x30 * 44739243, ECMRT_Q30);   /* 1/6 - x/24 */
+    q = 536870912 - (int32_t)ECMRT_RSHR(x30 * q, ECMRT_Q30);          /* 1/2 - x q */
+    q = ECMRT_ONE30 - (int32_t)ECMRT_RSHR(x30 * q, ECMRT_Q30);        /* 1 - x q */
+    return (int32_t)ECMRT_RSHR(x30 * q, ECMRT_Q30);
+}
+
+/* c = 1 - exp(-x) in Q30 for 2^-5 <= x given in Q26 (x >= 21.5 gives 1): exp(-x) = 2^-y,
+ * y = x log2(e) = n + j/8 + f: 2^-(j/8) from a table, 2^-f by its Taylor series to r^6
+ * (r = f ln2, error < 1e-11) */
+static inline int32_t ecmrt_q_one_minus_exp_neg_big(int64_t x)
 {
     /* 2^(-j/8) in Q30, j = 0..7 */
     static const int32_t exp2_tab[8] = {
@@ -154,25 +306,18 @@ static inline int32_t ecmrt_q_one_minus_exp_neg(int32_t dt, int32_t tau)
     static const int32_t poly[7] = {
         1073741824, -1073741824, 536870912, -178956971, 44739243, -8947849, 1491308
     };
-    int64_t num, x, p;
+    int64_t p;
     int32_t y, f, r, e;
     unsigned n, j;
     int idx;
-    if (dt <= 0 || tau <= 0) {
-        return 0;
-    }
-    num = (int64_t)dt * ECMRT_X_SCALE;                  /* < 2^62 */
-    if (num >= (int64_t)tau * ECMRT_XMAX_Q26) {         /* x >= 21.5 */
+    if (x >= ECMRT_XMAX_Q26) {
         return ECMRT_ONE30;
     }
-    x = (num + (int64_t)(tau >> 1)) / tau;              /* Q26, < 21.5 * 2^26 */
-    /* exp(-x) = 2^-y, y = x log2(e) = n + j/8 + f'/2^26 */
     y = (int32_t)ECMRT_RSHR(x * ECMRT_LOG2E_Q30, ECMRT_Q30);   /* Q26, < 31.1 * 2^26 */
     n = (unsigned)y >> 26;
     j = ((unsigned)y >> 23) & 7u;
     f = y & 0x7FFFFF;
-    r = (int32_t)ECMRT_RSHR((int64_t)f * ECMRT_LN2_Q30, 26);  /* f' ln2 in Q30, < 0.0867 */
-    /* exp(-r), Taylor to r^6 in Horner form: error < 1e-11 */
+    r = (int32_t)ECMRT_RSHR((int64_t)f * ECMRT_LN2_Q30, 26);  /* f ln2 in Q30, < 0.0867 */
     p = poly[6];
     for (idx = 5; idx >= 0; idx--) {
         p = poly[idx] + ECMRT_RSHR((int64_t)r * p, ECMRT_Q30);
@@ -183,48 +328,176 @@ static inline int32_t ecmrt_q_one_minus_exp_neg(int32_t dt, int32_t tau)
     }
     return ECMRT_ONE30 - e;
 }
-#endif
 
-#if !ECMRT_VARIABLE_DT
+/* c = 1 - exp(-x) in Q30 for x in Q26 (x <= 0 gives 0, x >= 21.5 gives 1) */
+static inline int32_t ecmrt_q_one_minus_exp_neg_q26(int64_t x)
+{
+    if (x <= 0) {
+        return 0;
+    }
+    if (x < ECMRT_XSMALL_Q26) {
+        return ecmrt_q_one_minus_exp_neg_small(x << 4);
+    }
+    return ecmrt_q_one_minus_exp_neg_big(x);
+}
+
+#if ECMRT_VARIABLE_DT
+#if !defined(ECMRT_Q_T) || !defined(ECMRT_SH_RATE)
+#error "variable-dt fixed point needs ECMRT_Q_T and ECMRT_SH_RATE"
+#endif
+/* c = 1 - exp(-dt/tau) in Q30, dt in Q16 s, tau > 0 in Q_T s (Q_T <= 21): x = dt (1/tau)
+ * = dt r 2^-k in Q26, k = sh - Q_T - 10, and in Q30 (shift k - 4) for the series below
+ * x = 2^-5; k < 5 means tau < 2^-16 s, so x >= 1 for any dt > 0, and k < 1 x >= 32 (c = 1) */
+static inline int32_t ecmrt_q_c_dt_tau(int32_t dt, int32_t tau)
+{
+    unsigned sh;
+    const uint32_t r = ecmrt_q_recip((uint32_t)tau, &sh);
+    const int64_t p = (int64_t)dt * (int64_t)r;
+    int64_t x;
+    if (dt <= 0) {
+        return 0;
+    }
+    if (sh <= (unsigned)(ECMRT_Q_T + 10)) {
+        return ECMRT_ONE30;
+    }
+    sh -= (unsigned)(ECMRT_Q_T + 10);
+    if (sh >= 5u) {
+        x = ECMRT_RSHRV(p, sh - 4u);                        /* Q30 */
+        if (x < ((int64_t)1 << 25)) {
+            return ecmrt_q_one_minus_exp_neg_small(x);
+        }
+        return ecmrt_q_one_minus_exp_neg_big(ECMRT_RSHR(x, 4));
+    }
+    return ecmrt_q_one_minus_exp_neg_big(ECMRT_RSHRV(p, sh));
+}
+#else
 #if !defined(ECMRT_Q_DF) || !defined(ECMRT_Q_DS) || !defined(ECMRT_Q_CF) || !defined(ECMRT_Q_CS)
 #error "fixed-dt fixed point needs ECMRT_Q_DF, ECMRT_Q_DS, ECMRT_Q_CF and ECMRT_Q_CS"
 #endif
-/* c = one / D rounded, D > 0 (the tables hold D >= 1 scaled so that c < 2^30) */
-static inline int32_t ecmrt_q_recip(int32_t dd, int64_t one)
+/* c = 1/D in Q(qcd - Q_D'), D >= 1 in Q_D' (qcd = Q_C + Q_D' <= 30 + Q_D'): the shift
+ * sh - qcd >= 1 because D >= 1 */
+static inline int32_t ecmrt_q_inv_d(int32_t dd, unsigned qcd)
 {
-    return (int32_t)((one + (int64_t)(dd >> 1)) / dd);
+    unsigned sh;
+    const uint32_t r = ecmrt_q_recip((uint32_t)dd, &sh);
+    return (int32_t)ECMRT_RSHRV((int64_t)r, sh - qcd);
+}
+#endif
+
+#if ECMRT_FX_CDR || ECMRT_BV
+#define ECMRT_G_K 6u    /* 2^6 segments in [0, 1) and per binade */
+
+/* tab(x) by linear interpolation, 0 <= x < 2^31 in Q(qx), x < 2^(31 - qx) = 2^E: nodes
+ * k/64 for k = 0..63 (x < 1), then 2^b (1 + j/64) for b = 0.., j = 0..63; the segment from
+ * the bit length of x, the Q30 weight from the bits below it */
+static inline int32_t ecmrt_q_gtab(const int32_t *tab, uint32_t x, unsigned qx)
+{
+    unsigned s = qx - ECMRT_G_K;
+    uint32_t idx = x >> s;
+    if (idx >= (1u << ECMRT_G_K)) {
+        const unsigned b = 31u - ecmrt_q_clz32(x);     /* 2^b <= x < 2^(b+1), b >= qx */
+        s = b - ECMRT_G_K;
+        idx = ((uint32_t)(b - qx) << ECMRT_G_K) + (x >> s);
+    }
+    return ecmrt_q_lerp(tab + idx, 1u, (int32_t)((x & ((1u << s) - 1u)) << (30u - s)));
+}
+#endif
+
+#if ECMRT_FX_ARR
+#if !defined(ECMRT_FX_ARR_QB) || !defined(ECMRT_FX_ARR_QF)
+#error "temperature_dependence needs ECMRT_FX_ARR_QB and ECMRT_FX_ARR_QF"
+#endif
+#define ECMRT_ARR_TMIN (-40 * 256)
+#define ECMRT_ARR_TMAX (85 * 256)
+#define ECMRT_ARR_DLO 1193728          /* (-40 + 273.15) * 5120 */
+/* f = exp(A (1/(T + 273.15) - 1/(t_ref + 273.15))) in Q(ARR_QF), T (Q8) saturated to
+ * [-40, 85] degC: with d = (T + 273.15) 5120 = 20 T_q8 + 1398528 (exact) and d_lo that of
+ * -40 degC, f = F exp(-x), x = B (d - d_lo) / d, B = A / 233.15 K, F = f(-40 degC) */
+static inline int32_t ecmrt_q_arrhenius(const ecmrt_q_model_t *m, int32_t temp)
+{
+    unsigned sh;
+    uint32_t r;
+    int32_t d, z;
+    if (temp < ECMRT_ARR_TMIN) {
+        temp = ECMRT_ARR_TMIN;
+    } else if (temp > ECMRT_ARR_TMAX) {
+        temp = ECMRT_ARR_TMAX;
+    }
+    d = 20 * temp + 1398528;
+    r = ecmrt_q_recip((uint32_t)d, &sh);
+    z = (int32_t)ECMRT_RSHRV((int64_t)(d - ECMRT_ARR_DLO) * (int64_t)r, sh - 30u);  /* Q30 */
+    return (int32_t)ECMRT_RSHR((int64_t)m->a_fmax * (ECMRT_ONE30 - ecmrt_q_one_minus_exp_neg_q26(
+        ECMRT_RSHR((int64_t)m->a_b * z, ECMRT_FX_ARR_QB + 4))), ECMRT_Q30);
 }
 #endif
 
 /* soc0 in Q30 (1.0 = 1 << 30) */
-static inline void ecmrt_q_init(ecmrt_q_state_t *s, int32_t soc0)
+static inline void ecmrt_q_init(const ecmrt_q_model_t *m, ECMRT_STATE *s, int32_t soc0)
 {
     s->soc_rem = 0;
     s->soc = soc0;
-    s->u_fast = 0;
-    s->u_slow = 0;
-    s->charging = (uint8_t)ECMRT_DISCHARGE;
-    s->k_ocv = 0u;
-    s->k_dir[0] = 0u;
-    s->k_dir[1] = 0u;
+    ecmrt_state_init_common(s);
+#if ECMRT_FX_HYST
+    s->h = m->h_init;
+#endif
+#if ECMRT_TEMP
+    s->t_in = INT32_MIN;                    /* below every table: k_t = 0, w_t = 0 */
+    s->w_t = 0;
+#endif
+    (void)m;
 }
 
-/* u + c (t - u) with c in Q_c, saturated */
-#define ECMRT_Q_RC(u, c, t, qc) ecmrt_q_sat32((int64_t)(u) + ECMRT_RSHR(((t) - (int64_t)(u)) * (c), (qc)))
+/* u + c (t - u) with c in Q(qc), saturated */
+ECMRT_Q_SHARED int32_t ecmrt_q_rc(int32_t u, int32_t c, int64_t t, unsigned qc)
+{
+    return ecmrt_q_sat32((int64_t)u + ECMRT_RSHRV((t - (int64_t)u) * c, qc));
+}
+#define ECMRT_Q_RC(u, c, t, qc) ecmrt_q_rc((u), (c), (t), (unsigned)(qc))
 
-/* One step of the discrete 2RC model: i in Q_I A, dt in Q16 s; returns the voltage in Q_V. */
+/* One step: i in Q_I A, temp in Q8 degC, dt in Q16 s; returns the voltage in Q_V. */
 #if ECMRT_VARIABLE_DT
-static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ecmrt_q_state_t *s, int32_t i,
-                                   int32_t dt)
+static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int32_t i,
+                                   int32_t temp, int32_t dt)
 #else
-static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ecmrt_q_state_t *s, int32_t i)
+static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int32_t i,
+                                   int32_t temp)
 #endif
 {
     const ecmrt_q_dir_t *d;
     const int32_t *row;
-    unsigned dir;
+    unsigned dir = s->charging, kd, ko = ECMRT_HINT_OCV(s), kt = ECMRT_HINT_T(s);
     int32_t soc, w, cf, cs, uf, us, ocv;
-    int64_t acc, dsoc, v;
+    int64_t acc, dsoc, v, t0, tf, ts;
+#if ECMRT_TEMP
+    int32_t wt, cw[4];
+    unsigned st;
+#endif
+#if ECMRT_BRANCHES
+    const int32_t *br;
+#endif
+#if ECMRT_DIFF
+    int32_t ud, cd;
+#endif
+#if ECMRT_FX_HYST || ECMRT_FX_CDR || ECMRT_BV
+    const int64_t ai = i < 0 ? -(int64_t)i : (int64_t)i;
+#endif
+#if ECMRT_FX_CDR || ECMRT_BV || ECMRT_FX_ARR
+    int64_t g;
+#endif
+#if ECMRT_BV
+    unsigned sh;
+    uint32_t r;
+#endif
+#if ECMRT_FX_HYST
+    int64_t x, vh;
+    int32_t sg, ch, h;
+#endif
+#if ECMRT_FX_XRC
+    int32_t ux, cx;
+#endif
+#if !ECMRT_TEMP && !ECMRT_FX_ARR
+    (void)temp;                             /* one temperature row: not looked up */
+#endif
 
     /* 0. inputs: the current is saturated by its type (range in the header) */
 #if ECMRT_VARIABLE_DT
@@ -234,11 +507,10 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ecmrt_q_state_t *s,
 #endif
     /* 1. direction */
     if (i > m->deadband) {
-        s->charging = (uint8_t)ECMRT_CHARGE;
+        dir = ECMRT_CHARGE;
     } else if (i < -m->deadband) {
-        s->charging = (uint8_t)ECMRT_DISCHARGE;
+        dir = ECMRT_DISCHARGE;
     }
-    dir = s->charging;
     /* 2. SOC (Q30, saturated). The increment is formed at full precision (2^-SH_DSOC of
      *    an LSB) and the part below 1 LSB is carried in soc_rem: no rounding drift. */
 #if ECMRT_VARIABLE_DT
@@ -253,40 +525,132 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ecmrt_q_state_t *s,
     s->soc_rem = acc & (((int64_t)1 << ECMRT_SH_DSOC) - 1);          /* in [0, 2^SH_DSOC) */
     soc = ecmrt_q_sat32((int64_t)s->soc + dsoc);
     s->soc = soc;
-    /* 3. parameters at the new SOC */
+    /* 3. parameters at the new SOC (and temperature) */
     d = &m->dir[dir];
-    w = ecmrt_q_locate(&d->g, soc, &s->k_dir[dir]);
-    row = d->rows + ECMRT_NPAR * (unsigned)s->k_dir[dir];
+    kd = s->k_dir[dir];
+    w = ecmrt_q_locate(&d->g, soc, &kd, ECMRT_Q_G);
+#if ECMRT_TEMP
+    /* the temperature's row and weight, kept with the temperature (see ecmrt_f32_step) */
+    if (temp == s->t_in) {
+        wt = s->w_t;
+        if (kt > (unsigned)m->t.n - 2u) {
+            kt = (unsigned)m->t.n - 2u;
+        }
+    } else {
+        wt = ecmrt_q_locate(&m->t, temp, &kt, ECMRT_Q_GT);
+        s->t_in = temp;
+        s->w_t = wt;
+    }
+    ecmrt_q_corners(cw, w, wt);
+    st = ECMRT_NPAR * (unsigned)d->g.n;
+    row = d->rows + st * kt + ECMRT_NPAR * kd;
+#else
+    row = d->rows + ECMRT_NPAR * kd;
+#endif
+#if ECMRT_BRANCHES
+#if ECMRT_TEMP
+    br = d->branch + ECMRT_NB * kt;
+#else
+    br = d->branch;
+#endif
+#endif
 #if ECMRT_VARIABLE_DT
-    cf = ecmrt_q_one_minus_exp_neg(dt, ecmrt_q_lerp(row + ECMRT_P_KF, ECMRT_NPAR, w));
-    cs = ecmrt_q_one_minus_exp_neg(dt, ecmrt_q_lerp(row + ECMRT_P_KS, ECMRT_NPAR, w));
+    cf = ecmrt_q_c_dt_tau(dt, ECMRT_Q_AT(row, ECMRT_P_KF));
+    cs = ecmrt_q_c_dt_tau(dt, ECMRT_Q_AT(row, ECMRT_P_KS));
 #define ECMRT_QC_F ECMRT_Q30
 #define ECMRT_QC_S ECMRT_Q30
 #else
-    cf = ecmrt_q_recip(ecmrt_q_lerp(row + ECMRT_P_KF, ECMRT_NPAR, w),
-                       (int64_t)1 << (ECMRT_Q_CF + ECMRT_Q_DF));
-    cs = ecmrt_q_recip(ecmrt_q_lerp(row + ECMRT_P_KS, ECMRT_NPAR, w),
-                       (int64_t)1 << (ECMRT_Q_CS + ECMRT_Q_DS));
+    cf = ecmrt_q_inv_d(ECMRT_Q_AT(row, ECMRT_P_KF), ECMRT_Q_CF + ECMRT_Q_DF);
+    cs = ecmrt_q_inv_d(ECMRT_Q_AT(row, ECMRT_P_KS), ECMRT_Q_CS + ECMRT_Q_DS);
 #define ECMRT_QC_F ECMRT_Q_CF
 #define ECMRT_QC_S ECMRT_Q_CS
 #endif
+    /* r i in Q_V (int64) */
+    t0 = ECMRT_RSHR((int64_t)ECMRT_Q_AT(row, ECMRT_P_R0) * i, ECMRT_Q_R0 + ECMRT_Q_I - ECMRT_Q_V);
+    tf = ECMRT_RSHR((int64_t)ECMRT_Q_AT(row, ECMRT_P_RF) * i, ECMRT_Q_RF + ECMRT_Q_I - ECMRT_Q_V);
+    ts = ECMRT_RSHR((int64_t)ECMRT_Q_AT(row, ECMRT_P_RS) * i, ECMRT_Q_RS + ECMRT_Q_I - ECMRT_Q_V);
+    /* 3'. parameter effects and the Butler-Volmer branch, in this order */
+#if ECMRT_FX_CDR
+    g = ecmrt_q_gtab(m->g_tab, (uint32_t)ecmrt_q_sat32(ECMRT_RSHR(ai * m->g_k, ECMRT_FX_SH_GX)),
+                     ECMRT_FX_CDR_QX);
+    t0 = ECMRT_RSHR(t0 * g, ECMRT_FX_CDR_QG);
+    tf = ECMRT_RSHR(tf * g, ECMRT_FX_CDR_QG);
+#endif
+#if ECMRT_FX_ARR
+    g = ecmrt_q_arrhenius(m, temp);
+    t0 = ECMRT_RSHR(t0 * g, ECMRT_FX_ARR_QF);
+    tf = ECMRT_RSHR(tf * g, ECMRT_FX_ARR_QF);
+    ts = ECMRT_RSHR(ts * g, ECMRT_FX_ARR_QF);
+#endif
+#if ECMRT_BV
+    r = ecmrt_q_recip((uint32_t)ECMRT_Q_TV(br, ECMRT_B_I0), &sh);    /* x = |i| / i0(T) */
+    g = ecmrt_q_gtab(m->bv_tab, (uint32_t)ecmrt_q_sat32(ECMRT_RSHRV(ai * (int64_t)r,
+                                                                    sh - ECMRT_BV_K)), ECMRT_BV_QX);
+    tf = ECMRT_RSHR(tf * g, ECMRT_Q30);
+#endif
     /* 4. u += c (r i - u) */
-    uf = ECMRT_Q_RC(s->u_fast, cf,
-                    ECMRT_RSHR((int64_t)ecmrt_q_lerp(row + ECMRT_P_RF, ECMRT_NPAR, w) * i,
-                               ECMRT_Q_RF + ECMRT_Q_I - ECMRT_Q_V), ECMRT_QC_F);
+    uf = ECMRT_Q_RC(s->u_fast, cf, tf, ECMRT_QC_F);
     s->u_fast = uf;
-    us = ECMRT_Q_RC(s->u_slow, cs,
-                    ECMRT_RSHR((int64_t)ecmrt_q_lerp(row + ECMRT_P_RS, ECMRT_NPAR, w) * i,
-                               ECMRT_Q_RS + ECMRT_Q_I - ECMRT_Q_V), ECMRT_QC_S);
+    us = ECMRT_Q_RC(s->u_slow, cs, ts, ECMRT_QC_S);
     s->u_slow = us;
 #undef ECMRT_QC_F
 #undef ECMRT_QC_S
     /* 5. v = ocv + r0 i + u_fast + u_slow */
-    v = ECMRT_RSHR((int64_t)ecmrt_q_lerp(row + ECMRT_P_R0, ECMRT_NPAR, w) * i, ECMRT_Q_R0 + ECMRT_Q_I - ECMRT_Q_V);
-    w = ecmrt_q_locate(&m->ocv_g, soc, &s->k_ocv);
-    ocv = ecmrt_q_lerp(m->ocv + s->k_ocv, 1u, w);
-    v = (((int64_t)ocv + v) + uf) + us;
+#if ECMRT_OCV_SHARED
+    ocv = ECMRT_Q_AT(row, ECMRT_P_OCV);
+#else
+    w = ecmrt_q_locate(&m->ocv_g, soc, &ko, ECMRT_Q_G);
+#if ECMRT_TEMP
+    ecmrt_q_corners(cw, w, wt);
+    ocv = ecmrt_q_bilerp(m->ocv + (unsigned)m->ocv_g.n * kt + ko, 1u, (unsigned)m->ocv_g.n, cw);
+#else
+    ocv = ecmrt_q_lerp(m->ocv + ko, 1u, w);
+#endif
+#endif
+    v = (((int64_t)ocv + t0) + uf) + us;
+#if ECMRT_DIFF
+#if ECMRT_VARIABLE_DT
+    cd = ecmrt_q_c_dt_tau(dt, ECMRT_Q_TV(br, ECMRT_B_KD));
+    ud = ECMRT_Q_RC(s->u_diff, cd, ECMRT_RSHR((int64_t)ECMRT_Q_TV(br, ECMRT_B_RD) * i,
+                                             ECMRT_Q_RD + ECMRT_Q_I - ECMRT_Q_V), ECMRT_Q30);
+#else
+    cd = ecmrt_q_inv_d(ECMRT_Q_TV(br, ECMRT_B_KD), ECMRT_Q_CD + ECMRT_Q_DD);
+    ud = ECMRT_Q_RC(s->u_diff, cd, ECMRT_RSHR((int64_t)ECMRT_Q_TV(br, ECMRT_B_RD) * i,
+                                             ECMRT_Q_RD + ECMRT_Q_I - ECMRT_Q_V), ECMRT_Q_CD);
+#endif
+    s->u_diff = ud;
+    v = v + ud;
+#endif
+    /* 4', 5'. voltage effects */
+#if ECMRT_FX_HYST
+    sg = dir == ECMRT_CHARGE ? ECMRT_ONE30 : -ECMRT_ONE30;
+#if ECMRT_VARIABLE_DT
+    x = ECMRT_RSHR((int64_t)ecmrt_q_sat32(ECMRT_RSHR(ai * m->h_k, ECMRT_FX_SH_HR)) * dt,
+                   ECMRT_FX_SH_HX);
+#else
+    x = ECMRT_RSHR(ai * m->h_k, ECMRT_FX_SH_HX);
+#endif
+    ch = ecmrt_q_one_minus_exp_neg_q26(x);
+    h = ECMRT_Q_RC(s->h, ch, (int64_t)sg, ECMRT_Q30);
+    s->h = h;
+    vh = ECMRT_RSHR((int64_t)m->h_m * ((int64_t)h - m->h_ref), ECMRT_FX_SH_HM) +
+         ECMRT_RSHR((int64_t)m->h_m0 * ((int64_t)sg - m->h_ref), ECMRT_FX_SH_HM);
+    v = v + vh;
+#endif
+#if ECMRT_FX_XRC
+#if ECMRT_VARIABLE_DT
+    cx = ecmrt_q_c_dt_tau(dt, m->x_k);
+#else
+    cx = m->x_k;
+#endif
+    ux = ECMRT_Q_RC(s->u_x, cx, ECMRT_RSHR((int64_t)m->x_r * i, ECMRT_FX_SH_XR), ECMRT_Q30);
+    s->u_x = ux;
+    v = v + ux;
+#endif
+    ecmrt_hints_store(s, dir, kd, ko, kt);   /* last (see ecmrt_f32_locate) */
     return ecmrt_q_sat32(v);
 }
 
+#undef ECMRT_Q_AT
+#undef ECMRT_Q_TV
 #endif /* ECMRT_Q_H */

@@ -82,7 +82,7 @@ def test_float_literals_round_trip(synthetic_model):
     values = {np.float32(float(s)).view(np.uint32).item() for s in lits}
     d = spec.dirs[0]
     for arr in (spec.ocv, spec.ocv_grid.x, spec.ocv_grid.inv_dx, d.r0, d.k_fast, d.k_slow):
-        assert set(np.asarray(arr, np.float32).view(np.uint32).tolist()) <= values
+        assert set(np.asarray(arr, np.float32).ravel().view(np.uint32).tolist()) <= values
 
 
 @pytest.mark.parametrize("numeric,dt_s", VARIANTS, ids=VARIANT_IDS)
@@ -123,8 +123,8 @@ int main(void)
     cellA_init(&a, 0.8f);
     cellB_init(&b, (int32_t)(0.8 * 1073741824.0));
     for (k = 0; k < 100; k++) {
-        va = cellA_step(&a, -2.0f, 0.1f);
-        vb = cellB_step(&b, (int32_t)(-2.0 * (double)(1L << CELLB_ECM_Q_I)));
+        va = cellA_step(&a, -2.0f, 25.0f, 0.1f);
+        vb = cellB_step(&b, (int32_t)(-2.0 * (double)(1L << CELLB_ECM_Q_I)), 25 << CELLB_ECM_Q_TEMP);
     }
     printf("%.6f %.6f\n", (double)va, (double)vb / (double)(1L << CELLB_ECM_Q_V));
     return 0;

@@ -107,7 +107,8 @@ def test_effects_bit_exact_and_close(names, numeric, dt_s):
 def test_state_starts_at_initial_hysteresis():
     cm = _cm(("hysteresis",), "float", None)
     s = cm.new_state(0.5)
-    assert s.h == np.float32(0.5) and s.u_x == 0.0
+    assert s.h == np.float32(0.5)
+    assert "u_x" not in dir(s)              # the state has only the fields the model needs
     cmq = _cm(("hysteresis", "extra_rc"), "fixed", None)
     sq = cmq.new_state(cref.ONE30 // 2)
     assert sq.h == 2**29 and sq.u_x == 0
@@ -253,12 +254,23 @@ def test_fixed_cdr_table_edges_bit_exact(scale, i0, dt_s):
 # --- refusals and generated files --------------------------------------------------------------
 
 @pytest.mark.parametrize("numeric", ["float", "fixed"])
-def test_temperature_dependence_refused(tmp_path, numeric):
-    m = _base().with_effects([fx.make_effect("temperature_dependence", activation_k=4000.0,
-                                             t_ref_c=25.0)])
-    with pytest.raises(InputError, match="temperature_dependence is not supported"):
-        generate_c(m, tmp_path / "out", numeric=numeric)
-    assert not (tmp_path / "out").exists()
+@pytest.mark.parametrize("dt_s", [None, 1.0], ids=["vdt", "dt1"])
+def test_temperature_dependence_generated(numeric, dt_s):
+    """temperature_dependence (refused before the step had a temperature input): with the
+    other effects, C == reference bit for bit and within tolerance of simulate.py at a
+    temperature sweeping -30 .. 50 degC."""
+    m = _model(_all(numeric)).with_effects(
+        list(_model(_all(numeric)).effects) +
+        [fx.make_effect("temperature_dependence", activation_k=4000.0, t_ref_c=25.0)])
+    cm = cbuild.build(m, numeric=numeric, dt_s=dt_s, prefix="fxa")
+    assert cm.spec.fx["arr"] == 1 and cm.spec.uses_temperature
+    t, cur = _profile(4000)
+    if dt_s is not None:
+        t = dt_s * np.arange(t.size, dtype=np.float64)
+    temps = np.linspace(-30.0, 50.0, t.size)
+    r = cbuild.compare(m, cm, t, cur, 0.8, temperature_c=temps)
+    assert r["bit_exact_vs_reference"], r
+    assert r["max_abs_diff_vs_python_v"] <= TOL[numeric][1], r
 
 
 def test_cdr_i0_too_small_for_fixed_refused_with_hint(tmp_path):
@@ -281,7 +293,7 @@ def test_repeated_effect_refused(tmp_path):
 
 def test_files_and_documentation(tmp_path):
     plain = render(prepare(_base(), numeric="float"))
-    assert "ecmrt_fx.h" not in plain and all("_fx" not in k for k in plain)
+    assert "ECMRT_FX_HYST 0" in plain["ecm_ecm.c"] and " h;" not in plain["ecm_ecm.h"]
     # capacity_error alone is only a different k_soc: plain runtime, a note in the header
     cap = prepare(_model(("capacity_error",)), numeric="float")
     assert not cap.has_fx and cap.k_soc != prepare(_base(), numeric="float").k_soc
@@ -289,10 +301,11 @@ def test_files_and_documentation(tmp_path):
     for numeric in ("float", "fixed"):
         spec = prepare(_model(_all(numeric)), numeric=numeric, prefix="bat")
         files = render(spec)
-        assert set(files) == {*file_names("bat", numeric, True)["runtime"], "bat_ecm.h", "bat_ecm.c",
+        assert set(files) == {*file_names("bat", numeric)["runtime"], "bat_ecm.h", "bat_ecm.c",
                               "bat_ecm_files.mk", "bat_ecm_report.md"}
         hdr = files["bat_ecm.h"]
-        assert "hysteresis" in hdr and "extra_rc" in hdr and "ecmrt_fx.h" in hdr
+        assert "hysteresis" in hdr and "extra_rc" in hdr and " h;" in hdr and " u_x;" in hdr
+        assert "ECMRT_FX_HYST 1" in files["bat_ecm.c"]
         assert files == render(spec)                           # deterministic
         written = generate_c(_model(_all(numeric)), tmp_path / numeric, numeric=numeric, prefix="bat")
         assert {p.name for p in written} == set(files)
@@ -340,4 +353,4 @@ def test_build_c_outputs_for_a_model_with_effects(tmp_path):
     for n, r in block.items():
         assert r["bit_exact_vs_reference"], n
         assert abs(r["mae_v"] - 0.002) < 2e-4 and r["max_abs_diff_vs_python_v"] < TOL[n][1]
-        assert f"c/{n}/ecmrt_fx.h" in r["files"]
+        assert f"c/{n}/{file_names('pk', n)['runtime'][-1]}" in r["files"]

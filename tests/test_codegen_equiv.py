@@ -8,7 +8,8 @@ import pytest
 
 from ecmgen.c import cbuild, cref
 from ecmgen.c.codegen import prepare, runtime_dir
-from test_codegen_helpers import CYCLES, cycle, panasonic_model, soc0_of
+from test_codegen_helpers import (CYCLES, assert_fields_equal, check_c_equivalence, cycle,
+                                  panasonic_model, soc0_of)
 
 VARIANTS = [("float", None), ("float", 0.1), ("fixed", None), ("fixed", 0.1)]
 VARIANT_IDS = ["float-vdt", "float-dt0.1", "fixed-vdt", "fixed-dt0.1"]
@@ -29,14 +30,7 @@ def _profile(n=6000, seed=0):
 
 
 def _all_fields_equal(got: cref.RefResult, ref: cref.RefResult) -> None:
-    for f in ("v", "soc", "u_fast", "u_slow", "charging"):
-        a, b = getattr(got, f), getattr(ref, f)
-        if a.dtype == np.float32:
-            a, b = a.view(np.uint32), b.astype(np.float32).view(np.uint32)
-        else:
-            a, b = a.astype(np.int64), b.astype(np.int64)
-        bad = np.flatnonzero(a != b)
-        assert bad.size == 0, f"{f} differs at {bad.size} steps, first {bad[:5]}"
+    assert_fields_equal(got, ref, ("v", "soc", "u_fast", "u_slow", "charging"))
 
 
 @pytest.mark.parametrize("numeric,dt_s", VARIANTS, ids=VARIANT_IDS)
@@ -69,8 +63,28 @@ def test_starting_direction_and_deadband(synthetic_model):
 # --- the hand-written runtime's exp, unit-tested directly --------------------------------
 
 EXP_HARNESS = r"""
+typedef struct { float soc, soc_c, u_fast, u_slow; unsigned char charging, k_ocv, k_dir[2]; } fstate_t;
+#define ECMRT_STATE fstate_t
 #define ECMRT_VARIABLE_DT 1
+#define ECMRT_TEMP 0
+#define ECMRT_OCV_SHARED 0
+#define ECMRT_DIFF 0
+#define ECMRT_BV 0
+#define ECMRT_FX_HYST 0
+#define ECMRT_FX_XRC 0
+#define ECMRT_FX_CDR 0
+#define ECMRT_FX_ARR 0
 #include "ecmrt_f32.h"
+#undef ECMRT_STATE
+#undef ECMRT_NPAR
+#undef ECMRT_P_RF
+#undef ECMRT_P_KF
+#undef ECMRT_P_RS
+#undef ECMRT_P_KS
+#undef ECMRT_P_OCV
+#undef ECMRT_B_KD
+typedef struct { long long soc_rem; int soc, u_fast, u_slow; unsigned char charging, k_ocv, k_dir[2]; } qstate_t;
+#define ECMRT_STATE qstate_t
 #define ECMRT_Q_I 24
 #define ECMRT_Q_V 27
 #define ECMRT_Q_G 27
@@ -89,7 +103,16 @@ void t_f32(const float *x, float *out, size_t n)
 void t_q(const int32_t *dt, const int32_t *tau, int32_t *out, size_t n)
 {
     size_t k;
-    for (k = 0; k < n; k++) out[k] = ecmrt_q_one_minus_exp_neg(dt[k], tau[k]);
+    for (k = 0; k < n; k++) out[k] = ecmrt_q_c_dt_tau(dt[k], tau[k]);
+}
+void t_recip(const uint32_t *d, uint32_t *r, uint32_t *sh, size_t n)
+{
+    size_t k;
+    unsigned s;
+    for (k = 0; k < n; k++) {
+        r[k] = ecmrt_q_recip(d[k], &s);
+        sh[k] = s;
+    }
 }
 """
 
@@ -101,7 +124,8 @@ def exp_lib(tmp_path_factory):
     d = tmp_path_factory.mktemp("exp")
     ffi = cffi.FFI()
     ffi.cdef("void t_f32(const float *x, float *out, size_t n);"
-             "void t_q(const int32_t *dt, const int32_t *tau, int32_t *out, size_t n);")
+             "void t_q(const int32_t *dt, const int32_t *tau, int32_t *out, size_t n);"
+             "void t_recip(const uint32_t *d, uint32_t *r, uint32_t *sh, size_t n);")
     ffi.set_source("_ecmgen_exp_test", EXP_HARNESS, include_dirs=[str(runtime_dir())],
                    extra_compile_args=["-std=c99", "-O2", "-ffp-contract=off"])
     so = ffi.compile(tmpdir=str(d))
@@ -139,15 +163,39 @@ def test_runtime_exp_fixed(exp_lib):
     out = np.empty_like(dt)
     lib.t_q(ffi.from_buffer("int32_t[]", dt), ffi.from_buffer("int32_t[]", tau),
             ffi.from_buffer("int32_t[]", out), dt.size)
-    ref = cref.one_minus_exp_neg_q(dt, tau, q_t)
+    ref = cref.c_dt_tau_q(dt, tau, q_t)
     assert np.array_equal(out.astype(np.int64), ref)
     x = np.maximum(dt, 0) / 65536.0 / (tau / 2.0**q_t)
     exact = -np.expm1(-x) * 2**30
-    # error budget in LSB of Q30: x = dt/tau rounded to Q26 (8 e^-x) + y = x log2(e) rounded
-    # to Q26 (5.5 e^-x) + polynomial and final roundings (~2): at most ~1.5e-8 absolute
-    tol = 2 + 15 * np.exp(-x)
-    assert np.all(np.abs(out - exact) <= tol)
+    # error budget in LSB of Q30: 1/tau to < 1e-8 relative (x e^-x 2^30 1e-8 < 4) + x
+    # rounded to Q26 (8 e^-x) + y = x log2(e) rounded to Q26 (5.5 e^-x) + polynomial and
+    # final roundings (~2): at most ~2e-8 absolute; below x = 2^-5 (the series) ~3 LSB
+    tol = 2 + 15 * np.exp(-x) + 4
+    err = np.abs(out - exact)
+    print(f"\nmax error {err.max():.2f} LSB of Q30; below x = 2^-5: "
+          f"{err[x < 2**-5].max():.2f} LSB")
+    assert np.all(err <= tol)
+    assert np.all(err[x < 2**-5] <= 3 + 1e-8 * exact[x < 2**-5])
     assert out[0] == 0 and out[3] == 0 and out[2] == 2**30
+
+
+def test_runtime_recip(exp_lib):
+    """The division-free reciprocal: C == reference bit for bit, relative error < 1e-8 and
+    never above 1/d, over the whole int32 range and at every seed-table node."""
+    ffi, lib = exp_lib.ffi, exp_lib.lib
+    rng = np.random.default_rng(3)
+    nodes = np.array([(64 + j) << 24 for j in range(64)], dtype=np.int64)
+    d = np.unique(np.concatenate([np.arange(1, 5000), 2**31 - np.arange(1, 5000),
+                                  rng.integers(1, 2**31, 200000), nodes, nodes - 1, nodes + 1,
+                                  2 ** np.arange(31), 2 ** np.arange(1, 31) - 1]))
+    d = d[(d >= 1) & (d < 2**31)].astype(np.uint32)
+    r, sh = np.empty_like(d), np.empty_like(d)
+    lib.t_recip(ffi.from_buffer("uint32_t[]", d), ffi.from_buffer("uint32_t[]", r),
+                ffi.from_buffer("uint32_t[]", sh), d.size)
+    rr, rsh = cref.recip_q(d.astype(np.int64))
+    assert np.array_equal(r.astype(np.int64), rr) and np.array_equal(sh.astype(np.int64), rsh)
+    approx = r.astype(np.float64) * np.ldexp(1.0, -sh.astype(np.int64)) * d.astype(np.float64)
+    assert np.all(approx <= 1.0) and np.max(1.0 - approx) < 1e-8
 
 
 # --- real drive cycles ---------------------------------------------------------------------
@@ -166,15 +214,7 @@ def test_real_cycles_variable_dt(pana, name):
     soc0 = soc0_of(pana, s)
     res = cbuild.c_equivalence(pana, s, soc0)
     print(f"\n{name} ({len(s)} steps, soc0 {soc0:.4f}):")
-    for numeric in ("float", "fixed"):
-        r = res[numeric]
-        print(f"  {numeric:5s} bit-exact vs reference: {r['bit_exact_vs_reference']}; "
-              f"MAE {r['mae_v'] * 1e3:.4f} mV (python {r['python_mae_v'] * 1e3:.4f}), "
-              f"|dMAE| {r['delta_mae_v'] * 1e3:.2e} mV, max|dv| {r['max_abs_diff_vs_python_v'] * 1e3:.2e} mV")
-        assert r["bit_exact_vs_reference"], numeric
-        assert r["steps"] == len(s)
-        assert r["delta_mae_v"] <= TOL[numeric][0], numeric
-        assert r["max_abs_diff_vs_python_v"] <= TOL[numeric][1], numeric
+    check_c_equivalence(res, len(s), TOL)
 
 
 @pytest.mark.slow

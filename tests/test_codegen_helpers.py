@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import PANASONIC
+from conftest import PANASONIC, SHARED_DATA
 
 CYCLES = ("us06.mat", "hwfet-a.mat")
 
@@ -97,3 +97,106 @@ def soc0_of(model, series) -> float:
     from ecmgen.model.simulate import initial_soc
 
     return float(initial_soc(model, series))
+
+
+# the issue-8 diffusion / Butler-Volmer values at the shared pulse tests' temperatures
+BRANCH_T_C = np.array([-19.9, -9.9, 0.6, 25.8])
+BRANCH_R_DIFF = np.array([0.117, 0.082, 0.059, 0.026])
+BRANCH_TAU_DIFF = np.array([710.0, 540.0, 370.0, 450.0])
+BRANCH_I0 = np.array([0.83, 1.21, 2.75, 17.5])
+TEMPERATURE_MODEL = Path(__file__).resolve().parent / "data" / "panasonic-temperature-model.json"
+
+
+def temperature_model(n_t: int = 4, n_rc: int = 20, seed: int = 3, branches: bool = False,
+                      t_lo: float = -20.0, t_hi: float = 25.0, ocv_on_rc_grid: bool = False):
+    """realistic_model over temperature: n_t rows from t_lo to t_hi degC, resistances and
+    time constants scaled per row the way the shared cold pulse tests scale them (roughly
+    Arrhenius, 3 to 4x from 25 to -20 degC), the OCV shifted by a few mV per row; with
+    ``branches`` the diffusion pair and Butler-Volmer i0 of the issue, linear in T; with
+    ``ocv_on_rc_grid`` the OCV sampled at the RC tables' SOC points (as a fitter that puts
+    every table on one grid gives it) instead of its own 41 points."""
+    from dataclasses import replace
+
+    from ecmgen.model import EcmModel
+    from ecmgen.model.model import RC_FIELDS, OcvOverTemperature, RcTable
+
+    base = realistic_model(n_rc=n_rc, seed=seed)
+    temps = np.linspace(t_lo, t_hi, n_t)
+    rng = np.random.default_rng(seed + 100)
+    f = np.exp(2600.0 * (1.0 / (temps + 273.15) - 1.0 / 298.15))     # 1 at 25, ~4 at -20
+
+    def table(t: RcTable) -> RcTable:
+        cols = {}
+        for k in RC_FIELDS:
+            v = getattr(t, k)[0]
+            if k.startswith("r"):
+                rows = [v * fk * (1.0 + 0.05 * rng.standard_normal(v.size)) for fk in f]
+            else:
+                rows = [v * (1.0 + 0.3 * (fk - 1.0) / 3.0) for fk in f]
+            cols[k] = np.vstack(rows)
+        extra = {}
+        if branches:
+            extra = {"r_diff_ohm": np.interp(temps, BRANCH_T_C, BRANCH_R_DIFF),
+                     "tau_diff_s": np.interp(temps, BRANCH_T_C, BRANCH_TAU_DIFF),
+                     "i0_a": np.interp(temps, BRANCH_T_C, BRANCH_I0)}
+        n = (n_t, t.soc.size)
+        return RcTable(soc=t.soc, temperature_c=temps, fit_error=np.zeros(n),
+                       converged=np.ones(n, bool), **cols, **extra)
+
+    ocv_soc = base.charge.soc if ocv_on_rc_grid else base.ocv.soc
+    ocv0 = np.interp(ocv_soc, base.ocv.soc, base.ocv.ocv_v[0])
+    ocv = OcvOverTemperature(temps, ocv_soc,
+                             np.vstack([ocv0 + 2e-4 * (tc - 25.0) * (1.0 - ocv_soc)
+                                        for tc in temps]))
+    return replace(base, ocv=ocv, charge=table(base.charge), discharge=table(base.discharge))
+
+
+def temperature_fitted_model():
+    """The cached realistic model over temperature (tests/data/make_temperature_model.py:
+    four one-temperature curve fits of the shared pulse tests, stacked, with diffusion and
+    Butler-Volmer branches, on 14 x 21 points)."""
+    from ecmgen.model import load_model
+
+    return load_model(TEMPERATURE_MODEL)
+
+
+def load_cycle_t(folder: str, name: str):
+    """A shared drive cycle with its cell temperature (Battery_Temp_degC)."""
+    import scipy.io
+
+    from conftest import SHARED_DATA
+    from ecmgen.data.measure import TimeSeries
+
+    path = SHARED_DATA / folder / name
+    if not path.exists():
+        pytest.skip(f"real data not found at {path} (expected ../shared/data beside the repo)")
+    m = scipy.io.loadmat(str(path), squeeze_me=True, struct_as_record=False)["meas"]
+    return TimeSeries(np.asarray(m.Time, float), np.asarray(m.Current, float),
+                      np.asarray(m.Voltage, float), np.asarray(m.Battery_Temp_degC, float),
+                      source=str(path))
+
+
+def check_c_equivalence(res: dict, steps: int, tol: dict) -> None:
+    """Print and check the c_equivalence block of a real cycle: bit-exact against the
+    references, every step run, |dMAE| and max |dv| against float64 within tol[numeric]."""
+    for numeric in ("float", "fixed"):
+        r = res[numeric]
+        print(f"  {numeric:5s} bit-exact {r['bit_exact_vs_reference']}; MAE {r['mae_v'] * 1e3:.3f} mV "
+              f"(python {r['python_mae_v'] * 1e3:.3f}), |dMAE| {r['delta_mae_v'] * 1e3:.2e} mV, "
+              f"max|dv| {r['max_abs_diff_vs_python_v'] * 1e3:.4f} mV")
+        assert r["bit_exact_vs_reference"], numeric
+        assert r["steps"] == steps
+        assert r["delta_mae_v"] <= tol[numeric][0], numeric
+        assert r["max_abs_diff_vs_python_v"] <= tol[numeric][1], numeric
+
+
+def assert_fields_equal(got, ref, fields) -> None:
+    """C run == reference on every step of every field, bit for bit (float32 by its bits)."""
+    for f in fields:
+        a, b = getattr(got, f), np.asarray(getattr(ref, f))
+        if a.dtype == np.float32:
+            a, b = a.view(np.uint32), b.astype(np.float32).view(np.uint32)
+        else:
+            a, b = a.astype(np.int64), b.astype(np.int64)
+        bad = np.flatnonzero(a != b)
+        assert bad.size == 0, f"{f} differs at {bad.size} steps, first {bad[:5]}"

@@ -163,6 +163,12 @@ SAN_MAIN = r"""
 #include "qv_ecm.h"
 #include "qd_ecm.h"
 
+/* cell temperatures, every one a legal input (float: NaN and inf too) */
+static const float ftemps[8] = {25.0f, -20.0f, -60.0f, 90.0f, 1e30f, -1e30f, 0.5f, 17.3f};
+static const int32_t qtemps[8] = {25 * 256, -20 * 256, INT32_MIN, INT32_MAX, 0, 4423, -5000, 30000};
+#define FT(r) ftemps[(unsigned)(r) & 7u]
+#define QT(r) qtemps[(unsigned)(r) & 7u]
+
 static uint32_t rnd(uint32_t *x) { *x ^= *x << 13; *x ^= *x >> 17; *x ^= *x << 5; return *x; }
 static int bad_f(float v) { return !(v == v) || v > 1e6f || v < -1e6f; }
 static long fails = 0;
@@ -191,11 +197,11 @@ int main(int argc, char **argv)
                 int r;
                 fv_init(&s, socs[a]); fd_init(&t, socs[a]);
                 for (r = 0; r < 20; r++) {
-                    fails += bad_f(fv_step(&s, r % 3 ? cur[b] : -cur[b], dts[c]));
-                    fails += bad_f(fv_step(&s, nan, nan)) + bad_f(fv_step(&s, inf, inf));
-                    fails += bad_f(fv_step(&s, -inf, -inf));
-                    fails += bad_f(fd_step(&t, cur[b])) + bad_f(fd_step(&t, nan));
-                    fails += bad_f(fd_step(&t, -inf));
+                    fails += bad_f(fv_step(&s, r % 3 ? cur[b] : -cur[b], FT(r + b), dts[c]));
+                    fails += bad_f(fv_step(&s, nan, nan, nan)) + bad_f(fv_step(&s, inf, inf, inf));
+                    fails += bad_f(fv_step(&s, -inf, -inf, -inf));
+                    fails += bad_f(fd_step(&t, cur[b], FT(r + c))) + bad_f(fd_step(&t, nan, nan));
+                    fails += bad_f(fd_step(&t, -inf, -inf));
                 }
             }
     for (a = 0; a < sizeof qsocs / sizeof qsocs[0]; a++)
@@ -205,8 +211,8 @@ int main(int argc, char **argv)
                 int r;
                 qv_init(&s, qsocs[a]); qd_init(&t, qsocs[a]);
                 for (r = 0; r < 20; r++) {
-                    int32_t v = qv_step(&s, r % 2 ? qcur[b] : -(qcur[b] + 1), qdts[c]);
-                    int32_t w = qd_step(&t, qcur[b]);
+                    int32_t v = qv_step(&s, r % 2 ? qcur[b] : -(qcur[b] + 1), QT(r + b), qdts[c]);
+                    int32_t w = qd_step(&t, qcur[b], QT(r + c));
                     if (v < lo) lo = v;
                     if (v > hi) hi = v;
                     (void)w;
@@ -219,9 +225,9 @@ int main(int argc, char **argv)
             const uint32_t r1 = rnd(&x), r2 = rnd(&x);
             const float fi = (float)(int32_t)r1 * (1.0f / 8388608.0f);     /* +-256 A */
             const float fdt = (float)(r2 >> 8) * (1.0f / 1677721.6f);     /* 0..10 s */
-            fails += bad_f(fv_step(&s, fi, fdt)) + bad_f(fd_step(&t, fi));
-            (void)qv_step(&q, (int32_t)r1, (int32_t)(r2 >> 13));
-            (void)qd_step(&u, (int32_t)r2);
+            fails += bad_f(fv_step(&s, fi, FT(r2 >> 29), fdt)) + bad_f(fd_step(&t, fi, FT(r1 >> 29)));
+            (void)qv_step(&q, (int32_t)r1, QT(r2 >> 29), (int32_t)(r2 >> 13));
+            (void)qd_step(&u, (int32_t)r2, QT(r1 >> 29));
         }
         printf("soc %g %g %ld %ld\n", (double)s.soc, (double)t.soc, (long)q.soc, (long)u.soc);
     }
@@ -393,6 +399,12 @@ SAN_FX_MAIN = r"""
 #include "qv_ecm.h"
 #include "qd_ecm.h"
 
+/* cell temperatures, every one a legal input (float: NaN and inf too) */
+static const float ftemps[8] = {25.0f, -20.0f, -60.0f, 90.0f, 1e30f, -1e30f, 0.5f, 17.3f};
+static const int32_t qtemps[8] = {25 * 256, -20 * 256, INT32_MIN, INT32_MAX, 0, 4423, -5000, 30000};
+#define FT(r) ftemps[(unsigned)(r) & 7u]
+#define QT(r) qtemps[(unsigned)(r) & 7u]
+
 static uint32_t rnd(uint32_t *x) { *x ^= *x << 13; *x ^= *x >> 17; *x ^= *x << 5; return *x; }
 static long fails = 0, qfails = 0;
 static int bad_f(float v) { return !(v == v) || v > 1e6f || v < -1e6f; }
@@ -424,11 +436,11 @@ int main(int argc, char **argv)
                 int r;
                 fv_init(&s, socs[a]); fd_init(&t, socs[a]);
                 for (r = 0; r < 20; r++) {
-                    fails += bad_f(fv_step(&s, r % 3 ? cur[b] : -cur[b], dts[c]));
-                    fails += bad_f(fv_step(&s, nan, nan)) + bad_f(fv_step(&s, inf, inf));
-                    fails += bad_f(fv_step(&s, -inf, -inf)) + bad_f(fv_step(&s, nan, inf));
-                    fails += bad_f(fd_step(&t, r % 3 ? cur[b] : -cur[b])) + bad_f(fd_step(&t, nan));
-                    fails += bad_f(fd_step(&t, -inf)) + bad_f(fd_step(&t, inf));
+                    fails += bad_f(fv_step(&s, r % 3 ? cur[b] : -cur[b], FT(r + b), dts[c]));
+                    fails += bad_f(fv_step(&s, nan, nan, nan)) + bad_f(fv_step(&s, inf, inf, inf));
+                    fails += bad_f(fv_step(&s, -inf, -inf, -inf)) + bad_f(fv_step(&s, nan, FT(r), inf));
+                    fails += bad_f(fd_step(&t, r % 3 ? cur[b] : -cur[b], FT(r + c))) + bad_f(fd_step(&t, nan, nan));
+                    fails += bad_f(fd_step(&t, -inf, -inf)) + bad_f(fd_step(&t, inf, inf));
                     fails += BAD_FS(s) + BAD_FS(t);
                 }
             }
@@ -439,8 +451,8 @@ int main(int argc, char **argv)
                 int r;
                 qv_init(&s, qsocs[a]); qd_init(&t, qsocs[a]);
                 for (r = 0; r < 20; r++) {
-                    (void)qv_step(&s, r % 2 ? qcur[b] : -(qcur[b] + 1), qdts[c]);
-                    (void)qd_step(&t, r % 2 ? qcur[b] : -(qcur[b] + 1));
+                    (void)qv_step(&s, r % 2 ? qcur[b] : -(qcur[b] + 1), QT(r + b), qdts[c]);
+                    (void)qd_step(&t, r % 2 ? qcur[b] : -(qcur[b] + 1), QT(r + c));
                     qfails += BAD_QS(s) + BAD_QS(t);
                 }
             }
@@ -455,9 +467,9 @@ int main(int argc, char **argv)
             if ((r3 & 1023u) == 0u) fi = (r3 & 1024u) ? nan : fi * 1e30f;  /* absurd inputs */
             if ((r3 & 4095u) == 1u) fdt = (r3 & 4096u) ? nan : 1e30f;
             if ((r3 & 3u) != 0u) qi >>= (r3 >> 2) % 24u;                   /* mostly moderate */
-            fails += bad_f(fv_step(&s, fi, fdt)) + bad_f(fd_step(&t, fi));
-            (void)qv_step(&q, qi, (int32_t)(r2 >> 13));
-            (void)qd_step(&u, qi);
+            fails += bad_f(fv_step(&s, fi, FT(r2 >> 29), fdt)) + bad_f(fd_step(&t, fi, FT(r1 >> 29)));
+            (void)qv_step(&q, qi, QT(r2 >> 29), (int32_t)(r2 >> 13));
+            (void)qd_step(&u, qi, QT(r1 >> 29));
             if ((k & 63) == 0) {
                 fails += BAD_FS(s) + BAD_FS(t);
                 qfails += BAD_QS(q) + BAD_QS(u);
@@ -474,10 +486,25 @@ int main(int argc, char **argv)
 """
 
 
-def test_effects_sanitized_build_has_no_undefined_behaviour(tmp_path):
-    """ASan + UBSan (+ float-cast-overflow) build of the four variants with all effects, driven
-    through NaN/inf/extreme currents and dt, SOC far outside [0, 1], and 5*10^6 random steps:
-    no sanitizer report, no non-finite output, every state finite, h within [-1, 1]."""
+def _temperature_fx_model(numeric):
+    """Tables over 5 temperatures on one SOC grid with the diffusion pair, the Butler-Volmer
+    branch, temperature_dependence and the effects above: every switch of the runtime on."""
+    from test_codegen_helpers import temperature_model
+
+    from ecmgen.model import effects as fx
+
+    return temperature_model(5, 20, seed=3, branches=True, ocv_on_rc_grid=True).with_effects(
+        list(_fx_model(numeric).effects) +
+        [fx.make_effect("temperature_dependence", activation_k=3500.0, t_ref_c=25.0)])
+
+
+@pytest.mark.parametrize("family", ["effects", "temperature"])
+def test_effects_sanitized_build_has_no_undefined_behaviour(tmp_path, family):
+    """ASan + UBSan (+ float-cast-overflow) build of the four variants with all effects (and,
+    for "temperature", tables over temperature with every branch and temperature_dependence),
+    driven through NaN/inf/extreme currents, temperatures and dt, SOC far outside [0, 1], and
+    5*10^6 random steps: no sanitizer report, no non-finite output, every state finite, h
+    within [-1, 1]."""
     cc = cbuild.host_cc()
     probe = subprocess.run([*cc, *cbuild.SANITIZE_FLAGS, "-x", "c", "-", "-o", tmp_path / "probe"],
                            input="int main(void){return 0;}\n", capture_output=True, text=True)
@@ -485,9 +512,12 @@ def test_effects_sanitized_build_has_no_undefined_behaviour(tmp_path):
         pytest.skip(f"compiler cannot build with sanitizers: {probe.stderr.strip()[:200]}")
     srcs = []
     for prefix, (numeric, dt_s) in zip(("fv", "fd", "qv", "qd"), VARIANTS):
-        generate_c(_fx_model(numeric), tmp_path, prefix=prefix, numeric=numeric, dt_s=dt_s)
-        assert "ecmrt_fx.h" in (tmp_path / f"{prefix}_ecm.h").read_text() + \
-            (tmp_path / f"{prefix}_ecm.c").read_text()
+        model = _fx_model(numeric) if family == "effects" else _temperature_fx_model(numeric)
+        generate_c(model, tmp_path, prefix=prefix, numeric=numeric, dt_s=dt_s)
+        src = (tmp_path / f"{prefix}_ecm.c").read_text()
+        assert "ECMRT_FX_HYST 1" in src
+        if family == "temperature":
+            assert all(f"ECMRT_{k} 1" in src for k in ("TEMP", "DIFF", "BV", "FX_ARR")), prefix
         srcs.append(tmp_path / f"{prefix}_ecm.c")
     (tmp_path / "main.c").write_text(SAN_FX_MAIN)
     exe = tmp_path / "san_fx"

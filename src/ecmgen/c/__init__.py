@@ -1,7 +1,8 @@
 """Stage 4a, model -> C for BMS microcontrollers (float32 or fixed point).
 
-:mod:`.qformat` the Q-format arithmetic, :mod:`.codegen` the spec of every number the C
-holds and its rendering through ``templates/`` with the runtime of ``c_runtime/``,
+:mod:`.qformat` the Q-format arithmetic, :mod:`.spec` (float32) and :mod:`.qspec` (fixed
+point) the spec of every number the C holds, :mod:`.codegen` its rendering through
+``templates/`` with the runtime of ``c_runtime/``,
 :mod:`.cref` the float32 and bit-true integer Python references, :mod:`.cbuild` the host
 build (cffi) and the C-vs-Python equivalence, :mod:`.check` the C stage of
 ``ecmgen build`` (generate, then check), :mod:`.target` Cortex-M cross builds and QEMU.

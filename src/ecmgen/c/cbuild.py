@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from . import cref
-from .codegen import CSpec, file_names, prepare, render
+from .codegen import CSpec, file_names, prepare, render, state_fields
 
 STRICT_CFLAGS = ("-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Wconversion", "-Wshadow",
                  "-Wdouble-promotion", "-Werror", "-ffp-contract=off")
@@ -84,52 +84,70 @@ def run_cc(args: list[str], cwd: Path | None = None) -> subprocess.CompletedProc
 # harness (test helpers compiled with the generated model, strict flags too)
 # --------------------------------------------------------------------------------------
 
-def _types(spec: CSpec) -> tuple[str, str]:
-    sfx = "_fx" if spec.has_fx else ""
-    return ("int32_t", f"ecmrt_q{sfx}_state_t") if spec.fixed else ("float", f"ecmrt_f32{sfx}_state_t")
+EXTRA_STATES = ("u_diff", "h", "u_x")    # state fields a model may add, recorded by the trace
 
 
-def _fx_trace_args(spec: CSpec) -> tuple[str, str, str]:
-    """(extra trace parameters, extra trace body, extra declaration) for models with effects:
-    the states h and u_x are recorded too."""
-    if not spec.has_fx:
-        return "", "", ""
-    t, _ = _types(spec)
-    return (f", {t} *h, {t} *ux", "        h[k] = s->h;\n        ux[k] = s->u_x;\n", "")
+def _vt(spec: CSpec) -> str:
+    return "int32_t" if spec.fixed else "float"
+
+
+def extra_states(spec: CSpec) -> tuple[str, ...]:
+    """The optional state fields of this model (diffusion pair, effect states)."""
+    names = {name for _, name, _ in state_fields(spec)}
+    return tuple(f for f in EXTRA_STATES if f in names)
+
+
+def _signatures(spec: CSpec) -> tuple[str, str]:
+    """(trace, stress) prototypes of the harness."""
+    p, t = spec.prefix, _vt(spec)
+    dt_arg = f"const {t} *dt, " if spec.variable_dt else ""
+    extra = "".join(f", {t} *{f}" for f in extra_states(spec))
+    trace = (f"void ecmh_trace({p}_state_t *s, const {t} *i, const {t} *temp, {dt_arg}{t} *v, "
+             f"{t} *soc, {t} *uf, {t} *us, uint8_t *chg{extra}, size_t n)")
+    if spec.fixed:
+        stress = (f"void ecmh_stress({p}_state_t *s, uint32_t seed, size_t n, int32_t dt_max, "
+                  "int32_t *lo, int32_t *hi, uint32_t *bad)")
+    else:
+        stress = (f"void ecmh_stress({p}_state_t *s, uint32_t seed, size_t n, float i_amp, "
+                  "float dt_max, float *lo, float *hi, uint32_t *bad)")
+    return trace, stress
 
 
 def harness_source(spec: CSpec) -> str:
     p = spec.prefix
-    t, _ = _types(spec)
     vdt = spec.variable_dt
-    call = f"{p}_step(s, i[k], dt[k])" if vdt else f"{p}_step(s, i[k])"
-    dt_arg = f"const {t} *dt, " if vdt else ""
-    fx_args, fx_body, _ = _fx_trace_args(spec)
+    call = f"{p}_step(s, i[k], temp[k], dt[k])" if vdt else f"{p}_step(s, i[k], temp[k])"
+    trace_sig, stress_sig = _signatures(spec)
+    extra = "".join(f"        {f}[k] = s->{f};\n" for f in extra_states(spec))
     if spec.fixed:
         stress_body = f"""
         int32_t i = (int32_t)(ecmh_rand(&x) >> 1) - (int32_t)(ecmh_rand(&x) >> 1);
+        int32_t t = (int32_t)(ecmh_rand(&x) % 30720u) - 10240;          /* -40 .. 80 degC */
         if ((ecmh_rand(&x) & 3u) != 0u) {{
             i = (int32_t)(i >> (ecmh_rand(&x) % 24u));        /* mostly moderate currents */
         }}
+        if ((ecmh_rand(&x) & 255u) == 0u) {{
+            t = (int32_t)ecmh_rand(&x);                       /* the odd absurd temperature */
+        }}
         {"int32_t dt = (int32_t)(ecmh_rand(&x) % ((uint32_t)dt_max + 1u));" if vdt else ""}
-        const int32_t v = {f"{p}_step(s, i, dt)" if vdt else f"{p}_step(s, i)"};
+        const int32_t v = {f"{p}_step(s, i, t, dt)" if vdt else f"{p}_step(s, i, t)"};
         if (v < lo[0]) lo[0] = v;
         if (v > hi[0]) hi[0] = v;
         if (s->soc < lo[1]) lo[1] = s->soc;
         if (s->soc > hi[1]) hi[1] = s->soc;
 """
-        stress_sig = (f"void ecmh_stress({p}_state_t *s, uint32_t seed, size_t n, int32_t dt_max, "
-                      "int32_t *lo, int32_t *hi, uint32_t *bad)")
     else:
         stress_body = f"""
         const float u = (float)(int32_t)ecmh_rand(&x) * 4.65661287e-10f;  /* [-1, 1) */
         float i = u * i_amp;
+        float t = (float)(ecmh_rand(&x) >> 8) * 7.15255737e-06f - 40.0f; /* -40 .. 80 degC */
         {"float dt = (float)(ecmh_rand(&x) >> 8) * 5.96046448e-08f * dt_max;" if vdt else ""}
         float v;
         if ((ecmh_rand(&x) & 1023u) == 0u) {{
             i = i * 1.0e30f;                                    /* occasional absurd current */
+            t = t * 1.0e30f;                                    /* and temperature */
         }}
-        v = {f"{p}_step(s, i, dt)" if vdt else f"{p}_step(s, i)"};
+        v = {f"{p}_step(s, i, t, dt)" if vdt else f"{p}_step(s, i, t)"};
         if (!(v == v) || v > 1.0e6f || v < -1.0e6f || !(s->u_fast == s->u_fast) ||
             !(s->u_slow == s->u_slow) || !(s->soc >= -2.0f && s->soc <= 2.0f)) {{
             (*bad)++;
@@ -140,8 +158,6 @@ def harness_source(spec: CSpec) -> str:
         if (s->soc < lo[1]) lo[1] = s->soc;
         if (s->soc > hi[1]) hi[1] = s->soc;
 """
-        stress_sig = (f"void ecmh_stress({p}_state_t *s, uint32_t seed, size_t n, float i_amp, "
-                      "float dt_max, float *lo, float *hi, uint32_t *bad)")
     unused = "" if vdt else "    (void)dt_max;\n"
     return f"""/* test harness for {p}: traces and a pseudo-random stress loop (not shipped) */
 #include "ecmh_harness.h"
@@ -151,8 +167,7 @@ size_t ecmh_state_size(void)
     return sizeof({p}_state_t);
 }}
 
-void ecmh_trace({p}_state_t *s, const {t} *i, {dt_arg}{t} *v, {t} *soc, {t} *uf, {t} *us,
-                uint8_t *chg{fx_args}, size_t n)
+{trace_sig}
 {{
     size_t k;
     for (k = 0u; k < n; k++) {{
@@ -161,7 +176,7 @@ void ecmh_trace({p}_state_t *s, const {t} *i, {dt_arg}{t} *v, {t} *soc, {t} *uf,
         uf[k] = s->u_fast;
         us[k] = s->u_slow;
         chg[k] = s->charging;
-{fx_body}    }}
+{extra}    }}
 }}
 
 static uint32_t ecmh_rand(uint32_t *x)
@@ -187,51 +202,31 @@ static uint32_t ecmh_rand(uint32_t *x)
 
 
 def harness_header(spec: CSpec) -> str:
-    p = spec.prefix
-    t, _ = _types(spec)
-    dt_arg = f"const {t} *dt, " if spec.variable_dt else ""
-    fx_args, _, _ = _fx_trace_args(spec)
-    if spec.fixed:
-        stress = (f"void ecmh_stress({p}_state_t *s, uint32_t seed, size_t n, int32_t dt_max, "
-                  "int32_t *lo, int32_t *hi, uint32_t *bad);")
-    else:
-        stress = (f"void ecmh_stress({p}_state_t *s, uint32_t seed, size_t n, float i_amp, "
-                  "float dt_max, float *lo, float *hi, uint32_t *bad);")
+    trace, stress = _signatures(spec)
     return f"""#ifndef ECMH_HARNESS_H
 #define ECMH_HARNESS_H
-#include "{p}_ecm.h"
-void ecmh_trace({p}_state_t *s, const {t} *i, {dt_arg}{t} *v, {t} *soc, {t} *uf, {t} *us,
-                uint8_t *chg{fx_args}, size_t n);
-{stress}
+#include "{spec.prefix}_ecm.h"
+{trace};
+{stress};
 size_t ecmh_state_size(void);
 #endif
 """
 
 
 def _cdef(spec: CSpec) -> str:
-    p = spec.prefix
-    t, _ = _types(spec)
-    vdt = spec.variable_dt
-    head = "int64_t soc_rem; int32_t soc;" if spec.fixed else "float soc; float soc_c;"
-    tail = f" {t} h; {t} u_x;" if spec.has_fx else ""
-    state = (f"typedef struct {{ {head} {t} u_fast; {t} u_slow; uint8_t charging; "
-             f"uint8_t k_ocv; uint8_t k_dir[2];{tail} }} {p}_state_t;")
-    dt_arg = f"const {t} *dt, " if vdt else ""
-    fx_args, _, _ = _fx_trace_args(spec)
-    if spec.fixed:
-        stress = (f"void ecmh_stress({p}_state_t *s, uint32_t seed, size_t n, int32_t dt_max, "
-                  "int32_t *lo, int32_t *hi, uint32_t *bad);")
-    else:
-        stress = (f"void ecmh_stress({p}_state_t *s, uint32_t seed, size_t n, float i_amp, "
-                  "float dt_max, float *lo, float *hi, uint32_t *bad);")
+    p, t = spec.prefix, _vt(spec)
+    fields = " ".join(f"{ct} {name};" for ct, name, _ in state_fields(spec))
+    trace, stress = _signatures(spec)
+    dt_arg = f"const {t} *dt, " if spec.variable_dt else ""
     return "\n".join([
-        state,
+        f"typedef struct {{ {fields} }} {p}_state_t;",
         f"void {p}_init({p}_state_t *s, {t} soc0);",
-        f"{t} {p}_step({p}_state_t *s, {t} i, {t} dt);" if vdt else f"{t} {p}_step({p}_state_t *s, {t} i);",
-        f"void {p}_run({p}_state_t *s, const {t} *i, {dt_arg}{t} *v, size_t n);",
-        f"void ecmh_trace({p}_state_t *s, const {t} *i, {dt_arg}{t} *v, {t} *soc, {t} *uf, "
-        f"{t} *us, uint8_t *chg{fx_args}, size_t n);",
-        stress,
+        (f"{t} {p}_step({p}_state_t *s, {t} i, {t} temperature, {t} dt);" if spec.variable_dt
+         else f"{t} {p}_step({p}_state_t *s, {t} i, {t} temperature);"),
+        f"void {p}_run({p}_state_t *s, const {t} *i, const {t} *temperature, {dt_arg}{t} *v, "
+        "size_t n);",
+        trace + ";",
+        stress + ";",
         "size_t ecmh_state_size(void);",
     ])
 
@@ -267,7 +262,7 @@ def write_sources(spec: CSpec, out_dir: Path, harness: bool = True) -> list[Path
     out_dir.mkdir(parents=True, exist_ok=True)
     for name, text in render(spec).items():
         (out_dir / name).write_text(text)
-    srcs = [out_dir / file_names(spec.prefix, spec.numeric, spec.has_fx)["source"]]
+    srcs = [out_dir / file_names(spec.prefix, spec.numeric)["source"]]
     if harness:
         (out_dir / "ecmh_harness.h").write_text(harness_header(spec))
         (out_dir / "ecmh_harness.c").write_text(harness_source(spec))
@@ -321,7 +316,9 @@ def compile_spec(spec: CSpec, cache: Path | None = None, opt=HOST_OPT) -> "CMode
 
 @dataclass
 class CModel:
-    """A compiled model. All runs start from a fresh state at ``soc0``."""
+    """A compiled model. All runs start from a fresh state at ``soc0``. The temperature
+    (degC, or Q8 raw for native fixed-point runs) may be left out (None) for a model that
+    does not read it; the C then gets 0."""
 
     spec: CSpec
     ffi: object
@@ -340,7 +337,15 @@ class CModel:
     def _buf(self, a):
         return self.ffi.from_buffer(f"{'int32_t' if self.spec.fixed else 'float'}[]", a)
 
-    def trace_native(self, i, dt=None, soc0=None) -> cref.RefResult:
+    def _temp(self, temp, n: int) -> np.ndarray:
+        if temp is None:
+            if self.spec.uses_temperature:
+                raise ValueError("this model reads the cell temperature: give it")
+            temp = 0
+        t = np.asarray(temp, dtype=self._t)
+        return np.ascontiguousarray(np.broadcast_to(t, (n,)) if t.ndim == 0 else t)
+
+    def trace_native(self, i, dt=None, soc0=None, temp=None) -> cref.RefResult:
         """Run on native inputs (float32 arrays, or int32 raw), recording the state."""
         t = self._t
         i = np.ascontiguousarray(i, dtype=t)
@@ -350,7 +355,10 @@ class CModel:
         s = self.new_state(soc0)
         v, soc, uf, us = (np.empty(n, dtype=t) for _ in range(4))
         chg = np.empty(n, dtype=np.uint8)
-        args = [s, self._buf(i)]
+        temp = self._temp(temp, n)
+        if temp.size != n:
+            raise ValueError("current and temperature differ in length")
+        args = [s, self._buf(i), self._buf(temp)]
         if self.spec.variable_dt:
             if dt is None:
                 raise ValueError("variable-dt model: give dt")
@@ -360,14 +368,12 @@ class CModel:
             args.append(self._buf(dt))
         args += [self._buf(a) for a in (v, soc, uf, us)]
         args += [self.ffi.from_buffer("uint8_t[]", chg)]
-        h = ux = None
-        if self.spec.has_fx:
-            h, ux = np.empty(n, dtype=t), np.empty(n, dtype=t)
-            args += [self._buf(h), self._buf(ux)]
+        extra = {f: np.empty(n, dtype=t) for f in extra_states(self.spec)}
+        args += [self._buf(a) for a in extra.values()]
         self.lib.ecmh_trace(*args, n)
-        return cref.RefResult(v, soc, uf, us, chg, h, ux)
+        return cref.RefResult(v, soc, uf, us, chg, **extra)
 
-    def run_native(self, i, dt=None, soc0=None) -> np.ndarray:
+    def run_native(self, i, dt=None, soc0=None, temp=None) -> np.ndarray:
         """Voltages only, through the generated <prefix>_run loop."""
         t = self._t
         i = np.ascontiguousarray(i, dtype=t)
@@ -375,12 +381,13 @@ class CModel:
             soc0 = cref.ONE30 if self.spec.fixed else 1.0
         s = self.new_state(soc0)
         v = np.empty(i.size, dtype=t)
+        temp = self._temp(temp, i.size)
         run = getattr(self.lib, f"{self.spec.prefix}_run")
         if self.spec.variable_dt:
             dt = np.ascontiguousarray(dt, dtype=t)
-            run(s, self._buf(i), self._buf(dt), self._buf(v), i.size)
+            run(s, self._buf(i), self._buf(temp), self._buf(dt), self._buf(v), i.size)
         else:
-            run(s, self._buf(i), self._buf(v), i.size)
+            run(s, self._buf(i), self._buf(temp), self._buf(v), i.size)
         return v
 
     def native_inputs(self, current_a, dt_s=None, soc0: float = 1.0):
@@ -393,22 +400,34 @@ class CModel:
         dt = None if dt_s is None else np.asarray(dt_s, dtype=np.float64).astype(np.float32)
         return i, dt, float(np.float32(soc0))
 
-    def simulate(self, current_a, dt_s=None, soc0: float = 1.0) -> np.ndarray:
+    def native_temperature(self, temperature_c, n: int):
+        """The temperature (degC, one value or per step) as the C caller passes it: float32,
+        or Q8 raw; None stays None."""
+        if temperature_c is None:
+            return None
+        t = np.broadcast_to(np.asarray(temperature_c, dtype=np.float64), (n,))
+        return (cref.temperature_to_raw(t).astype(np.int32) if self.spec.fixed
+                else t.astype(np.float32))
+
+    def simulate(self, current_a, dt_s=None, soc0: float = 1.0, temperature_c=None) -> np.ndarray:
         """Voltage in V (float64) for SI inputs."""
         i, dt, s0 = self.native_inputs(current_a, dt_s if self.spec.variable_dt else None, soc0)
-        v = self.run_native(i, dt, s0)
+        v = self.run_native(i, dt, s0, self.native_temperature(temperature_c, i.size))
         return cref.volts(self.spec, v) if self.spec.fixed else v.astype(np.float64)
 
-    def reference(self, current_a, dt_s=None, soc0: float = 1.0) -> cref.RefResult:
+    def reference(self, current_a, dt_s=None, soc0: float = 1.0,
+                  temperature_c=None) -> cref.RefResult:
         """The Python reference (float32 or bit-true) on the same SI inputs."""
+        dt = dt_s if self.spec.variable_dt else None
         if self.spec.fixed:
-            return cref.simulate_fixed(self.spec, current_a, dt_s if self.spec.variable_dt else None, soc0)[0]
-        return cref.simulate_f32(self.spec, current_a, dt_s if self.spec.variable_dt else None, soc0)
+            return cref.simulate_fixed(self.spec, current_a, dt, soc0, temperature_c)[0]
+        return cref.simulate_f32(self.spec, current_a, dt, soc0, temperature_c)
 
     def stress(self, n: int, seed: int = 1, soc0=None, i_amp: float | None = None,
                dt_max: float = 10.0) -> dict:
-        """n pseudo-random steps in a C loop; extremes of v and SOC and a count of bad steps
-        (non-finite values, SOC outside its saturation range)."""
+        """n pseudo-random steps in a C loop (temperatures -40 .. 80 degC and the odd absurd
+        one); extremes of v and SOC and a count of bad steps (non-finite values, SOC
+        outside its saturation range)."""
         t = self._t
         s = self.new_state(soc0 if soc0 is not None else (cref.ONE30 if self.spec.fixed else 1.0))
         lo = np.array([np.iinfo(t).max if self.spec.fixed else np.inf] * 2, dtype=t)
@@ -422,9 +441,10 @@ class CModel:
             amp = 4.0 * self.spec.i_lim_a if i_amp is None else i_amp
             self.lib.ecmh_stress(s, seed, n, amp, dt_max, self._buf(lo), self._buf(hi), bad)
             conv = [float, float]
+        final = {"soc": s.soc, "u_fast": s.u_fast, "u_slow": s.u_slow}
+        final.update({f: getattr(s, f) for f in extra_states(self.spec)})
         return {"v_min": conv[0](lo[0]), "v_max": conv[0](hi[0]), "soc_min": conv[1](lo[1]),
-                "soc_max": conv[1](hi[1]), "bad": int(bad[0]),
-                "final": {"soc": s.soc, "u_fast": s.u_fast, "u_slow": s.u_slow}}
+                "soc_max": conv[1](hi[1]), "bad": int(bad[0]), "final": final}
 
 
 def build(model, numeric: str = "float", dt_s: float | None = None, prefix: str = "ecm",
@@ -445,9 +465,11 @@ def _bits_equal(a: np.ndarray, b: np.ndarray) -> bool:
     return a.shape == b.shape and np.array_equal(a.astype(np.int64), b.astype(np.int64))
 
 
-def python_voltage(model, time_s, current_a, soc0: float, dt_s: float | None = None) -> np.ndarray:
+def python_voltage(model, time_s, current_a, soc0: float, dt_s: float | None = None,
+                   temperature_c=None) -> np.ndarray:
     """The float64 model (simulate.py, with the model's diagnose effects, all of which the C
-    implements: prepare() refuses the others) the C is compared with.
+    implements) the C is compared with, at the cell temperature ``temperature_c`` (degC per
+    sample or one value; None for a model that does not read it).
 
     dt_s None: on the record's own time stamps (dt_0 = 0, as the variable-dt C).
     dt_s given (fixed-dt C, whose every step lasts dt_s, the first one included): on the
@@ -455,30 +477,38 @@ def python_voltage(model, time_s, current_a, soc0: float, dt_s: float | None = N
     is the C's step k (simulate.py gives its first sample dt = 0)."""
     from ..model.simulate import simulate
 
-    base = model
     current_a = np.asarray(current_a, dtype=np.float64)
+    temps = None
+    if temperature_c is not None:
+        temps = np.broadcast_to(np.asarray(temperature_c, dtype=np.float64), current_a.shape)
     if dt_s is None:
-        return simulate(base, np.asarray(time_s, dtype=np.float64), current_a, soc0).voltage_v
+        return simulate(model, np.asarray(time_s, dtype=np.float64), current_a, soc0,
+                        temps).voltage_v
     t = dt_s * np.arange(current_a.size + 1, dtype=np.float64)
-    return simulate(base, t, np.concatenate(([0.0], current_a)), soc0).voltage_v[1:]
+    if temps is not None:
+        temps = np.concatenate((temps[:1], temps))
+    return simulate(model, t, np.concatenate(([0.0], current_a)), soc0, temps).voltage_v[1:]
 
 
-def compare(model, cm: CModel, time_s, current_a, soc0: float, measured_v=None) -> dict:
-    """Drive the compiled model and its reference over (time, current) and compare with the
-    float64 Python model (simulate.py, with the model's effects) and the measurement."""
+def compare(model, cm: CModel, time_s, current_a, soc0: float, measured_v=None,
+            temperature_c=None) -> dict:
+    """Drive the compiled model and its reference over (time, current, temperature) and
+    compare with the float64 Python model (simulate.py, with the model's effects) and the
+    measurement."""
     time_s = np.asarray(time_s, dtype=np.float64)
     current_a = np.asarray(current_a, dtype=np.float64)
     dt = cref.dt_from_time(time_s)
     i_n, dt_n, s0 = cm.native_inputs(current_a, dt if cm.spec.variable_dt else None, soc0)
-    got = cm.trace_native(i_n, dt_n, s0)
-    ref = cm.reference(current_a, dt, soc0)
-    fields = ("v", "soc", "u_fast", "u_slow", "charging") + (("h", "u_x") if cm.spec.has_fx else ())
+    got = cm.trace_native(i_n, dt_n, s0, cm.native_temperature(temperature_c, i_n.size))
+    ref = cm.reference(current_a, dt, soc0, temperature_c)
+    fields = ("v", "soc", "u_fast", "u_slow", "charging") + extra_states(cm.spec)
     exact = all(_bits_equal(getattr(got, f), getattr(ref, f)) for f in fields)
     if cm.spec.fixed:
         v_c, v_ref = cref.volts(cm.spec, got.v), cref.volts(cm.spec, ref.v)
     else:
         v_c, v_ref = got.v.astype(np.float64), ref.v.astype(np.float64)
-    v64 = python_voltage(model, time_s, current_a, soc0, None if cm.spec.variable_dt else cm.spec.dt_s)
+    v64 = python_voltage(model, time_s, current_a, soc0,
+                         None if cm.spec.variable_dt else cm.spec.dt_s, temperature_c)
     out = {
         "steps": int(time_s.size),
         "dt": "variable" if cm.spec.variable_dt else cm.spec.dt_s,
@@ -486,6 +516,8 @@ def compare(model, cm: CModel, time_s, current_a, soc0: float, measured_v=None) 
         "max_abs_diff_vs_reference_v": float(np.max(np.abs(v_c - v_ref))) if v_c.size else 0.0,
         "max_abs_diff_vs_python_v": float(np.max(np.abs(v_c - v64))) if v_c.size else 0.0,
     }
+    if temperature_c is not None and np.size(temperature_c):
+        out["temperature_range_c"] = [float(np.min(temperature_c)), float(np.max(temperature_c))]
     if measured_v is not None:
         m = np.asarray(measured_v, dtype=np.float64)
         mae_c = float(np.mean(np.abs(v_c - m)))
@@ -512,25 +544,30 @@ def c_equivalence(model, series, soc0: float | None = None, *, dt_s: float | Non
                   cache: Path | None = None, numerics=("float", "fixed")) -> dict:
     """The ``"c"`` block of ``ecmgen build --json``: for numeric float and fixed, the C's MAE
     against the measured voltage and its largest difference from the float64 Python model,
-    plus bit-exactness against the float32 / bit-true references.
+    plus bit-exactness against the float32 / bit-true references. The C and Python both run
+    at the record's cell temperature (``series.temperature_c``; needed by a model over
+    temperature).
 
     ``dt_s=None`` (default): variable-dt builds driven by the record's own time stamps.
     ``dt_s`` given: fixed-dt builds; the record is resampled to the uniform grid of dt_s
     (see resample_uniform) and the float64 Python model is driven on that same grid.
     ``model``: EcmModel or model.json path; ``soc0`` None: from the record's first rested
     sample (simulate.initial_soc), as validation does. Raises CBuildError without a compiler."""
-    from .codegen import _as_model
     from ..model.simulate import initial_soc
+    from .codegen import _as_model
 
     model = _as_model(model)
     if soc0 is None:
         soc0 = float(initial_soc(model, series))
+    temps = series.temperature_c
     if dt_s is None:
         t, i, v = series.time_s, series.current_a, series.voltage_v
     else:
         t, i, v = resample_uniform(series.time_s, series.current_a, series.voltage_v, dt_s)
+        if temps is not None:
+            temps = resample_uniform(series.time_s, temps, None, dt_s)[1]
     out = {}
     for numeric in numerics:
         cm = build(model, numeric=numeric, dt_s=dt_s, prefix=prefix, i_max_a=i_max_a, cache=cache)
-        out[numeric] = compare(model, cm, t, i, soc0, v)
+        out[numeric] = compare(model, cm, t, i, soc0, v, temps)
     return out

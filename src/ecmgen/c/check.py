@@ -19,7 +19,8 @@ def build_c_outputs(cfg, result, out_dir, progress=lambda msg: None) -> dict:
 
     For each numeric of ``cfg.c_numeric`` (prefix ``cfg.c_prefix``, ``cfg.c_dt_s``: None =
     variable dt) the files go to ``out_dir/c/<numeric>/``; the C is compiled on the host and
-    compared (cbuild.c_equivalence) over the first validation cycle of the best model. Returns
+    compared (cbuild.c_equivalence) over the first validation cycle of the best model, at its
+    cell temperature (the one the validation simulated on). Returns
     the ``"c"`` block of ``--json``: ``{numeric: {"mae_v", "max_abs_diff_vs_python_v", ...,
     "dir", "files"}}``. Without a host compiler the C is still written and each block says
     ``"skipped"`` with the reason."""
@@ -32,7 +33,8 @@ def build_c_outputs(cfg, result, out_dir, progress=lambda msg: None) -> dict:
     eq: dict = {}
     if val is not None:
         progress(f"checking the C against Python on {Path(val.source).name or 'the cycle'}")
-        series = TimeSeries(val.sim.time_s, val.sim.current_a, val.measured_v, source=val.source)
+        series = TimeSeries(val.sim.time_s, val.sim.current_a, val.measured_v,
+                            getattr(val, "temperature_c", None), source=val.source)
         try:
             eq = c_equivalence(model, series, val.soc0, dt_s=dt_s, prefix=prefix, numerics=numerics)
         except CBuildError as exc:

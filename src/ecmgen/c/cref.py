@@ -6,7 +6,7 @@
 ``simulate_fixed``  bit-true integers (numpy int64 / Python int) as ``c_runtime/ecmrt_q.h``,
                     with the same rounding (half up) and saturation.
 
-Both read a :class:`ecmgen.c.codegen.CSpec` - the very numbers written into the C - so a
+Both read a :class:`ecmgen.c.spec.CSpec` - the very numbers written into the C - so a
 difference between C and reference is a bug in one of them, never in the constants.
 Vectorised where the C has no recurrence (inputs, direction, lookups, coefficients); the
 SOC and RC recurrences run sequentially (SOC vectorised when no saturation occurs).
@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .codegen import CSpec
-from .qformat import DT_MAX_S, Q30, Q_D, SOC_LIM, quantize
+from .qformat import DT_MAX_S, Q30, Q_D, Q_TEMP, SOC_LIM, quantize, recip_q  # noqa: F401
+from .spec import CSpec
 
 F32 = np.float32
 PARAMS = ("r0", "r_fast", "r_slow", "k_fast", "k_slow")
@@ -33,6 +33,8 @@ F_TAYLOR = tuple(F32(s) for s in ("1.98412701e-04", "1.38888892e-03", "8.3333337
 F_XMAX = F32(87.0)
 F_HALF_LN2 = F32("0.346573591")
 F_SERIES_X = F32("0.03125")        # 2^-5 (bits 0x3D000000): below, a short series
+F_KELVIN = F32("273.149994")
+F_ARR_T = (F32(-40.0), F32(85.0))
 
 # --- constants of ecmrt_q.h --------------------------------------------------------------
 ONE30 = 1 << 30
@@ -40,22 +42,27 @@ INT32_MIN, INT32_MAX = -2**31, 2**31 - 1
 Q_LOG2E = 1549082005
 Q_LN2 = 744261118
 Q_XMAX26 = 1442840576
+Q_XSMALL26 = 1 << 21
 Q_EXP2_TAB = (1073741824, 984625594, 902905651, 827968132, 759250125, 696235434, 638450708,
               585461881)
 Q_POLY = (1073741824, -1073741824, 536870912, -178956971, 44739243, -8947849, 1491308)
+Q_ARR_T = (-40 * 256, 85 * 256)
+Q_ARR_D0, Q_ARR_DLO = 1398528, 1193728      # 273.15 * 5120, (273.15 - 40) * 5120
 
 
 @dataclass(frozen=True)
 class RefResult:
-    """Per-step outputs of a reference run (float32 values, or int64 raw integers)."""
+    """Per-step outputs of a reference run (float32 values, or int64 raw integers); a state
+    the model does not have is None."""
 
     v: np.ndarray
     soc: np.ndarray
     u_fast: np.ndarray
     u_slow: np.ndarray
     charging: np.ndarray
-    h: np.ndarray | None = None        # hysteresis state (models with effects only)
-    u_x: np.ndarray | None = None      # extra RC pair voltage (models with effects only)
+    h: np.ndarray | None = None        # hysteresis state
+    u_x: np.ndarray | None = None      # extra RC pair voltage
+    u_diff: np.ndarray | None = None   # diffusion pair voltage
 
 
 def dt_from_time(time_s) -> np.ndarray:
@@ -72,39 +79,69 @@ def _direction(i, deadband) -> np.ndarray:
     return np.where(idx >= 0, code[np.maximum(idx, 0)], 0).astype(np.uint8)
 
 
-def _segments(x: np.ndarray, soc: np.ndarray) -> np.ndarray:
-    return np.clip(np.searchsorted(x, soc, side="right") - 1, 0, x.size - 2)
+def _segments(x: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return np.clip(np.searchsorted(x, v, side="right") - 1, 0, x.size - 2)
+
+
+def _temperatures(spec: CSpec, temperature_c, n: int, dtype):
+    if temperature_c is None:
+        if spec.uses_temperature:
+            raise ValueError("this spec reads the cell temperature: give temperature_c")
+        return np.zeros(n, dtype=dtype)
+    t = np.asarray(temperature_c)
+    t = np.full(n, t) if t.ndim == 0 else t
+    if t.shape != (n,):
+        raise ValueError("current and temperature differ in length")
+    return t
 
 
 # =====================================================================================
 # float32
 # =====================================================================================
 
-def one_minus_exp_neg_f32(x) -> np.ndarray:
-    """ecmrt_f32_one_minus_exp_neg: 1 - exp(-x) for float32 x >= 0."""
+def _exp_neg_parts_f32(x):
+    """ecmrt_f32_exp_neg_parts: (q, s) with exp(-x) = s (1 + q), 0 <= x < 87."""
     x = np.asarray(x, dtype=F32)
     with np.errstate(all="ignore"):
-        n = (x * F_INVLN2 + F32(0.5)).astype(np.int32)
-        fast = x < F_HALF_LN2                      # no range reduction: n = 0, r = x
-        n = np.where((x > 0) & (x < F_XMAX) & ~fast, n, 0)
+        n = np.where(x < F_HALF_LN2, 0, (x * F_INVLN2 + F32(0.5)).astype(np.int32))
+        n = np.where((x >= 0) & (x < F_XMAX), n, 0).astype(np.int32)
         fn = n.astype(F32)
-        r = np.where(fast, x, (x - fn * F_LN2_HI) - fn * F_LN2_LO)
+        r = np.where(n == 0, x, (x - fn * F_LN2_HI) - fn * F_LN2_LO).astype(F32)
         t = -r
         q = np.full_like(t, F_TAYLOR[0])
         for c in F_TAYLOR[1:]:
             q = c + t * q
         q = t * q
-        s = np.ldexp(F32(1.0), -n).astype(F32)
-        big = (F32(1.0) - s) - s * q
+    return q.astype(F32), np.ldexp(F32(1.0), -n).astype(F32)
+
+
+def one_minus_exp_neg_f32(x) -> np.ndarray:
+    """ecmrt_f32_one_minus_exp_neg: 1 - exp(-x) for float32 x >= 0."""
+    x = np.asarray(x, dtype=F32)
+    q, s = _exp_neg_parts_f32(x)
+    with np.errstate(all="ignore"):
+        out = (F32(1.0) - s) - s * q
         # +0 <= x < 2^-5: x (1 - x (1/2 - x (1/6 - x/24))), alternating signs as in C
         small = -(x * (x * (F32(0.5) + x * (x * F_TAYLOR[3] - F_TAYLOR[4])) - F32(1.0)))
-    out = np.where(n == 0, -q, big)
     out = np.where((x < F_SERIES_X) & (x >= 0), small, out)    # -0 and x < 0 give 0 below
     out = np.where(x >= F_XMAX, F32(1.0), out)
     return np.where(x > 0, out, F32(0.0)).astype(F32)
 
 
-# --- effects (ecmrt_f32_fx.h) -------------------------------------------------------------
+def arrhenius_f32(temp, a_k, a_inv_ref) -> np.ndarray:
+    """ecmrt_f32_arrhenius: exp(a_k (1/(T + 273.15) - inv_ref)), T saturated to [-40, 85]."""
+    t = np.asarray(temp, dtype=F32)
+    t = np.where(t >= F_ARR_T[0], t, F_ARR_T[0])
+    t = np.where(t > F_ARR_T[1], F_ARR_T[1], t).astype(F32)
+    y = ((F32(1.0) / (t + F_KELVIN)) - F32(a_inv_ref)) * F32(a_k)
+    pos = y > 0
+    q, s = _exp_neg_parts_f32(np.where(pos, y, -y))
+    e = s + s * q
+    with np.errstate(all="ignore"):
+        return np.where(pos, F32(1.0) / e, e).astype(F32)
+
+
+# --- asinh (ecmrt_f32.h, effects and Butler-Volmer) ----------------------------------------
 F_SQRT_MAGIC = np.uint32(0x1FBD1DF5)
 F_LOG1P_SPLIT = F32("0.414213568")
 F_SQRT2 = F32("1.41421354")
@@ -114,7 +151,7 @@ F_X_MIN = F32("1.0e-12")
 
 
 def sqrt_f32(w) -> np.ndarray:
-    """ecmrt_f32_fx_sqrt: bit-trick start and four Newton steps, for 1 <= w."""
+    """ecmrt_f32_sqrt: bit-trick start and four Newton steps, for 1 <= w."""
     w = np.asarray(w, dtype=F32)
     r = ((w.view(np.uint32) >> np.uint32(1)) + F_SQRT_MAGIC).astype(np.uint32).view(F32)
     half = F32(0.5)
@@ -124,7 +161,7 @@ def sqrt_f32(w) -> np.ndarray:
 
 
 def log1p_f32(y) -> np.ndarray:
-    """ecmrt_f32_fx_log1p: log(1 + y) for y >= 0."""
+    """ecmrt_f32_log1p: log(1 + y) for y >= 0."""
     y = np.atleast_1d(np.asarray(y, dtype=F32))
     z = (F32(1.0) + y).astype(F32)
     zb = z.view(np.uint32)
@@ -149,25 +186,43 @@ def log1p_f32(y) -> np.ndarray:
     return np.where(n == 0, p, big_out).astype(F32)
 
 
-def cdr_factor_f32(ai, g_scale, g_inv_i0) -> np.ndarray:
-    """ecmrt_f32_fx_cdr_factor: scale * asinh(x) / x, x = max(|i| / i0, 1e-12)."""
-    x = np.asarray(ai, dtype=F32) * F32(g_inv_i0)
+def asinh_f32(x):
+    """ecmrt_f32_asinh: (asinh(x'), x') with x' = max(x, 1e-12)."""
+    x = np.asarray(x, dtype=F32)
     x = np.where(x > F_X_MIN, x, F_X_MIN).astype(F32)
     x2 = x * x
-    y = x + x2 / (sqrt_f32(x2 + F32(1.0)) + F32(1.0))
-    return ((F32(g_scale) * log1p_f32(y)) / x).astype(F32)
+    return log1p_f32(x + x2 / (sqrt_f32(x2 + F32(1.0)) + F32(1.0))), x
 
 
-def _lerp_f32(y, k, w):
-    return y[k] + (y[k + 1] - y[k]) * w
+def cdr_factor_f32(ai, g_scale, g_inv_i0) -> np.ndarray:
+    """current_dependent_resistance, float: scale * asinh(x) / x, x = max(|i| / i0, 1e-12)."""
+    a, x = asinh_f32(np.asarray(ai, dtype=F32) * F32(g_inv_i0))
+    return ((F32(g_scale) * a) / x).astype(F32)
 
 
-def _weight_f32(grid, soc):
-    k = _segments(grid.x, soc)
+def _weight_f32(grid, v):
+    k = _segments(grid.x, v)
     with np.errstate(all="ignore"):
-        w = (soc - grid.x[k]) * grid.inv_dx[k]
-    w = np.where(soc <= grid.x[0], F32(0.0), np.where(soc >= grid.x[-1], F32(1.0), w))
+        w = (v - grid.x[k]) * grid.inv_dx[k]
+    w = np.where(v < grid.x[0], F32(0.0), np.where(v >= grid.x[-1], F32(1.0), w))
     return k, w.astype(F32)
+
+
+def _lerp_f32(y, k, w, kt=None, wt=None):
+    """ecmrt_f32_lerp (y 1-D, or a row y[0] of a table) or ecmrt_f32_lerp2 (y[kt], y[kt + 1])."""
+    if kt is None:
+        y = y[0] if y.ndim == 2 else y
+        return y[k] + (y[k + 1] - y[k]) * w
+    a = y[kt, k] + (y[kt, k + 1] - y[kt, k]) * w
+    b = y[kt + 1, k] + (y[kt + 1, k + 1] - y[kt + 1, k]) * w
+    return a + (b - a) * wt
+
+
+def _tv_f32(b, kt, wt):
+    """A per-temperature value at T: b[kt] + (b[kt+1] - b[kt]) wt, or b[0] (one row)."""
+    if kt is None:
+        return b[0]
+    return b[kt] + (b[kt + 1] - b[kt]) * wt
 
 
 def _soc_f32(soc0: np.float32, d: np.ndarray) -> np.ndarray:
@@ -190,6 +245,7 @@ def _soc_f32(soc0: np.float32, d: np.ndarray) -> np.ndarray:
 
 def _rc_f32(c: np.ndarray, t: np.ndarray, divide: bool = False, u0=0.0) -> np.ndarray:
     """u += c (t - u), or u += (t - u) / D with divide=True (fixed-dt tables hold D)."""
+    c = np.broadcast_to(np.asarray(c, dtype=F32), t.shape)
     out = np.empty_like(t)
     u = F32(u0)
     if divide:
@@ -203,14 +259,22 @@ def _rc_f32(c: np.ndarray, t: np.ndarray, divide: bool = False, u0=0.0) -> np.nd
     return out
 
 
-def simulate_f32(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0) -> RefResult:
+def _pick(chg, per_dir, name):
+    return np.where(chg == 1, per_dir[1][name], per_dir[0][name])
+
+
+def simulate_f32(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0,
+                 temperature_c=None) -> RefResult:
     """Float32 reference of a numeric="float" spec. ``dt_s``: per-step dt array (variable-dt
-    spec; e.g. dt_from_time(t)) or None (fixed-dt spec)."""
+    spec; e.g. dt_from_time(t)) or None (fixed-dt spec); ``temperature_c``: the cell
+    temperature per step or one value (needed when the spec reads it)."""
     if spec.fixed:
         raise ValueError("simulate_f32 needs a numeric='float' spec")
     i = np.asarray(current_a, dtype=np.float64).astype(F32)
+    n = i.size
     imax = F32(spec.i_lim_a)
     i = np.where(np.isnan(i), F32(0.0), np.clip(i, -imax, imax)).astype(F32)
+    temp = _temperatures(spec, temperature_c, n, np.float64).astype(F32)
     if spec.variable_dt:
         if dt_s is None:
             raise ValueError("this spec has a variable dt: give dt_s per step")
@@ -226,19 +290,33 @@ def simulate_f32(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0) -> RefRes
     s0 = F32(soc0)
     s0 = F32(0.0) if np.isnan(s0) else np.clip(s0, F32(-SOC_LIM), F32(SOC_LIM))
     soc = _soc_f32(F32(s0), dsoc.astype(F32))
+    kt = wt = None
+    if spec.temp:
+        x0 = spec.temp_grid.x[0]
+        kt, wt = _weight_f32(spec.temp_grid, np.where(temp >= x0, temp, x0).astype(F32))
 
     per_dir = []
     for d in spec.dirs:
         k, w = _weight_f32(d.grid, soc)
-        p = {name: _lerp_f32(getattr(d, name), k, w) for name in PARAMS}
+        p = {name: _lerp_f32(getattr(d, name), k, w, kt, wt) for name in PARAMS}
+        for name in ("r_diff", "k_diff", "i0"):
+            if getattr(d, name) is not None:
+                p[name] = _tv_f32(getattr(d, name), kt, wt)
         per_dir.append(p)
-    p = {name: np.where(chg == 1, per_dir[1][name], per_dir[0][name]).astype(F32) for name in per_dir[0]}
+    p = {name: _pick(chg, per_dir, name).astype(F32) for name in per_dir[0]}
     fx = spec.fx
     ai = np.abs(i).astype(F32)
-    if fx and fx["cdr"]:
+    if fx.get("cdr"):
         g = cdr_factor_f32(ai, fx["g_scale"], fx["g_inv_i0"])
-        p["r0"] = (p["r0"] * g).astype(F32)
-        p["r_fast"] = (p["r_fast"] * g).astype(F32)
+        p["r0"], p["r_fast"] = (p["r0"] * g).astype(F32), (p["r_fast"] * g).astype(F32)
+    if fx.get("arr"):
+        f = arrhenius_f32(temp, fx["a_k"], fx["a_inv_ref"])
+        for name in ("r0", "r_fast", "r_slow"):
+            p[name] = (p[name] * f).astype(F32)
+    if spec.has_bv:
+        with np.errstate(all="ignore"):
+            a, x = asinh_f32(ai / p["i0"])
+            p["r_fast"] = (p["r_fast"] * (a / x)).astype(F32)
     if spec.variable_dt:
         with np.errstate(all="ignore"):
             cf = one_minus_exp_neg_f32(dt / p["k_fast"])
@@ -249,73 +327,67 @@ def simulate_f32(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0) -> RefRes
         uf = _rc_f32(p["k_fast"], p["r_fast"] * i, divide=True)
         us = _rc_f32(p["k_slow"], p["r_slow"] * i, divide=True)
     k, w = _weight_f32(spec.ocv_grid, soc)
-    ocv = _lerp_f32(spec.ocv, k, w)
+    ocv = _lerp_f32(spec.ocv, k, w, kt, wt)
     v = ((ocv + p["r0"] * i) + uf) + us
-    if not fx:
-        return RefResult(v.astype(F32), soc, uf, us, chg)
-    n = i.size
-    h = np.full(n, F32(fx["h_init"]), dtype=F32)
-    ux = np.zeros(n, dtype=F32)
-    if fx["hyst"]:
+    out = {}
+    if spec.diff:
+        t = (p["r_diff"] * i).astype(F32)
+        if spec.variable_dt:
+            with np.errstate(all="ignore"):
+                ud = _rc_f32(one_minus_exp_neg_f32(dt / p["k_diff"]), t)
+        else:
+            ud = _rc_f32(p["k_diff"], t, divide=True)
+        v = v + ud
+        out["u_diff"] = ud
+    if fx.get("hyst"):
         sg = np.where(chg == 1, F32(1.0), F32(-1.0)).astype(F32)
         x = (ai * dt) * F32(fx["h_k"]) if spec.variable_dt else ai * F32(fx["h_k"])
-        ch = one_minus_exp_neg_f32(x)
-        h = _rc_f32(ch, sg, u0=fx["h_init"])
+        h = _rc_f32(one_minus_exp_neg_f32(x), sg, u0=fx["h_init"])
         vh = F32(fx["h_m"]) * (h - F32(fx["h_ref"])) + F32(fx["h_m0"]) * (sg - F32(fx["h_ref"]))
-    if fx["xrc"]:
+        out["h"] = h
+    if fx.get("xrc"):
         t = F32(fx["x_r"]) * i
         if spec.variable_dt:
             with np.errstate(all="ignore"):
                 ux = _rc_f32(one_minus_exp_neg_f32(dt / F32(fx["x_k"])), t)
         else:
             ux = _rc_f32(np.full(n, F32(fx["x_k"]), dtype=F32), t, divide=True)
-    if fx["hyst"] and fx["xrc"]:
+        out["u_x"] = ux
+    if fx.get("hyst") and fx.get("xrc"):
         v = v + (vh + ux)
-    elif fx["hyst"]:
+    elif fx.get("hyst"):
         v = v + vh
-    else:
+    elif fx.get("xrc"):
         v = v + ux
-    return RefResult(v.astype(F32), soc, uf, us, chg, h.astype(F32), ux.astype(F32))
+    return RefResult(v.astype(F32), soc, uf, us, chg, **out)
 
 
 # =====================================================================================
 # fixed point (bit-true)
 # =====================================================================================
 
-def _rshr(x, n: int):
-    """(x + 2^(n-1)) >> n on int64 arrays (arithmetic shift: floor)."""
-    return (x + (np.int64(1) << np.int64(n - 1))) >> np.int64(n)
+def _rshr(x, n):
+    """(x + 2^(n-1)) >> n on int64 arrays (arithmetic shift: floor); n >= 1 (may be an array)."""
+    n = np.asarray(n, dtype=np.int64)
+    return (x + (np.int64(1) << (n - 1))) >> n
 
 
 def _sat32(x):
     return np.clip(x, INT32_MIN, INT32_MAX)
 
 
-def one_minus_exp_neg_q(dt_raw, tau_raw, q_t: int) -> np.ndarray:
-    """ecmrt_q_one_minus_exp_neg: 1 - exp(-dt/tau) in Q30; dt in Q16, tau in Q_T."""
-    dt = np.asarray(dt_raw, dtype=np.int64)
-    tau = np.asarray(tau_raw, dtype=np.int64)
-    dt, tau = np.broadcast_arrays(dt, tau)
-    num = dt * (np.int64(1) << np.int64(26 + q_t - Q_D))
-    big = num >= tau * Q_XMAX26
-    zero = (dt <= 0) | (tau <= 0)
-    safe_tau = np.where(zero | big, 1, tau)
-    x = np.where(zero | big, 0, (num + (safe_tau >> 1)) // safe_tau)
-    return _one_minus_exp_q26(x, zero, big)
+def _omexp_small_q(x30):
+    """ecmrt_q_one_minus_exp_neg_small: the series, x in Q30 (< 2^25)."""
+    q = 178956971 - _rshr(x30 * 44739243, 30)
+    q = 536870912 - _rshr(x30 * q, 30)
+    q = ONE30 - _rshr(x30 * q, 30)
+    return _rshr(x30 * q, 30)
 
 
-def one_minus_exp_neg_q26(x_raw) -> np.ndarray:
-    """ecmrt_q_fx_one_minus_exp_neg_q26: 1 - exp(-x) in Q30 for x in Q26 (int64)."""
-    x = np.asarray(x_raw, dtype=np.int64)
-    zero = x <= 0
+def _omexp_big_q(x):
+    """ecmrt_q_one_minus_exp_neg_big: x in Q26, 2^-5 <= x (>= 21.5 gives 1)."""
     big = x >= Q_XMAX26
-    return _one_minus_exp_q26(np.where(zero | big, 0, x), zero, big)
-
-
-def _one_minus_exp_q26(x, zero, big) -> np.ndarray:
-    """The shared core of both C routines: 1 - exp(-x) in Q30, x in Q26 (0 where
-    zero | big), as 2^-n * table[j] * poly(r); 0 where ``zero``, 1.0 where ``big``."""
-    y = _rshr(x * Q_LOG2E, 30)
+    y = _rshr(np.where(big, 0, x) * Q_LOG2E, 30)
     n = y >> 26
     j = (y >> 23) & 7
     f = y & 0x7FFFFF
@@ -325,47 +397,112 @@ def _one_minus_exp_q26(x, zero, big) -> np.ndarray:
         p = c + _rshr(r * p, 30)
     e = _rshr(np.asarray(Q_EXP2_TAB, dtype=np.int64)[j] * p, 30)
     e = np.where(n > 0, (e + (np.int64(1) << np.maximum(n - 1, 0))) >> n, e)
-    return np.where(zero, 0, np.where(big, ONE30, ONE30 - e)).astype(np.int64)
+    return np.where(big, ONE30, ONE30 - e)
 
 
-CDR_K = 6          # ECMRT_FX_CDR_K: 2^6 table segments per binade
+def one_minus_exp_neg_q26(x_raw) -> np.ndarray:
+    """ecmrt_q_one_minus_exp_neg_q26: 1 - exp(-x) in Q30 for x in Q26 (int64)."""
+    x = np.asarray(x_raw, dtype=np.int64)
+    small = x < Q_XSMALL26
+    c = np.where(small, _omexp_small_q(np.where(small, np.maximum(x, 0), 0) << 4),
+                 _omexp_big_q(np.where(small, Q_XSMALL26, x)))
+    return np.where(x <= 0, 0, c).astype(np.int64)
 
 
-def cdr_factor_q(ai, fx: dict) -> np.ndarray:
-    """ecmrt_q_fx_cdr_factor: g = scale asinh(x)/x in Q(CDR_QG) for ai = |i| (Q_I, int64)."""
-    ai = np.asarray(ai, dtype=np.int64)
-    x = _sat32(_rshr(ai * np.int64(fx["g_k"]), fx["SH_GX"]))
-    qx = int(fx["CDR_QX"])
+def c_dt_tau_q(dt_raw, tau_raw, q_t: int) -> np.ndarray:
+    """ecmrt_q_c_dt_tau: 1 - exp(-dt/tau) in Q30; dt in Q16, tau in Q_T (> 0)."""
+    dt, tau = np.broadcast_arrays(np.asarray(dt_raw, dtype=np.int64),
+                                  np.asarray(tau_raw, dtype=np.int64))
+    r, sh = recip_q(tau)
+    p = np.maximum(dt, 0) * r
+    k = sh - (q_t + 10)
+    x30 = _rshr(p, np.maximum(k - 4, 1))
+    small = (k >= 5) & (x30 < (1 << 25))
+    x26 = np.where(k >= 5, _rshr(x30, 4), _rshr(p, np.maximum(k, 1)))
+    c = np.where(small, _omexp_small_q(np.where(small, x30, 0)),
+                 _omexp_big_q(np.where(small, Q_XSMALL26, x26)))
+    c = np.where(k < 1, ONE30, c)
+    return np.where(dt > 0, c, 0).astype(np.int64)
+
+
+def inv_d_q(d_raw, qcd: int) -> np.ndarray:
+    """ecmrt_q_inv_d: 1/D in Q(qcd - Q_D) for D in Q_D (>= 1)."""
+    r, sh = recip_q(np.asarray(d_raw, dtype=np.int64))
+    return _rshr(r, sh - qcd)
+
+
+CDR_K = 6          # ECMRT_G_K: 2^6 table segments per binade
+
+
+def gtab_q(tab, x, qx: int) -> np.ndarray:
+    """ecmrt_q_gtab: the table at x (Q(qx), 0 <= x < 2^31) by linear interpolation."""
+    x = np.asarray(x, dtype=np.int64)
     big = x >= (1 << qx)
     b = np.frexp(np.maximum(x, 1).astype(np.float64))[1].astype(np.int64) - 1   # exact: x < 2^31
     s = np.where(big, b - CDR_K, qx - CDR_K).astype(np.int64)
     idx = np.where(big, ((b - qx) << CDR_K) + (x >> s), x >> s)
     w = (x & ((np.int64(1) << s) - 1)) << (30 - s)
-    tab = np.asarray(fx["g_tab"], dtype=np.int64)
-    return _lerp_q(tab, idx, w)
+    return _lerp_q(np.asarray(tab, dtype=np.int64), idx, w)
 
 
-def _rc_q_fx(c: np.ndarray, t: np.ndarray, u0: int = 0) -> np.ndarray:
-    """ECMRT_Q_RC with Q30 coefficients from u0 (c and t arrays of Python ints)."""
+def cdr_factor_q(ai, fx: dict) -> np.ndarray:
+    """current_dependent_resistance, fixed: g = scale asinh(x)/x in Q(CDR_QG), ai = |i| (Q_I)."""
+    ai = np.asarray(ai, dtype=np.int64)
+    return gtab_q(fx["g_tab"], _sat32(_rshr(ai * np.int64(fx["g_k"]), fx["SH_GX"])), fx["CDR_QX"])
+
+
+def arrhenius_q(temp_raw, fx: dict) -> np.ndarray:
+    """ecmrt_q_arrhenius: the factor in Q(ARR_QF) for T in Q8."""
+    t = np.clip(np.asarray(temp_raw, dtype=np.int64), *Q_ARR_T)
+    d = 20 * t + Q_ARR_D0
+    r, sh = recip_q(d)
+    z = _rshr((d - Q_ARR_DLO) * r, sh - 30)
+    e = ONE30 - one_minus_exp_neg_q26(_rshr(np.int64(fx["a_b"]) * z, fx["ARR_QB"] + 4))
+    return _rshr(np.int64(fx["a_fmax"]) * e, 30)
+
+
+def _rc_q(c: np.ndarray, t: np.ndarray, qc: int, u0: int = 0) -> np.ndarray:
+    """ECMRT_Q_RC from u0 over arrays of coefficients (Q(qc)) and targets."""
+    c = np.broadcast_to(np.asarray(c, dtype=np.int64), np.shape(t))
     out = np.empty(len(t), dtype=np.int64)
     u = int(u0)
-    half = 1 << 29
-    for k, (ck, tk) in enumerate(zip(c.tolist(), t.tolist())):
-        u = min(INT32_MAX, max(INT32_MIN, u + (((tk - u) * ck + half) >> 30)))
+    half = 1 << (qc - 1)
+    for k, (ck, tk) in enumerate(zip(c.tolist(), np.asarray(t).tolist())):
+        u = min(INT32_MAX, max(INT32_MIN, u + (((tk - u) * ck + half) >> qc)))
         out[k] = u
     return out
 
 
-def _weight_q(grid, soc, g: int):
-    k = _segments(grid.x, soc)
-    w = _rshr((soc - grid.x[k]) * grid.inv_dx[k], g)
+def _weight_q(grid, v, g: int):
+    k = _segments(grid.x, v)
+    w = _rshr((v - grid.x[k]) * grid.inv_dx[k], g)
     w = np.minimum(w, ONE30)
-    w = np.where(soc <= grid.x[0], 0, np.where(soc >= grid.x[-1], ONE30, w))
+    w = np.where(v <= grid.x[0], 0, np.where(v >= grid.x[-1], ONE30, w))
     return k, w.astype(np.int64)
 
 
 def _lerp_q(y, k, w):
     return y[k] + _rshr((y[k + 1] - y[k]) * w, 30)
+
+
+def corners_q(w, wt):
+    """ecmrt_q_corners: the four Q30 corner weights (k, t), (k+1, t), (k, t+1), (k+1, t+1)."""
+    wt1 = ONE30 - wt
+    c1, c3 = _rshr(w * wt1, 30), _rshr(w * wt, 30)
+    return wt1 - c1, c1, wt - c3, c3
+
+
+def _lerp2_q(y, k, w, kt=None, wt=None):
+    """ecmrt_q_lerp (one row) or ecmrt_q_bilerp (the corners of rows kt, kt + 1)."""
+    if kt is None:
+        return _lerp_q(y[0] if y.ndim == 2 else y, k, w)
+    c = corners_q(w, wt)
+    return _rshr(y[kt, k] * c[0] + y[kt, k + 1] * c[1] + y[kt + 1, k] * c[2]
+                 + y[kt + 1, k + 1] * c[3], 30)
+
+
+def _tv_q(b, kt, wt):
+    return b[0] if kt is None else _lerp_q(b, kt, wt)
 
 
 def _soc_q(soc0: int, inc: np.ndarray, sh: int) -> np.ndarray:
@@ -387,87 +524,94 @@ def _soc_q(soc0: int, inc: np.ndarray, sh: int) -> np.ndarray:
     return out
 
 
-def _rc_q(c: np.ndarray, t: np.ndarray, qc: int) -> np.ndarray:
-    out = np.empty_like(t)
-    u = 0
-    half = 1 << (qc - 1)
-    for k, (ck, tk) in enumerate(zip(c.tolist(), t.tolist())):
-        u = min(INT32_MAX, max(INT32_MIN, u + (((tk - u) * ck + half) >> qc)))
-        out[k] = u
-    return out
-
-
-def simulate_fixed_raw(spec: CSpec, i_raw, dt_raw=None, soc0_raw: int = ONE30) -> RefResult:
+def simulate_fixed_raw(spec: CSpec, i_raw, dt_raw=None, soc0_raw: int = ONE30,
+                       temp_raw=None) -> RefResult:
     """Bit-true reference of a numeric="fixed" spec on raw integers: i in Q_I, dt in Q16
-    (variable dt), soc0 in Q30. Returns raw int64 arrays (v in Q_V)."""
+    (variable dt), soc0 in Q30, temperature in Q8 degC. Returns raw int64 arrays (v in Q_V)."""
     if not spec.fixed:
         raise ValueError("simulate_fixed_raw needs a numeric='fixed' spec")
     q = spec.q
     i = _sat32(np.asarray(i_raw, dtype=np.int64))
+    n = i.size
+    temp = _sat32(_temperatures(spec, temp_raw, n, np.int64).astype(np.int64))
     if spec.variable_dt:
         if dt_raw is None:
             raise ValueError("this spec has a variable dt: give dt per step")
         dt = np.maximum(_sat32(np.asarray(dt_raw, dtype=np.int64)), 0)
         if dt.shape != i.shape:
             raise ValueError("current and dt differ in length")
-        rate = _sat32(_rshr(i * spec.k_soc, q["SH_RATE"]))
-        inc = rate * dt
+        inc = _sat32(_rshr(i * spec.k_soc, q["SH_RATE"])) * dt
     else:
         dt = None
         inc = i * spec.k_soc
     chg = _direction(i, spec.deadband)
     soc = _soc_q(int(np.clip(soc0_raw, INT32_MIN, INT32_MAX)), inc, q["SH_DSOC"])
+    kt = wt = None
+    if spec.temp:
+        kt, wt = _weight_q(spec.temp_grid, temp, q["Q_GT"])
 
     per_dir = []
     for d in spec.dirs:
         k, w = _weight_q(d.grid, soc, q["Q_G"])
-        per_dir.append({name: _lerp_q(getattr(d, name), k, w) for name in PARAMS})
-    p = {name: np.where(chg == 1, per_dir[1][name], per_dir[0][name]) for name in per_dir[0]}
+        p = {name: _lerp2_q(getattr(d, name), k, w, kt, wt) for name in PARAMS}
+        for name in ("r_diff", "k_diff", "i0"):
+            if getattr(d, name) is not None:
+                p[name] = _tv_q(getattr(d, name), kt, wt)
+        per_dir.append(p)
+    p = {name: _pick(chg, per_dir, name) for name in per_dir[0]}
     if spec.variable_dt:
-        cf = one_minus_exp_neg_q(dt, p["k_fast"], q["Q_T"])
-        cs = one_minus_exp_neg_q(dt, p["k_slow"], q["Q_T"])
+        cf, cs = c_dt_tau_q(dt, p["k_fast"], q["Q_T"]), c_dt_tau_q(dt, p["k_slow"], q["Q_T"])
         qcf = qcs = Q30
     else:
         qcf, qcs = q["Q_CF"], q["Q_CS"]
-        cf = ((1 << (qcf + q["Q_DF"])) + (p["k_fast"] >> 1)) // p["k_fast"]
-        cs = ((1 << (qcs + q["Q_DS"])) + (p["k_slow"] >> 1)) // p["k_slow"]
+        cf, cs = inv_d_q(p["k_fast"], qcf + q["Q_DF"]), inv_d_q(p["k_slow"], qcs + q["Q_DS"])
     q_i, q_v = q["Q_I"], q["Q_V"]
     fx = spec.fx
+    ai = np.abs(i)
+    t0 = _rshr(p["r0"] * i, q["Q_R0"] + q_i - q_v)
     tf = _rshr(p["r_fast"] * i, q["Q_RF"] + q_i - q_v)
-    r0i = _rshr(p["r0"] * i, q["Q_R0"] + q_i - q_v)
-    if fx and fx["cdr"]:
-        g = cdr_factor_q(np.abs(i), fx)
-        tf = _rshr(tf * g, fx["CDR_QG"])
-        r0i = _rshr(r0i * g, fx["CDR_QG"])
+    ts = _rshr(p["r_slow"] * i, q["Q_RS"] + q_i - q_v)
+    if fx.get("cdr"):
+        g = cdr_factor_q(ai, fx)
+        t0, tf = _rshr(t0 * g, fx["CDR_QG"]), _rshr(tf * g, fx["CDR_QG"])
+    if fx.get("arr"):
+        g = arrhenius_q(temp, fx)
+        t0, tf, ts = (_rshr(t * g, fx["ARR_QF"]) for t in (t0, tf, ts))
+    if spec.has_bv:
+        r, sh = recip_q(p["i0"])
+        x = _sat32(_rshr(ai * r, sh - spec.bv["K"]))
+        tf = _rshr(tf * gtab_q(spec.bv["tab"], x, spec.bv["QX"]), 30)
     uf = _rc_q(cf, tf, qcf)
-    us = _rc_q(cs, _rshr(p["r_slow"] * i, q["Q_RS"] + q_i - q_v), qcs)
+    us = _rc_q(cs, ts, qcs)
     k, w = _weight_q(spec.ocv_grid, soc, q["Q_G"])
-    ocv = _lerp_q(spec.ocv, k, w)
-    v = ((ocv + r0i) + uf) + us
-    if not fx:
-        return RefResult(_sat32(v).astype(np.int64), soc, uf, us, chg)
-    n = i.size
-    h = np.full(n, fx["h_init"], dtype=np.int64)
-    ux = np.zeros(n, dtype=np.int64)
-    if fx["hyst"]:
-        ai = np.abs(i)
+    ocv = _lerp2_q(spec.ocv, k, w, kt, wt)
+    v = ((ocv + t0) + uf) + us
+    out = {}
+    if spec.diff:
+        if spec.variable_dt:
+            cd, qcd = c_dt_tau_q(dt, p["k_diff"], q["Q_T"]), Q30
+        else:
+            qcd = q["Q_CD"]
+            cd = inv_d_q(p["k_diff"], qcd + q["Q_DD"])
+        ud = _rc_q(cd, _rshr(p["r_diff"] * i, q["Q_RD"] + q_i - q_v), qcd)
+        v = v + ud
+        out["u_diff"] = ud
+    if fx.get("hyst"):
         sg = np.where(chg == 1, ONE30, -ONE30).astype(np.int64)
         if spec.variable_dt:
             x = _rshr(_sat32(_rshr(ai * fx["h_k"], fx["SH_HR"])) * dt, fx["SH_HX"])
         else:
             x = _rshr(ai * fx["h_k"], fx["SH_HX"])
-        h = _rc_q_fx(one_minus_exp_neg_q26(x), sg, fx["h_init"])
-        vh = (_rshr(fx["h_m"] * (h - fx["h_ref"]), fx["SH_HM"])
-              + _rshr(fx["h_m0"] * (sg - fx["h_ref"]), fx["SH_HM"]))
-        v = v + vh
-    if fx["xrc"]:
-        if spec.variable_dt:
-            cx = one_minus_exp_neg_q(dt, np.full(n, fx["x_k"], dtype=np.int64), q["Q_T"])
-        else:
-            cx = np.full(n, fx["x_k"], dtype=np.int64)
-        ux = _rc_q_fx(cx, _rshr(np.int64(fx["x_r"]) * i, fx["SH_XR"]))
+        h = _rc_q(one_minus_exp_neg_q26(x), sg, Q30, fx["h_init"])
+        v = v + (_rshr(fx["h_m"] * (h - fx["h_ref"]), fx["SH_HM"])
+                 + _rshr(fx["h_m0"] * (sg - fx["h_ref"]), fx["SH_HM"]))
+        out["h"] = h
+    if fx.get("xrc"):
+        cx = c_dt_tau_q(dt, np.full(n, fx["x_k"]), q["Q_T"]) if spec.variable_dt else fx["x_k"]
+        ux = _rc_q(cx, _rshr(np.int64(fx["x_r"]) * i, fx["SH_XR"]), Q30)
         v = v + ux
-    return RefResult(_sat32(v).astype(np.int64), soc, uf, us, chg, h, ux)
+        out["u_x"] = ux
+    return RefResult(_sat32(v).astype(np.int64), soc, uf, us, chg, **out)
 
 
 # --- conversions between SI values and the fixed-point API ----------------------------
@@ -482,6 +626,12 @@ def dt_to_raw(dt_s) -> np.ndarray:
     return quantize(dt, Q_D)
 
 
+def temperature_to_raw(temperature_c) -> np.ndarray:
+    """degC -> the fixed-point temperature input (Q8, saturated to int32; NaN -> -2^31)."""
+    t = np.nan_to_num(np.asarray(temperature_c, dtype=np.float64), nan=-1e9)
+    return quantize(t, Q_TEMP)
+
+
 def soc_to_raw(soc) -> int:
     return int(quantize([soc], Q30)[0])
 
@@ -490,10 +640,14 @@ def volts(spec: CSpec, v_raw) -> np.ndarray:
     return np.ldexp(np.asarray(v_raw, dtype=np.float64), -spec.q["Q_V"])
 
 
-def simulate_fixed(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0):
+def simulate_fixed(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0, temperature_c=None):
     """Quantise SI inputs as the C caller would, run the bit-true reference.
     Returns (RefResult of raw integers, voltage in V as float64)."""
     i_raw = current_to_raw(spec, current_a)
     dt_raw = dt_to_raw(dt_s) if spec.variable_dt else None
-    ref = simulate_fixed_raw(spec, i_raw, dt_raw, soc_to_raw(soc0))
+    t_raw = None
+    if temperature_c is not None:
+        t_raw = temperature_to_raw(np.broadcast_to(np.asarray(temperature_c, dtype=np.float64),
+                                                   np.shape(i_raw)))
+    ref = simulate_fixed_raw(spec, i_raw, dt_raw, soc_to_raw(soc0), t_raw)
     return ref, volts(spec, ref.v)

@@ -16,6 +16,7 @@ CDR_SEG_BITS = 6            # fixed point: 2^6 linear segments in [0, 1) and in 
 CDR_E_MAX = 16              # fixed point: |i| / i0_a must stay below 2^16 (table size)
 Q30 = 30
 Q_D = 16                    # dt input of the variable-dt fixed-point step
+Q_TEMP = 8                  # temperature input of the fixed-point step, degC
 DT_MAX_S = 32767.0          # dt saturation (float); Q16 int32 range (fixed)
 SOC_LIM = 2.0               # SOC saturates at +-2 (float) / int32 Q30 range (fixed)
 INT32_MAX = 2**31 - 1
@@ -64,3 +65,26 @@ def cdr_table(scale: float, e_bins: int, k: int = CDR_SEG_BITS) -> np.ndarray:
     adj[0] -= 0.5 * e[0]
     adj[-1] -= 0.5 * e[-1]
     return scale * adj
+
+
+# seed of ecmrt_q_recip: 2^31 / (1 + j/64), j = 0..64, rounded
+RECIP_TAB = np.array([round(2**37 / (64 + j)) for j in range(65)], dtype=np.int64)
+
+
+def bit_length(x) -> np.ndarray:
+    """Bit length of non-negative int64 values below 2^53 (0 for 0)."""
+    x = np.asarray(x, dtype=np.int64)
+    return np.frexp(x.astype(np.float64))[1].astype(np.int64)
+
+
+def recip_q(d):
+    """ecmrt_q_recip: (r, sh) with 1/d ~ r 2^-sh, r in (2^30, 2^31], for 1 <= d < 2^31:
+    d normalised to m in [2^30, 2^31), a linearly interpolated seed of 2^61/m and one
+    Newton step, in integers (int64 arrays)."""
+    d = np.asarray(d, dtype=np.int64)
+    s = 32 - bit_length(d)
+    m = d << (s - 1)
+    j = (m >> 24) - 64
+    r = RECIP_TAB[j] - (((RECIP_TAB[j] - RECIP_TAB[j + 1]) * (m & 0xFFFFFF)) >> 24)
+    e = (np.int64(1) << np.int64(62)) - m * r
+    return (r * (e >> 30)) >> 31, 62 - s

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .cbuild import STRICT_CFLAGS, CBuildError, compile_spec
+from .cbuild import STRICT_CFLAGS, CBuildError, compile_spec, extra_states
 from .codegen import CSpec, file_names, prepare, render
 
 INSTALL_HINT = "sudo apt-get install gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm"
@@ -222,17 +222,20 @@ OUT_NAME = "ecmh_out.bin"
 
 @dataclass(frozen=True)
 class TargetRun:
-    """One model to run on the target: its spec and the native inputs (float32 or raw int32)."""
+    """One model to run on the target: its spec and the native inputs (float32 or raw int32;
+    temp: the cell temperature per step, degC or Q8; None: 0, for a model that ignores it)."""
 
     spec: CSpec
     i: np.ndarray
     dt: np.ndarray | None
     soc0: float | int
+    temp: np.ndarray | None = None
 
     @property
     def fields(self) -> tuple[str, ...]:
-        """What the firmware records per step, in this order (n values each)."""
-        return ("v", "soc", "h", "u_x") if self.spec.has_fx else ("v", "soc")
+        """What the firmware records per step, in this order (n values each): the voltage,
+        SOC and every optional state the model has (u_diff, h, u_x)."""
+        return ("v", "soc") + extra_states(self.spec)
 
 
 def _array(name: str, a: np.ndarray, fixed: bool) -> str:
@@ -258,12 +261,14 @@ def firmware_main(runs: list[TargetRun]) -> str:
         get = (lambda a: f"{a}[k]") if fixed else (lambda a: f"{a}[k].f")
         parts.append(f'#include "{p}_ecm.h"\n')
         parts.append(_array(f"{p}_in_i", r.i, fixed))
+        temp = np.zeros(n) if r.temp is None else r.temp
+        parts.append(_array(f"{p}_in_t", temp, fixed))
         if r.spec.variable_dt:
             parts.append(_array(f"{p}_in_dt", r.dt, fixed))
         soc0 = str(int(r.soc0)) if fixed else f"{float(np.float32(r.soc0)).hex()}f"
-        dt_arg = f", {get(p + '_in_dt')}" if r.spec.variable_dt else ""
-        fx_rec = (f"        {p}_out[2u * {n}u + k] = s.h;\n"
-                  f"        {p}_out[3u * {n}u + k] = s.u_x;\n") if r.spec.has_fx else ""
+        dt_arg = f", {get(p + '_in_t')}" + (f", {get(p + '_in_dt')}" if r.spec.variable_dt else "")
+        fx_rec = "".join(f"        {p}_out[{j}u * {n}u + k] = s.{f};\n"
+                         for j, f in enumerate(r.fields) if j >= 2)
         parts.append(f"""static {t} {p}_out[{len(r.fields)} * {n}];
 static void run_{p}(void)
 {{
@@ -356,12 +361,13 @@ def run_qemu(elf, cpu: str = "m4f", timeout: float = 120) -> bytes:
 
 def qemu_equivalence(model, time_s, current_a, soc0: float, cpu: str = "m4f",
                      variants=(("float", None), ("float", 0.1), ("fixed", None), ("fixed", 0.1)),
-                     out_dir=None, cache=None) -> dict:
+                     out_dir=None, cache=None, temperature_c=None) -> dict:
     """Run the generated models on the emulated target and on the host (cffi) over the same
-    inputs; compare voltages and SOC (and the effect states h, u_x of a model with effects)
-    bit for bit. ``variants``: (numeric, dt_s) pairs; a fixed-dt variant ignores the record's
-    time stamps (each step lasts dt_s). ``model``: one model, or a dict numeric -> model (a
-    model per numeric, e.g. with different effects)."""
+    inputs; compare voltages and SOC (and the optional states u_diff, h, u_x) bit for bit.
+    ``variants``: (numeric, dt_s) pairs; a fixed-dt variant ignores the record's time
+    stamps (each step lasts dt_s). ``model``: one model, or a dict numeric -> model (a model
+    per numeric, e.g. with different effects). ``temperature_c``: the cell temperature per
+    step (degC), for models that read it."""
     import tempfile
 
     from . import cref
@@ -378,8 +384,9 @@ def qemu_equivalence(model, time_s, current_a, soc0: float, cpu: str = "m4f",
         fx_names.append([e.name for e in (getattr(mdl, "effects", ()) or ())])
         cm = compile_spec(spec, cache=cache)
         i_n, dt_n, s0 = cm.native_inputs(current_a, dt if dt_s is None else None, soc0)
-        ref = cm.trace_native(i_n, dt_n, s0)
-        runs.append(TargetRun(spec, i_n, dt_n, s0))
+        t_n = cm.native_temperature(temperature_c, i_n.size)
+        ref = cm.trace_native(i_n, dt_n, s0, t_n)
+        runs.append(TargetRun(spec, i_n, dt_n, s0, t_n))
         host.append(ref)
     tmp = None
     if out_dir is None:
