@@ -2,15 +2,19 @@
 """Benchmark of the generated C, in one run:
 
 1. instructions per step (valgrind callgrind, host build -O2 with the strict flags, only the
-   instructions inside <prefix>_step counted), float and fixed, variable and fixed dt;
-2. flash and RAM bytes of the step code and of the tables for a 20-point table on
-   Cortex-M4F and Cortex-M0 (arm-none-eabi-gcc -Os, arm-none-eabi-size), plus the caller's
-   state struct and the step's stack frame;
+   instructions inside <prefix>_step counted), float and fixed, variable and fixed dt, for
+   tables of 1 x 20 (one temperature), 4 x 20 (temperature x SOC), 4 x 20 with the
+   diffusion pair and the Butler-Volmer branch, and the 14 x 21 test model (a realistic
+   temperature fit, tests/data/panasonic-temperature-model.json) with and without them;
+2. flash and RAM bytes of the step code and of the tables on Cortex-M4F and Cortex-M0
+   (arm-none-eabi-gcc -Os, arm-none-eabi-size), the caller's state struct, the step's stack
+   frame and the libgcc helpers the object calls (no 64-bit division may appear);
 3. simulation throughput in steps/s: C through cffi (looping in C) against the float64
-   Python model and the float32 / bit-true references.
+   Python model and the float32 / bit-true references (4 x 20).
 
 Usage: python bench/bench_c.py [--steps N] [--json]
-Targets (issue): < 150 instructions per step for float; < 2 KiB of flash for the code.
+Targets (issue 8): <= 200 instructions per step for float with variable dt and <= 250 for
+fixed point, 4 x 20 table; < 2 KiB of code on Cortex-M4F and M0.
 Missing tools (valgrind, arm-none-eabi-gcc) are reported and their part skipped.
 """
 
@@ -32,37 +36,57 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
 from ecmgen.c import cbuild, cref, target  # noqa: E402
-from ecmgen.c.codegen import prepare, render  # noqa: E402
+from ecmgen.c.codegen import describe, prepare, render  # noqa: E402
+from ecmgen.c.spec import state_bytes  # noqa: E402
 from ecmgen.model.simulate import simulate  # noqa: E402
 
 VARIANTS = [("float", None), ("float", 0.1), ("fixed", None), ("fixed", 0.1)]
 
 
-def model20():
-    from test_codegen_helpers import realistic_model
+def models() -> dict:
+    """The benchmarked models by table shape (temperature rows x SOC points)."""
+    from dataclasses import replace
 
-    return realistic_model(n_rc=20, seed=3)
+    from test_codegen_helpers import TEMPERATURE_MODEL, realistic_model, temperature_model
+
+    out = {"1 x 20": realistic_model(n_rc=20, seed=3),
+           "4 x 20": temperature_model(4, 20, seed=3),
+           "4 x 20, OCV on the RC grid": temperature_model(4, 20, seed=3, ocv_on_rc_grid=True),
+           "4 x 20 + diffusion + BV": temperature_model(4, 20, seed=3, branches=True)}
+    if TEMPERATURE_MODEL.exists():
+        from ecmgen.model import load_model
+
+        m = load_model(TEMPERATURE_MODEL)
+        plain = {k: None for k in ("r_diff_ohm", "tau_diff_s", "i0_a")}
+        out["14 x 21"] = replace(m, charge=replace(m.charge, **plain),
+                                 discharge=replace(m.discharge, **plain))
+        out["14 x 21 + diffusion + BV"] = m
+    return out
 
 
 def drive_profile(n: int):
-    """Current and time of a real drive cycle (US06, its mean removed so that repeating it
-    keeps the SOC in range) if the data is there, else a synthetic one of the same character."""
-    from test_codegen_helpers import PANASONIC, load_mat
+    """Current, time and cell temperature of a real drive cycle (US06 at 0 degC: the cell
+    warms from 0.5 to 14 degC, across table rows; its mean current removed so that repeating
+    it keeps the SOC in range) if the data is there, else a synthetic one of the same
+    character."""
+    from test_codegen_helpers import SHARED_DATA, load_cycle_t
 
-    path = PANASONIC / "us06.mat"
+    path = SHARED_DATA / "panasonic-18650pf-0degC" / "us06.mat"
     if path.exists():
-        s = load_mat(path)
+        s = load_cycle_t("panasonic-18650pf-0degC", "us06.mat")
         reps = int(np.ceil(n / len(s)))
         cur = np.tile(s.current_a - np.mean(s.current_a), reps)[:n]
         dt = np.tile(cref.dt_from_time(s.time_s), reps)[:n]
-        src = "US06 (real, mean current removed, repeated)"
+        temp = np.tile(s.temperature_c, reps)[:n]
+        src = "US06 at 0 degC (real, 0.5 .. 14 degC, mean current removed, repeated)"
     else:
         rng = np.random.default_rng(0)
         cur = np.repeat(rng.uniform(-20, 8, n // 20 + 1), 20)[:n]
         dt = rng.uniform(0.09, 0.11, n)
+        temp = np.linspace(0.0, 14.0, n)
         src = "synthetic"
     dt[0] = 0.0
-    return cur, dt, np.cumsum(dt), src
+    return cur, dt, np.cumsum(dt), temp, src
 
 
 def label(numeric, dt_s):
@@ -79,12 +103,13 @@ int main(int argc, char **argv)
 {
     FILE *f = fopen(argv[1], "rb");
     size_t n = (size_t)atol(argv[2]), k;
-    T *i = malloc(n * sizeof *i), *dt = malloc(n * sizeof *dt);
+    T *i = malloc(n * sizeof *i), *dt = malloc(n * sizeof *dt), *t = malloc(n * sizeof *t);
     bench_state_t s;
     double acc = 0.0;
-    if (!f || fread(i, sizeof *i, n, f) != n || fread(dt, sizeof *dt, n, f) != n) return 1;
+    if (!f || fread(i, sizeof *i, n, f) != n || fread(dt, sizeof *dt, n, f) != n ||
+        fread(t, sizeof *t, n, f) != n) return 1;
     bench_init(&s, SOC0);
-    for (k = 0; k < n; k++) acc += (double)bench_step(&s, i[k] DTARG);
+    for (k = 0; k < n; k++) acc += (double)bench_step(&s, i[k], t[k] DTARG);
     printf("%g\n", acc);
     (void)argc;
     return 0;
@@ -92,7 +117,14 @@ int main(int argc, char **argv)
 """
 
 
-def instructions_per_step(model, cur, dt, n) -> dict:
+def _native(spec, cur, dt, temp):
+    if spec.fixed:
+        return (cref.current_to_raw(spec, cur).astype(np.int32), cref.dt_to_raw(dt).astype(np.int32),
+                cref.temperature_to_raw(temp).astype(np.int32))
+    return cur.astype(np.float32), dt.astype(np.float32), temp.astype(np.float32)
+
+
+def instructions_per_step(model, cur, dt, temp, n) -> dict:
     if shutil.which("valgrind") is None:
         return {"skipped": "valgrind not found (apt-get install valgrind)"}
     out = {}
@@ -105,14 +137,9 @@ def instructions_per_step(model, cur, dt, n) -> dict:
             spec = prepare(model, numeric=numeric, dt_s=dt_s, prefix="bench")
             for name, text in render(spec).items():
                 (d / name).write_text(text)
-            if spec.fixed:
-                i_n = cref.current_to_raw(spec, cur).astype(np.int32)
-                dt_n = cref.dt_to_raw(dt).astype(np.int32)
-                t, soc0 = "int32_t", str(cref.soc_to_raw(0.95))
-            else:
-                i_n, dt_n = cur.astype(np.float32), dt.astype(np.float32)
-                t, soc0 = "float", "0.95f"
-            (d / "in.bin").write_bytes(i_n[:n].tobytes() + dt_n[:n].tobytes())
+            i_n, dt_n, t_n = _native(spec, cur[:n], dt[:n], temp[:n])
+            t, soc0 = ("int32_t", str(cref.soc_to_raw(0.95))) if spec.fixed else ("float", "0.95f")
+            (d / "in.bin").write_bytes(i_n.tobytes() + dt_n.tobytes() + t_n.tobytes())
             main = CG_MAIN.replace("T *", f"{t} *").replace("SOC0", soc0)
             main = main.replace("DTARG", ", dt[k]" if dt_s is None else "")
             (d / "main.c").write_text(main)
@@ -145,9 +172,9 @@ def flash_ram(model) -> dict:
                 obj = target.cross_compile(spec, Path(tmp) / f"{cpu}_{numeric}_{dt_s}", cpu=cpu, opt="-Os")
                 sz = target.sizes(obj.obj)
                 su = target.stack_usage(obj.obj)
-                res[f"{target.CPUS[cpu]['name']}: {label(numeric, dt_s).strip()}"] = {
+                res[f"{cpu} {label(numeric, dt_s).strip()}"] = {
                     "code": sz["code"], "tables": sz["tables"], "data+bss": sz["ram"],
-                    "state": 24 if spec.fixed else 20,
+                    "state": state_bytes(spec),
                     "stack_step": sum(v for k, v in su.items() if k not in ("bench_run", "bench_init")),
                     "libgcc": [s for s in target.undefined_symbols(obj.obj)],
                     "warnings": obj.warnings,
@@ -157,30 +184,34 @@ def flash_ram(model) -> dict:
 
 # --- 3. throughput --------------------------------------------------------------------
 
-def throughput(model, cur, dt, t, n_c: int, n_py: int) -> dict:
+def throughput(model, cur, dt, t, temp, n_c: int, n_py: int) -> dict:
     res = {}
     for numeric, dt_s in VARIANTS:
         cm = cbuild.build(model, numeric=numeric, dt_s=dt_s, prefix="bench")
         i_n, dt_n, s0 = cm.native_inputs(cur[:n_c], dt[:n_c] if dt_s is None else None, 0.95)
+        t_n = cm.native_temperature(temp[:n_c], n_c)
         best = np.inf
         for _ in range(3):                                  # best of 3
             t0 = time.perf_counter()
-            cm.run_native(i_n, dt_n, s0)
+            cm.run_native(i_n, dt_n, s0, t_n)
             best = min(best, time.perf_counter() - t0)
         res[f"C (cffi, {label(numeric, dt_s).strip()})"] = n_c / best
     t0 = time.perf_counter()
-    simulate(model, t[:n_py], cur[:n_py], 0.95)
+    simulate(model, t[:n_py], cur[:n_py], 0.95, temp[:n_py])
     res["Python float64 simulate()"] = n_py / (time.perf_counter() - t0)
     for numeric in ("float", "fixed"):
         spec = prepare(model, numeric=numeric)
         t0 = time.perf_counter()
         if numeric == "float":
-            cref.simulate_f32(spec, cur[:n_py], dt[:n_py], 0.95)
+            cref.simulate_f32(spec, cur[:n_py], dt[:n_py], 0.95, temp[:n_py])
         else:
-            cref.simulate_fixed(spec, cur[:n_py], dt[:n_py], 0.95)
+            cref.simulate_fixed(spec, cur[:n_py], dt[:n_py], 0.95, temp[:n_py])
         res[f"Python {'float32' if numeric == 'float' else 'bit-true int'} reference"] = \
             n_py / (time.perf_counter() - t0)
     return res
+
+
+TARGETS = {"float variable dt": 200, "fixed variable dt": 250}
 
 
 def main(argv=None) -> int:
@@ -188,39 +219,54 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=5_000_000, help="C throughput steps")
     ap.add_argument("--json", action="store_true", help="print JSON only")
     args = ap.parse_args(argv)
-    model = model20()
-    cur, dt, t, src = drive_profile(max(args.steps, 200_000))
+    mdl = models()
+    cur, dt, t, temp, src = drive_profile(max(args.steps, 200_000))
+    table_bytes = {name: {n: describe(prepare(m, numeric=n))["table_bytes"] for n in ("float", "fixed")}
+                   for name, m in mdl.items()}
     report = {
-        "model": "20-point RC tables per direction, 41-point OCV (tests/test_codegen_helpers.py)",
+        "models": list(mdl),
         "profile": src,
-        "instructions_per_step": instructions_per_step(model, cur, dt, 20_000),
-        "flash_ram_bytes": flash_ram(model),
-        "steps_per_s": throughput(model, cur, dt, t, args.steps, 200_000),
+        "instructions_per_step": {name: instructions_per_step(m, cur, dt, temp, 20_000)
+                                  for name, m in mdl.items()},
+        "table_bytes": table_bytes,
+        "flash_ram_bytes": {name: flash_ram(m) for name, m in mdl.items()},
+        "steps_per_s": throughput(mdl["4 x 20"], cur, dt, t, temp, args.steps, 200_000),
     }
     if args.json:
         print(json.dumps(report, indent=1))
         return 0
-    print(f"ecmgen C benchmark - {report['model']}; profile {src}\n")
-    print("1. instructions per step (callgrind, host x86-64 gcc -O2, inside <prefix>_step)")
+    print(f"ecmgen C benchmark; profile {src}\n")
+    print("1. instructions per step (callgrind, host x86-64 gcc -O2, inside <prefix>_step), and "
+          "table bytes (variable dt)")
     ips = report["instructions_per_step"]
-    for k, v in ips.items():
-        note = ""
-        if k.startswith("float") and isinstance(v, float):
-            note = "  (target < 150: " + ("met)" if v < 150 else "not met)")
-        print(f"   {k:28s} {v}{note}")
+    cols = [label(n, d).strip() for n, d in VARIANTS]
+    print(f"   {'table (T x SOC)':26s} " + " ".join(f"{c:>18s}" for c in cols) + "  bytes float / fixed")
+    for name, row in ips.items():
+        if "skipped" in row:
+            print(f"   {name:26s} skipped: {row['skipped']}")
+            continue
+        tb = table_bytes[name]
+        print(f"   {name:26s} " + " ".join(f"{row[c]:18.1f}" for c in cols) +
+              f"  {tb['float']:6d} / {tb['fixed']:6d}")
+    main_row = ips.get("4 x 20", {})
+    for c, lim in TARGETS.items():
+        if c in main_row:
+            print(f"   4 x 20, {c}: {main_row[c]} (target <= {lim}: "
+                  f"{'met' if main_row[c] <= lim else 'NOT met'})")
     print("\n2. flash / RAM bytes, arm-none-eabi-gcc -Os (code = .text, tables = .rodata)")
-    fr = report["flash_ram_bytes"]
-    if "skipped" in fr:
-        print(f"   skipped: {fr['skipped']}")
-    else:
-        head = ["code", "tables", "data+bss", "state", "stack"]
-        print(f"   {'build':52s} " + " ".join(f"{h:>{max(5, len(h))}s}" for h in head) + "  libgcc")
+    head = ["code", "tables", "data+bss", "state", "stack"]
+    print(f"   {'table, build':50s} " + " ".join(f"{h:>{max(5, len(h))}s}" for h in head) + "  libgcc")
+    worst = 0
+    for name, fr in report["flash_ram_bytes"].items():
+        if "skipped" in fr:
+            print(f"   {name}: skipped: {fr['skipped']}")
+            continue
         for k, v in fr.items():
-            print(f"   {k:52s} {v['code']:5d} {v['tables']:6d} {v['data+bss']:8d} {v['state']:5d} "
-                  f"{v['stack_step']:5d}  {' '.join(v['libgcc']) or '-'}")
-        worst = max(v["code"] for v in fr.values())
-        print(f"   largest code: {worst} B (target < 2048: {'met' if worst < 2048 else 'not met'})")
-    print("\n3. throughput, steps/s")
+            worst = max(worst, v["code"])
+            print(f"   {name + ', ' + k:50s} {v['code']:5d} {v['tables']:6d} {v['data+bss']:8d} "
+                  f"{v['state']:5d} {v['stack_step']:5d}  {' '.join(v['libgcc']) or '-'}")
+    print(f"   largest code: {worst} B (target < 2048: {'met' if worst < 2048 else 'NOT met'})")
+    print("\n3. throughput, steps/s (4 x 20)")
     for k, v in report["steps_per_s"].items():
         print(f"   {k:40s} {v:14,.0f}")
     py = report["steps_per_s"]["Python float64 simulate()"]
