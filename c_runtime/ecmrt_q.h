@@ -348,7 +348,7 @@ static inline int32_t ecmrt_q_one_minus_exp_neg_q26(int64_t x)
 /* c = 1 - exp(-dt/tau) in Q30, dt in Q16 s, tau > 0 in Q_T s (Q_T <= 21): x = dt (1/tau)
  * = dt r 2^-k in Q26, k = sh - Q_T - 10, and in Q30 (shift k - 4) for the series below
  * x = 2^-5; k < 5 means tau < 2^-16 s, so x >= 1 for any dt > 0, and k < 1 x >= 32 (c = 1) */
-static inline int32_t ecmrt_q_c_dt_tau(int32_t dt, int32_t tau)
+ECMRT_Q_HOT int32_t ecmrt_q_c_dt_tau(int32_t dt, int32_t tau)
 {
     unsigned sh;
     const uint32_t r = ecmrt_q_recip((uint32_t)tau, &sh);
