@@ -148,11 +148,8 @@ typedef struct {
 
 ECMRT_Q_SHARED int32_t ecmrt_q_sat32(int64_t x)
 {
-    if (x > (int64_t)INT32_MAX) {
-        return INT32_MAX;
-    }
-    if (x < (int64_t)INT32_MIN) {
-        return INT32_MIN;
+    if ((uint64_t)x + 0x80000000u > 0xFFFFFFFFu) {    /* outside [INT32_MIN, INT32_MAX] */
+        return x < 0 ? INT32_MIN : INT32_MAX;
     }
     return (int32_t)x;
 }
@@ -530,7 +527,11 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
     kd = s->k_dir[dir];
     w = ecmrt_q_locate(&d->g, soc, &kd, ECMRT_Q_G);
 #if ECMRT_TEMP
-    /* the temperature's row and weight, kept with the temperature (see ecmrt_f32_step) */
+    /* the temperature's row and weight, kept with the temperature (see ecmrt_f32_step;
+     * -Os builds search every step: the same result, less code) */
+#if defined(__OPTIMIZE_SIZE__)
+    wt = ecmrt_q_locate(&m->t, temp, &kt, ECMRT_Q_GT);
+#else
     if (temp == s->t_in) {
         wt = s->w_t;
         if (kt > (unsigned)m->t.n - 2u) {
@@ -541,6 +542,7 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
         s->t_in = temp;
         s->w_t = wt;
     }
+#endif
     ecmrt_q_corners(cw, w, wt);
     st = ECMRT_NPAR * (unsigned)d->g.n;
     row = d->rows + st * kt + ECMRT_NPAR * kd;

@@ -176,6 +176,21 @@ def test_property_close_to_float64(p):
             assert np.max(np.abs(v - v64)) <= TOL[numeric][1], (kind, numeric)
 
 
+def test_fixed_size_build_without_temperature_cache_is_the_same():
+    """-Os builds of the fixed-point step search the temperature every step instead of
+    keeping its row and weight (less code): the same results bit for bit."""
+    rng = np.random.default_rng(9)
+    n = 3000
+    cur = np.repeat(rng.uniform(-30, 10, n // 20 + 1), 20)[:n]
+    temps = np.repeat(rng.uniform(-40, 70, n // 7 + 1), 7)[:n]
+    dts = rng.uniform(0, 2, n)
+    for dt_s in (None, 0.5):
+        spec = prepare(_synthetic("everything"), numeric="fixed", dt_s=dt_s, prefix="tcs")
+        small = cbuild.compile_spec(spec, opt=("-Os",))
+        got, ref = _run_both(small, cur, dts, temps, 0.6)
+        _fields_equal(small, got, ref)
+
+
 # --- semantics ---------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("numeric", ["float", "fixed"])
