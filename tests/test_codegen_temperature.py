@@ -117,7 +117,7 @@ def test_real_cycles_fixed_dt_and_without_branches(folder, name):
 
 # --- hypothesis ------------------------------------------------------------------------------
 
-SETTINGS = settings(max_examples=40, deadline=None,
+SETTINGS = settings(max_examples=25, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 current = st.one_of(st.floats(-300.0, 300.0, allow_nan=False, width=32),
                     st.sampled_from([0.0, 0.029, -0.029, 1e-30, -1e6, 1e6]))
