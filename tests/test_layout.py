@@ -28,7 +28,7 @@ LEVELS = [
     {"data": ("ecmgen.data",)},
     {"fit": ("ecmgen.fit",)},
     {"model": ("ecmgen.model",)},
-    {"c": ("ecmgen.c",), "diagnosis": ("ecmgen.diagnosis",)},
+    {"c": ("ecmgen.c",), "diagnosis": ("ecmgen.diagnosis",), "estimate": ("ecmgen.estimate",)},
     {"plots": ("ecmgen.plots",), "report": ("ecmgen.report",)},
     {"pipeline": ("ecmgen.pipeline",)},
     {"cli": ("ecmgen.cli",)},

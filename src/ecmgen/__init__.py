@@ -13,6 +13,9 @@ stages before it, never a later one (tests/test_layout.py checks this)::
                  (cref), host build and equivalence (cbuild, check), Cortex-M (target)
     diagnosis/   `ecmgen diagnose`: signatures and greedy search (search), candidate fits
                  (problems), report and plots (output), synthetic cells (synthcell)
+    estimate/    `ecmgen estimate`: the SOC filter on the model's step (process: state,
+                 step and Jacobians; ekf, ukf), runs and SOC figures (run), noise
+                 settings from the validation residual (residual)
     plots, report    the PNG and text outputs of a build
     pipeline, cli    the chain behind `ecmgen build` / `ecmgen diagnose`, and the CLI
     config, errors, files, plotting, _version    shared by all: the build config,
@@ -43,6 +46,8 @@ _API = {
     "validate": "ecmgen.model.simulate",
     "generate_c": "ecmgen.c.codegen",
     "diagnose": "ecmgen.diagnosis.search",
+    "estimate_record": "ecmgen.estimate.run",
+    "run_filter": "ecmgen.estimate.run",
 }
 
 __all__ = ["__version__", *sorted(_API)]

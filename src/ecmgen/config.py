@@ -40,13 +40,15 @@
              min_rest_s = 30   max_pulse_s = 120   (what counts as a pulse from rest)
     [fit]    methods = ["ga", "lm", "curve"]   seed = 0   relax_s = 1800   best = "curve"
     [c]      prefix = "ecm"   numeric = ["float", "fixed"]   dt_s = 0.1
+    [estimator]   filter = "ekf"   current_offset_a = 0.029   current_gain_error = 0.01
+             voltage_noise_v = 0.005 ... (see EstimatorConfig; every key optional)
 """
 
 from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -59,6 +61,74 @@ COLUMN_ROLES = ("pulses", "ocv", "cycle", "extra_cycles", "judge")
 COLUMN_ROLE_FALLBACK = {"extra_cycles": "cycle", "judge": "cycle"}
 # the validation files, which data.cycle_window_s cuts
 WINDOW_ROLES = ("cycle", "extra_cycles", "judge")
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    """``[estimator]``: the SOC filter's settings (ecmgen.estimate). The sensor specs are
+    one-sigma figures of the BMS's own sensors; the model-error figures describe how far
+    the model's voltage is off, as measured on validation cycles (bench/bench_estimator.py).
+    """
+
+    filter: str = "ekf"                 # "ekf" or "ukf"
+    offset_state: bool = False          # estimate the current sensor's offset as a state
+    soc0_sigma: float = 0.3             # how uncertain the start SOC is told to be
+    u0_sigma_v: float = 0.002           # the RC voltages at the start (a rested cell: ~0)
+    current_offset_a: float | None = None   # current sensor offset, A (1 sigma; None: C/100)
+    current_gain_error: float = 0.01    # current sensor gain error, fraction (1 sigma)
+    current_noise_a: float = 0.01       # white current noise per sample, A
+    drift_horizon_s: float = 3600.0     # the time over which the sensor bias is counted
+    voltage_noise_v: float = 0.005      # voltage sensor + OCV-table error at rest, V
+    # the model's voltage error: rms(error) / rms(overpotential the model predicts), and its
+    # integral correlation time; measured on the Panasonic validation cycles (pooled 0.187
+    # and 826 s, leave-one-cycle-out 0.177..0.197 and 711..941 s: bench_estimator.py)
+    model_error: float = 0.19
+    error_correlation_s: float = 800.0
+    # RC-state process noise, fraction of the branch's steady voltage r |i|: chosen
+    # leave-one-cycle-out on the same cycles (the smallest meeting issue 10's targets)
+    polarization_error: float = 1.5
+
+    def __post_init__(self):
+        if self.filter not in ESTIMATOR_FILTERS:
+            raise ValueError(f"filter must be one of {', '.join(ESTIMATOR_FILTERS)}, "
+                             f"got {self.filter!r}")
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if f.type.startswith("float") and v is not None and \
+                    not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"{f.name} must be a finite number >= 0, got {v!r}")
+        for k in ("soc0_sigma", "drift_horizon_s", "error_correlation_s"):
+            if getattr(self, k) <= 0:
+                raise ValueError(f"{k} must be positive, got {getattr(self, k)!r}")
+
+
+ESTIMATOR_FILTERS = ("ekf", "ukf")
+
+
+def estimator_config(table: dict, path: Path | None) -> EstimatorConfig:
+    """The ``[estimator]`` table (every key optional), checked; InputError names ``path``."""
+    if not isinstance(table, dict):
+        raise InputError(path, "[estimator] must be a table")
+    known = {f.name: f for f in fields(EstimatorConfig)}
+    unknown = sorted(set(table) - set(known))
+    if unknown:
+        raise InputError(path, f"estimator: unknown key(s) {unknown}; known: {sorted(known)}")
+    kw: dict[str, Any] = {}
+    for key, value in table.items():
+        kind = known[key].type
+        if kind == "bool":
+            if not isinstance(value, bool):
+                raise InputError(path, f"estimator.{key} must be true or false, got {value!r}")
+        elif kind == "str":
+            if not isinstance(value, str):
+                raise InputError(path, f"estimator.{key} must be a string, got {value!r}")
+        elif isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise InputError(path, f"estimator.{key} must be a number, got {value!r}")
+        kw[key] = float(value) if kind.startswith("float") else value
+    try:
+        return EstimatorConfig(**kw)
+    except ValueError as exc:
+        raise InputError(path, f"estimator: {exc}") from None
 
 
 @dataclass(frozen=True)
@@ -91,6 +161,7 @@ class BuildConfig:
     c_dt_s: float | None = None
     temperature_step_c: float = 5.0    # [model]: 0 = the measured breakpoints as they are
     warm_row_c: float | None = 45.0    # [model]: derived warm row (None: none)
+    estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
     raw: dict = field(default_factory=dict, repr=False)
     # data.cycle_window_s: (t0, t1) for every validation file, or resolved file -> (t0, t1)
     cycle_window_s: tuple[float, float] | dict[Path, tuple[float, float]] | None = None
@@ -239,7 +310,7 @@ def load_config(path: str | Path) -> BuildConfig:
     except tomllib.TOMLDecodeError as exc:
         raise InputError(path, f"not valid TOML ({exc})") from None
     base = path.resolve().parent
-    known = {"cell", "data", "dcir", "fit", "c", "diagnose", "model"}
+    known = {"cell", "data", "dcir", "fit", "c", "diagnose", "model", "estimator"}
     unknown = set(raw) - known
     if unknown:
         raise InputError(path, f"unknown section(s) {sorted(unknown)}; known: {sorted(known)}")
@@ -352,4 +423,5 @@ def load_config(path: str | Path) -> BuildConfig:
         best=best, c_prefix=prefix, c_numeric=tuple(numeric),
         c_dt_s=_number(c, "dt_s", path, "c", None),
         temperature_step_c=step, warm_row_c=None if warm is False else warm,
+        estimator=estimator_config(raw.get("estimator", {}), path),
         raw=raw, cycle_window_s=_cycle_windows(data, base, path))

@@ -1,0 +1,211 @@
+"""The extended Kalman filter over the model's step (and the noise model it shares with
+the sigma-point filter).
+
+Per sample k (inputs dt_k, the current the filter sees, the cell temperature, the measured
+terminal voltage v_k):
+
+1. predict   x = f(x, i_k, T_k, dt_k) and F = df/dx (:meth:`StepModel.predict`);
+             P = F P F^T + Q_k, using that every row of F has at most three non-zeros
+             (itself, the SOC column, the offset column);
+2. measure   v_pred = h(x), H = dh/dx (:meth:`StepModel.measure`);
+3. update    (scalar measurement) S = H P H^T + R_k, c = P H^T, K = c / S,
+             x += K (v_k - v_pred); when that moves the SOC by more than 0.1 %, the update
+             is iterated (relinearised at the updated state, at most 5 times: a large
+             first correction on the curved OCV); Joseph form
+             P = (I - K H) P (I - K H)^T + R_k K K^T, evaluated as M = P - K c^T,
+             d = M H^T, P = M - d K^T + R_k K K^T (products, no use of K being optimal),
+             then symmetrised; SOC clamped to [0, 1], h to [-1, 1].
+
+Noise (:class:`NoiseModel`, from the ``[estimator]`` settings):
+
+- SOC: the current sensor's offset and gain error drift the coulomb count. They are
+  biases, not white noise, so their variance is spread over ``drift_horizon_s``:
+  Q_soc = ((offset + gain |i|) dt / (3600 Q))^2 * drift_horizon_s / dt, plus white current
+  noise. With the offset state the offset is a state instead (random walk over the
+  same horizon) and leaves Q_soc.
+- RC states: the model's polarisation is uncertain by ``polarization_error`` of itself:
+  Q_uj = (polarization_error r_j g |i_k|)^2 (1 - a_j^2) (stationary standard deviation that
+  fraction of the branch's steady voltage). At rest the states decay as the model says.
+- Voltage: the model's voltage error is sigma_k^2 = voltage_noise_v^2 + (model_error *
+  |v_pred - ocv|)^2 (it grows with the overpotential the model predicts: large under load,
+  in the cold and near empty, small at rest), and it is correlated over
+  ``error_correlation_s``: one sample of length dt_k carries the information of
+  dt_k / error_correlation_s independent samples, so R_k = sigma_k^2 * error_correlation_s
+  / dt_k (at least sigma_k^2; a sample with dt = 0 after the first is skipped). The first
+  sample counts fully (R = sigma^2): a record is taken to start from a rested cell (the
+  RC states start at 0 +- ``u0_sigma_v``), whose voltage is its OCV.
+  ``model_error`` and ``error_correlation_s`` are measured on validation cycles by
+  :mod:`.residual`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..config import EstimatorConfig
+from ..model.model import EcmModel
+from .process import StepModel
+
+SOC_MIN, SOC_MAX = 0.0, 1.0
+MAX_ITERATIONS = 5       # iterated measurement update: at most this many relinearisations
+ITERATE_SOC = 1e-3       # ... only when the update moves the SOC by more than this
+ITERATE_TOL = 1e-5       # ... and until an iteration moves it by less than this
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """The filter's noise settings in its own units (see the module docstring)."""
+
+    soc0_sigma: float
+    u0_sigma_v: float
+    offset_sigma_a: float          # current sensor offset (1 sigma), A
+    gain_sigma: float              # current sensor gain error (1 sigma), fraction
+    current_noise_a: float         # white current noise per sample, A
+    drift_horizon_s: float
+    polarization_error: float
+    voltage_noise_v: float
+    model_error: float
+    error_correlation_s: float
+    hysteresis_sigma: float = 0.1
+
+    @staticmethod
+    def from_config(cfg: EstimatorConfig, capacity_ah: float) -> "NoiseModel":
+        offset = capacity_ah / 100.0 if cfg.current_offset_a is None else cfg.current_offset_a
+        return NoiseModel(cfg.soc0_sigma, cfg.u0_sigma_v, offset,
+                          cfg.current_gain_error, cfg.current_noise_a, cfg.drift_horizon_s,
+                          cfg.polarization_error, cfg.voltage_noise_v, cfg.model_error,
+                          cfg.error_correlation_s)
+
+    def measurement_variance(self, v_pred: float, ocv: float, dt: float, first: bool
+                             ) -> float:
+        """R_k, or 0.0 for a sample that carries no information (dt = 0 after the first)."""
+        eta = self.model_error * (v_pred - ocv)
+        var = self.voltage_noise_v * self.voltage_noise_v + eta * eta
+        if first or dt >= self.error_correlation_s:
+            return var
+        if dt <= 0.0:
+            return 0.0
+        return var * (self.error_correlation_s / dt)
+
+
+def initial_covariance(step: StepModel, noise: NoiseModel) -> np.ndarray:
+    n = step.n
+    P = np.zeros((n, n))
+    P[0][0] = noise.soc0_sigma ** 2
+    for s in range(1, n):
+        P[s][s] = noise.u0_sigma_v ** 2
+    if step.i_h >= 0:
+        P[step.i_h][step.i_h] = noise.hysteresis_sigma ** 2
+    if step.i_b >= 0:
+        P[step.i_b][step.i_b] = noise.offset_sigma_a ** 2
+    return P
+
+
+def initial_state(step: StepModel, soc0: float) -> list[float]:
+    x = [0.0] * step.n
+    x[0] = soc0
+    if step.i_h >= 0:
+        x[step.i_h] = step.hyst.initial_state
+    return x
+
+
+def process_noise(step: StepModel, noise: NoiseModel, aux, dt: float) -> list[float]:
+    """Diagonal Q_k of one step (``aux`` from :meth:`StepModel.predict`)."""
+    q = [0.0] * step.n
+    if dt <= 0.0:
+        return q
+    i = aux.i
+    k = dt * step.soc_per_as
+    bias = noise.gain_sigma * abs(i) + (noise.offset_sigma_a if step.i_b < 0 else 0.0)
+    q[0] = (bias * k) ** 2 * (noise.drift_horizon_s / dt) + (noise.current_noise_a * k) ** 2
+    for s, a, rg in aux.rc:
+        e = noise.polarization_error * rg * i
+        q[s] = e * e * (1.0 - a * a)
+    if step.i_h >= 0:
+        c = abs(i) * dt / (3600.0 * step.hyst.decay_ah)
+        q[step.i_h] = noise.hysteresis_sigma ** 2 * (1.0 - math.exp(-2.0 * c))  # 1 - a_h^2
+    if step.i_b >= 0:
+        q[step.i_b] = noise.offset_sigma_a ** 2 * dt / noise.drift_horizon_s
+    return q
+
+
+class Filter:
+    """What every filter on the model's step holds: the step, the noise model, the state
+    x (list), its covariance P (n x n), the direction and whether the next sample is the
+    first. Subclasses define ``step(dt, i_seen, tw, tw_ocv, tfac, v_meas) -> v_pred``."""
+
+    def __init__(self, model: EcmModel, cfg: EstimatorConfig, soc0: float):
+        self.step_model = StepModel(model, cfg.offset_state)
+        self.noise = NoiseModel.from_config(cfg, model.capacity_ah)
+        self.x = initial_state(self.step_model, soc0)
+        self.P = initial_covariance(self.step_model, self.noise)
+        self.charging = False
+        self.first = True
+
+
+class Ekf(Filter):
+    """Extended Kalman filter on ``model``; :meth:`step` takes one sample."""
+
+    def step(self, dt: float, i_seen: float, tw, tw_ocv, tfac: float, v_meas: float
+             ) -> float:
+        """One sample; returns the voltage predicted before the update."""
+        sm, n = self.step_model, self.step_model.n
+        x, self.charging, F, aux = sm.predict(self.x, self.charging, dt, i_seen, tw, tfac)
+        F = np.array(F)
+        P = F @ self.P @ F.T
+        P[np.diag_indices(n)] += process_noise(sm, self.noise, aux, dt)
+        v_pred, H, ocv = sm.measure(x, aux, tw, tw_ocv, tfac)
+        R = self.noise.measurement_variance(v_pred, ocv, dt, self.first)
+        self.first = False
+        if R > 0.0:
+            x0 = np.array(x)
+            H = np.array(H)
+            xu, K = gain_update(x0, P, H, R, v_meas - v_pred)
+            # iterated update: relinearise the measurement where the update lands while
+            # that moves the SOC (a large first correction on a curved OCV)
+            for _ in range(MAX_ITERATIONS):
+                xu = clamp_state(sm, xu.tolist())
+                if abs(xu[0] - x0[0]) < ITERATE_SOC:
+                    xu = np.array(xu)
+                    break
+                v_i, H_i, _ = sm.measure(xu, aux, tw, tw_ocv, tfac)
+                H = np.array(H_i)
+                xu = np.array(xu)
+                x_next, K = gain_update(x0, P, H, R, v_meas - v_i - H @ (x0 - xu))
+                done = abs(x_next[0] - xu[0]) < ITERATE_TOL
+                xu = x_next
+                if done:
+                    break
+            x = xu.tolist()
+            P = joseph_covariance(P, H, R, K)
+        self.x, self.P = clamp_state(sm, x), P
+        return v_pred
+
+
+def gain_update(x: np.ndarray, P: np.ndarray, H: np.ndarray, R: float, innovation: float):
+    """x + K innovation with K = P H^T / (H P H^T + R); returns (x, K)."""
+    c = P @ H
+    K = c / (H @ c + R)
+    return x + K * innovation, K
+
+
+def joseph_covariance(P: np.ndarray, H: np.ndarray, R: float, K: np.ndarray) -> np.ndarray:
+    """Joseph form (I - K H) P (I - K H)^T + R K K^T, as products of rank-one updates:
+    M = P - K c^T (c = P H^T), d = M H^T, P = M - d K^T + R K K^T; symmetrised."""
+    M = P - np.outer(K, P @ H)
+    Pn = M - np.outer(M @ H, K) + R * np.outer(K, K)
+    return 0.5 * (Pn + Pn.T)
+
+
+def clamp_state(step: StepModel, x: list[float]) -> list[float]:
+    """SOC into [0, 1] and h into [-1, 1] (in place; returns ``x``)."""
+    if x[0] < SOC_MIN:
+        x[0] = SOC_MIN
+    elif x[0] > SOC_MAX:
+        x[0] = SOC_MAX
+    if step.i_h >= 0:
+        x[step.i_h] = min(1.0, max(-1.0, x[step.i_h]))
+    return x

@@ -1,0 +1,264 @@
+"""The SOC filter (ecmgen.estimate): its process model is the model's step, its Jacobians
+are those of the step, its covariance stays symmetric positive definite, it survives
+dt = 0, gaps and long rests, and on a known-truth synthetic cell it tracks the SOC within
+its own sigma."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from ecmgen.config import EstimatorConfig
+from ecmgen.estimate.ekf import Ekf
+from ecmgen.estimate.process import StepModel
+from ecmgen.estimate.run import coulomb_count, run_filter
+from ecmgen.estimate.ukf import Ukf, cholesky
+from ecmgen.model.effects import make_effect
+from ecmgen.model.model import EcmModel, OcvOverTemperature, stack_rc_tables
+from ecmgen.model.simulate import simulate
+
+from conftest import synthetic_nca_model
+
+TEMPS = np.array([-20.0, 0.0, 25.0])
+
+
+def model_over_temperature(diffusion=True, butler_volmer=True, effects=()) -> EcmModel:
+    """A three-temperature NCA-like model with the optional branches: resistances grow
+    in the cold, the OCV shifts a little."""
+    base = synthetic_nca_model()
+    rows = {}
+    for d in ("charge", "discharge"):
+        t = base.table(d)
+        scaled = []
+        for k, scale in enumerate((4.0, 2.0, 1.0)):
+            scaled.append(replace(t, r0_ohm=t.r0_ohm * scale ** 0.5,
+                                  r_fast_ohm=t.r_fast_ohm * scale,
+                                  r_slow_ohm=t.r_slow_ohm * scale ** 0.7,
+                                  tau_fast_s=t.tau_fast_s * (1 + 0.1 * k),
+                                  temperature_c=TEMPS[k]))
+        # the charge table on its own temperature grid (the step reads each direction's)
+        table = stack_rc_tables(scaled, TEMPS if d == "discharge" else TEMPS + [10.0, 5.0, 3.0])
+        extra = {}
+        if diffusion:
+            extra.update(r_diff_ohm=np.array([0.09, 0.05, 0.025]),
+                         tau_diff_s=np.array([700.0, 400.0, 450.0]))
+        if butler_volmer:
+            extra.update(i0_a=np.array([0.8, 2.7, 17.0]))
+        rows[d] = replace(table, **extra)
+    soc = base.ocv.soc
+    ocv25 = base.ocv.ocv_v[0]
+    ocv = OcvOverTemperature(TEMPS, soc, np.vstack([ocv25 - 0.03 * (1 - soc),
+                                                    ocv25 - 0.01, ocv25]))
+    return EcmModel(capacity_ah=2.9, ocv=ocv, charge=rows["charge"],
+                    discharge=rows["discharge"], method="synthetic",
+                    direction_deadband_a=0.029, effects=tuple(effects))
+
+
+ALL_EFFECTS = (make_effect("hysteresis", m_v=0.01, decay_ah=0.2, m0_v=0.003,
+                           ocv_table_state=0.0, initial_state=0.5),
+               make_effect("extra_rc", r_ohm=0.01, tau_s=900.0),
+               make_effect("current_dependent_resistance", scale_at_zero=1.1, i0_a=5.0),
+               make_effect("capacity_error", capacity_scale=0.97),
+               make_effect("temperature_dependence", activation_k=2000.0, t_ref_c=25.0))
+
+
+def drive_profile(n=3000, seed=0, dt=1.0, gaps=True):
+    """Random currents (both directions, pulses and rests), temperature drifting from
+    -25 to 30 degC (beyond the table ends), time stamps with repeats and gaps."""
+    rng = np.random.default_rng(seed)
+    levels = rng.choice([-15.0, -6.0, -2.0, -0.01, 0.0, 0.02, 1.5, 5.0], size=n // 20 + 1)
+    i = np.repeat(levels, 20)[:n] + 0.2 * rng.standard_normal(n)
+    i[rng.random(n) < 0.1] = 0.0
+    steps = np.full(n, dt)
+    if gaps:
+        steps[rng.random(n) < 0.01] = 0.0             # repeated time stamps
+        steps[rng.choice(n, 3, replace=False)] = [120.0, 3600.0, 20000.0]
+    steps[0] = 0.0
+    t = np.cumsum(steps)
+    temp = np.linspace(-25.0, 30.0, n) + rng.standard_normal(n)
+    return t, i, temp
+
+
+@pytest.mark.parametrize("effects", [(), ALL_EFFECTS], ids=["base", "all-effects"])
+def test_the_filter_step_is_the_model_step(effects):
+    """Chained predict + measure with no updates reproduce simulate() exactly."""
+    model = model_over_temperature(effects=effects)
+    t, i, temp = drive_profile(2000)
+    sim = simulate(model, t, i, 0.8, temp)
+    sm = StepModel(model)
+    inp = sm.inputs(t, i, temp)
+    x = [0.0] * sm.n
+    x[0] = 0.8
+    if sm.i_h >= 0:
+        x[sm.i_h] = sm.hyst.initial_state
+    charging = False
+    v, socs = [], []
+    for k in range(t.size):
+        x, charging, _, aux = sm.predict(x, charging, inp.dt[k], inp.i_seen[k], inp.t_rc[k],
+                                         inp.temperature_factor[k], jacobian=False)
+        v.append(sm.measure(x, aux, inp.t_rc[k], inp.t_ocv[k], inp.temperature_factor[k],
+                            jacobian=False)[0])
+        socs.append(x[0])
+    np.testing.assert_allclose(socs, sim.soc, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(v, sim.voltage_v, rtol=0, atol=1e-11)
+
+
+def _away_from_breakpoints(model, soc, h):
+    grids = [model.ocv.soc, model.charge.soc, model.discharge.soc]
+    return all(np.min(np.abs(g - soc)) > 4 * h for g in grids)
+
+
+@pytest.mark.parametrize("effects", [(), ALL_EFFECTS], ids=["base", "all-effects"])
+def test_jacobians_match_finite_differences(effects):
+    model = model_over_temperature(effects=effects)
+    sm = StepModel(model, offset_state=True)
+    rng = np.random.default_rng(3)
+    h = 1e-6
+    checked = 0
+    for _ in range(400):
+        soc = rng.uniform(0.02, 0.98)
+        dt = float(rng.choice([0.1, 1.0, 7.0, 300.0]))
+        i_seen = float(rng.choice([-1, 1]) * rng.uniform(0.1, 20.0))
+        temp = rng.uniform(-25.0, 30.0)
+        inp = sm.inputs(np.array([0.0, dt]), np.array([0.0, i_seen]), np.array([temp, temp]))
+        tw, two, tf = inp.t_rc[1], inp.t_ocv[1], inp.temperature_factor[1]
+        x = [soc] + list(rng.normal(0.0, 0.02, sm.n - 1))
+        if sm.i_h >= 0:
+            x[sm.i_h] = rng.uniform(-0.9, 0.9)
+        x[sm.i_b] = rng.normal(0.0, 0.05)
+        charging = i_seen > 0
+        x1, _, F, aux = sm.predict(x, charging, dt, i_seen, tw, tf)
+        soc1 = x1[0]
+        if not (_away_from_breakpoints(model, soc, h) and _away_from_breakpoints(model, soc1, h)):
+            continue
+        v, H, _ = sm.measure(x1, aux, tw, two, tf)
+        for j in range(sm.n):
+            xp, xm = list(x), list(x)
+            xp[j] += h
+            xm[j] -= h
+            fp = sm.predict(xp, charging, dt, i_seen, tw, tf, jacobian=False)[0]
+            fm = sm.predict(xm, charging, dt, i_seen, tw, tf, jacobian=False)[0]
+            fd = [(a - b) / (2 * h) for a, b in zip(fp, fm)]
+            np.testing.assert_allclose([row[j] for row in F], fd, rtol=1e-5, atol=1e-8,
+                                       err_msg=f"dF/dx{j}")
+            yp, ym = list(x1), list(x1)
+            yp[j] += h
+            ym[j] -= h
+            # the measurement at a moved offset state sees the moved current
+            auxp = aux._replace(i=aux.i - h) if j == sm.i_b else aux
+            auxm = aux._replace(i=aux.i + h) if j == sm.i_b else aux
+            if j == sm.i_b:
+                g0p, dg0p, _, _ = sm.current_factors(auxp.i, None)
+                g0m, dg0m, _, _ = sm.current_factors(auxm.i, None)
+                auxp, auxm = auxp._replace(g0=g0p), auxm._replace(g0=g0m)
+            vp = sm.measure(yp, auxp, tw, two, tf, jacobian=False)[0]
+            vm = sm.measure(ym, auxm, tw, two, tf, jacobian=False)[0]
+            assert H[j] == pytest.approx((vp - vm) / (2 * h), rel=1e-5, abs=1e-8), j
+        checked += 1
+    assert checked > 100
+
+
+@pytest.mark.parametrize("filter_", ["ekf", "ukf"])
+def test_covariance_stays_symmetric_positive_definite(filter_):
+    """A long random run with every state (offset, hysteresis, extra RC), repeated time
+    stamps, gaps of minutes to hours, rests and temperatures beyond the table."""
+    model = model_over_temperature(effects=ALL_EFFECTS)
+    t, i, temp = drive_profile(6000 if filter_ == "ekf" else 2000, seed=5)
+    sim = simulate(model, t, i, 0.9, temp)
+    rng = np.random.default_rng(6)
+    v = sim.voltage_v + 0.01 * rng.standard_normal(t.size)
+    cfg = EstimatorConfig(filter=filter_, offset_state=True)
+    filt = (Ekf if filter_ == "ekf" else Ukf)(model, cfg, 0.6)
+    sm = filt.step_model
+    inp = sm.inputs(t, i + 0.03, temp)
+    worst = math.inf
+    for k in range(t.size):
+        filt.step(inp.dt[k], inp.i_seen[k], inp.t_rc[k], inp.t_ocv[k],
+                  inp.temperature_factor[k], float(v[k]))
+        P = np.array(filt.P)
+        assert np.array_equal(P, P.T), k
+        if k % 10 == 0:
+            worst = min(worst, float(np.linalg.eigvalsh(P).min()))
+            assert worst > 0.0, k
+        assert 0.0 <= filt.x[0] <= 1.0 and -1.0 <= filt.x[sm.i_h] <= 1.0
+        assert all(math.isfinite(val) for val in filt.x)
+
+
+def test_dt_zero_gaps_and_long_rests():
+    model = model_over_temperature()
+    cfg = EstimatorConfig()
+    filt = Ekf(model, cfg, 0.5)
+    sm = filt.step_model
+    inp = sm.inputs(np.array([0.0, 1.0]), np.array([0.0, -3.0]), np.array([20.0, 20.0]))
+    tw, two = inp.t_rc[1], inp.t_ocv[1]
+    filt.step(0.0, 0.0, tw, two, 1.0, 3.6)          # the first sample counts
+    filt.step(1.0, -3.0, tw, two, 1.0, 3.5)
+    x, P = list(filt.x), filt.P.copy()
+    # dt = 0 after the first: nothing is integrated and the voltage carries no information
+    filt.step(0.0, -3.0, tw, two, 1.0, 3.0)
+    assert filt.x == x and np.array_equal(filt.P, P)
+    # a gap of a day at rest: the RC states relax to 0, the SOC is rested-voltage driven
+    ocv = float(model.ocv.ocv_at(0.5, 20.0))
+    filt.step(86400.0, 0.0, tw, two, 1.0, ocv)
+    assert all(abs(u) < 1e-9 for u in filt.x[1:])
+    assert abs(filt.x[0] - 0.5) < 0.05
+    # a long rest at 1 Hz: the covariance stays bounded and the SOC where the OCV says
+    for _ in range(20000):
+        filt.step(1.0, 0.0, tw, two, 1.0, ocv)
+    assert abs(filt.x[0] - 0.5) < 0.01
+    assert 0.0 < filt.P[0][0] < 0.3 ** 2
+    assert np.all(np.isfinite(filt.P))
+
+
+def test_coulomb_counting_is_the_model_soc():
+    model = model_over_temperature(effects=ALL_EFFECTS[3:4])   # capacity error
+    t, i, temp = drive_profile(500, gaps=False)
+    sim = simulate(model, t, i, 0.9, temp)
+    np.testing.assert_allclose(coulomb_count(model, t, i, 0.9), sim.soc, atol=1e-12)
+
+
+def _noisy_truth(model, n, seed):
+    """A drive-like profile from 95 % down to about 30 % SOC (1 Hz, bursts of random
+    current with rests), simulated with process noise the filter is not told about in
+    detail (current noise, a slow random polarisation), the voltage measured with noise."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n, dtype=np.float64)
+    burst = np.repeat(rng.normal(-2.0, 4.0, n // 30 + 1), 30)[:n]
+    burst[(t // 600) % 5 == 4] = 0.0                       # a rest every 50 minutes
+    i = burst * (0.65 * 2.9 * 3600 / n) / max(-burst.mean(), 1e-3)
+    temp = np.full(n, 10.0) + 5.0 * np.sin(t / 3000.0)
+    true_i = i + 0.05 * rng.standard_normal(n)
+    sim = simulate(model, t, true_i, 0.95, temp)
+    wander = np.cumsum(rng.standard_normal(n)) * 2e-4
+    wander -= np.convolve(wander, np.ones(301) / 301, mode="same")   # zero-mean, slow
+    v = sim.voltage_v + wander + 0.003 * rng.standard_normal(n)
+    return t, i, temp, v, sim.soc
+
+
+@pytest.mark.parametrize("filter_", ["ekf", "ukf"])
+def test_known_truth_cell_is_tracked_within_its_sigma(filter_):
+    model = model_over_temperature()
+    n = 8000 if filter_ == "ekf" else 3000
+    t, i, temp, v, soc_true = _noisy_truth(model, n, seed=11)
+    assert 0.2 < soc_true.min() < 0.5
+    cfg = EstimatorConfig(filter=filter_, current_noise_a=0.05)
+    est = run_filter(model, t, i, v, 0.6, cfg, temp)
+    err = est.soc - soc_true
+    late = slice(10, None)
+    inside = np.abs(err[late]) <= 2.0 * est.soc_sigma[late]
+    assert inside.mean() > 0.9, (inside.mean(), np.abs(err[late]).max())
+    assert np.abs(err[late]).max() < 0.05
+    assert abs(err[0]) < 0.1           # the rested first sample tells the SOC at once
+
+
+def test_cholesky():
+    rng = np.random.default_rng(0)
+    a = rng.standard_normal((6, 6))
+    P = a @ a.T + 1e-3 * np.eye(6)
+    L = np.array(cholesky(P.tolist()))
+    np.testing.assert_allclose(L @ L.T, P, atol=1e-12)
+    assert np.allclose(L, np.tril(L))
+
