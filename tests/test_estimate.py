@@ -262,3 +262,113 @@ def test_cholesky():
     np.testing.assert_allclose(L @ L.T, P, atol=1e-12)
     assert np.allclose(L, np.tril(L))
 
+
+# -- the command line ---------------------------------------------------------------------
+
+def _cli(*args):
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, "-m", "ecmgen.cli", *map(str, args)],
+                          capture_output=True, text=True)
+
+
+@pytest.fixture
+def cycle_files(tmp_path):
+    """A model.json and a synthetic drive cycle (with temperature) it generated."""
+    from ecmgen.data.measure import TimeSeries, write_timeseries_csv
+
+    model = model_over_temperature()
+    model.save(tmp_path / "model.json")
+    t = np.arange(0.0, 1200.0, 1.0)
+    i = np.where((t // 60) % 3 == 2, 0.0, -3.0)
+    temp = np.full(t.size, 15.0)
+    sim = simulate(model, t, i, 0.9, temp)
+    write_timeseries_csv(TimeSeries(t, i, sim.voltage_v, temp), tmp_path / "cycle.csv")
+    write_timeseries_csv(TimeSeries(t, i, sim.voltage_v), tmp_path / "no-temp.csv")
+    return tmp_path
+
+
+def test_cli_estimate_writes_the_csv_and_json(cycle_files):
+    import json
+
+    out = cycle_files / "est.csv"
+    res = _cli("estimate", cycle_files / "model.json", cycle_files / "cycle.csv",
+               "--soc0", "0.9", "--soc0-guess", "0.6", "--current-offset-a", "0.029",
+               "--current-gain", "1.01", "--out", out, "--json")
+    assert res.returncode == 0, res.stderr
+    doc = json.loads(res.stdout)
+    keys = {"soc_rmse", "soc_mae", "soc_max_abs", "soc_max_abs_after_600s", "converge_s"}
+    assert keys <= set(doc) and keys == set(doc["coulomb_counting"])
+    assert doc["soc_max_abs_after_600s"] < 0.02 < doc["coulomb_counting"]["soc_rmse"]
+    lines = out.read_text().splitlines()
+    assert lines[0] == "time_s,soc,soc_sigma,voltage_pred_v,soc_ref"
+    assert len(lines) == 1201
+    ref = [float(r.split(",")[4]) for r in lines[1:]]
+    assert ref[0] == 0.9    # the reference counts the measured current from --soc0
+    # a file without temperature: --temperature-c, as validate
+    res = _cli("estimate", cycle_files / "model.json", cycle_files / "no-temp.csv",
+               "--soc0", "0.9", "--temperature-c", "15")
+    assert res.returncode == 0, res.stderr
+    assert "coulomb counting" in res.stdout
+
+
+def test_cli_estimate_config_settings_from_the_other_cycles(cycle_files):
+    """--config: [estimator] settings win; model_error / error_correlation_s not given
+    come from the config's validation cycles other than the one estimated."""
+    import json
+    import shutil
+
+    shutil.copy(cycle_files / "cycle.csv", cycle_files / "other.csv")
+    cfg = cycle_files / "cell.toml"
+    cfg.write_text('[cell]\ncapacity_ah = 2.9\n[data]\npulses = "cycle.csv"\nocv = "pulses"\n'
+                   'cycle = "cycle.csv"\nextra_cycles = ["other.csv"]\nsoc0 = 0.9\n'
+                   '[estimator]\npolarization_error = 0.7\nvoltage_noise_v = 0.004\n')
+    res = _cli("estimate", cycle_files / "model.json", cycle_files / "cycle.csv",
+               "--config", cfg, "--soc0", "0.9", "--json")
+    assert res.returncode == 0, res.stderr
+    got = json.loads(res.stdout)["settings"]
+    assert got["polarization_error"] == 0.7 and got["voltage_noise_v"] == 0.004
+    # the synthetic cycle is the model's own simulation: no model error left
+    assert got["model_error"] == 0.0
+    cfg.write_text(cfg.read_text() + "model_error = 0.3\nerror_correlation_s = 50\n")
+    res = _cli("estimate", cycle_files / "model.json", cycle_files / "cycle.csv",
+               "--config", cfg, "--soc0", "0.9", "--json")
+    got = json.loads(res.stdout)["settings"]
+    assert (got["model_error"], got["error_correlation_s"]) == (0.3, 50.0)
+    cfg.write_text(cfg.read_text() + "kalman = 1\n")
+    _, err = _cli_fails("estimate", cycle_files / "model.json", cycle_files / "cycle.csv",
+                        "--config", cfg)
+    assert "cell.toml" in err and "kalman" in err
+
+
+def _cli_fails(*args):
+    res = _cli(*args)
+    assert res.returncode == 2, res.stderr
+    err = res.stderr.strip()
+    assert err.startswith("ecmgen: error: ") and "\n" not in err, err
+    return res, err
+
+
+@pytest.mark.parametrize("args, needles", [
+    (["{d}/nope.json", "{d}/cycle.csv"], ["nope.json", "no such file"]),
+    (["{d}/cycle.csv", "{d}/cycle.csv"], ["cycle.csv", "not valid JSON"]),
+    (["{d}/model.json", "{d}/missing.csv"], ["missing.csv", "no such file"]),
+    (["{d}/model.json", "{d}/no-temp.csv"], ["no-temp.csv", "--temperature-c"]),
+    (["{d}/model.json", "{d}/cycle.csv", "--soc0-guess", "1.5"], ["--soc0-guess", "[0, 1]"]),
+    (["{d}/model.json", "{d}/cycle.csv", "--soc0", "nan"], ["--soc0", "[0, 1]"]),
+    (["{d}/model.json", "{d}/cycle.csv", "--soc0", "x"], ["--soc0", "invalid float"]),
+    (["{d}/model.json", "{d}/cycle.csv", "--current-gain", "0"], ["--current-gain"]),
+    (["{d}/model.json", "{d}/cycle.csv", "--out", "{d}/cycle.csv"], ["cycle.csv", "overwrite"]),
+    (["{d}/model.json", "{d}/cycle.csv", "--out", "{d}"], ["directory"]),
+])
+def test_cli_estimate_bad_input(cycle_files, args, needles):
+    before = {p.name: p.read_bytes() for p in cycle_files.iterdir()}
+    extra = [] if "--soc0" in args else ["--soc0", "0.9"]
+    res, err = _cli_fails("estimate", *[a.format(d=cycle_files) for a in args], *extra)
+    for n in needles:
+        assert n in err, err
+    assert "Traceback" not in res.stderr
+    after = {p.name: p.read_bytes() for p in cycle_files.iterdir()}
+    assert after == before          # nothing written, no input touched
+

@@ -9,6 +9,8 @@ import sys
 import warnings
 from pathlib import Path
 
+import numpy as np
+
 from ._version import __version__
 from .errors import InputError
 
@@ -156,6 +158,99 @@ def cmd_validate(args) -> int:
     return 0
 
 
+def cmd_estimate(args) -> int:
+    from dataclasses import asdict
+
+    from .config import EstimatorConfig, load_config
+    from .data.measure import read_timeseries
+    from .estimate.run import estimate_csv_text, estimate_json, estimate_record
+    from .files import write_atomic
+    from .model.model import load_model
+    from .model.simulate import initial_soc
+
+    inputs = [Path(args.model), Path(args.cycle)] + ([Path(args.config)] if args.config else [])
+    out = Path(args.out) if args.out else None
+    if out is not None:
+        if any(out.resolve() == p.resolve() for p in inputs):
+            raise InputError(out, "output would overwrite an input file")
+        if out.is_dir():
+            raise InputError(out, "is a directory; give a file name for the CSV")
+    for name in ("soc0", "soc0_guess"):
+        v = getattr(args, name)
+        if v is not None and not 0.0 <= v <= 1.0:
+            raise InputError(None, f"--{name.replace('_', '-')} must be a SOC in [0, 1], "
+                                   f"got {v!r}")
+    if not (args.current_gain > 0 and abs(args.current_offset_a) < 1e6):
+        raise InputError(None, "--current-gain must be positive and --current-offset-a a "
+                               "finite current in A")
+    model = load_model(args.model)
+    settings = EstimatorConfig()
+    if args.config:
+        from .pipeline import read_series
+
+        cfg = load_config(args.config)
+        settings = cfg.estimator
+        series = read_series(cfg, Path(args.cycle), "cycle")
+        settings = _settings_from_validation(cfg, model, settings, Path(args.cycle))
+    else:
+        series = read_timeseries(args.cycle, capacity_ah=model.capacity_ah)
+    if args.filter:
+        from dataclasses import replace
+
+        settings = replace(settings, filter=args.filter)
+    soc0 = args.soc0
+    if soc0 is None:
+        if series.temperature_c is None and args.temperature_c is not None:
+            from dataclasses import replace
+
+            series = replace(series, temperature_c=np.full(series.time_s.size,
+                                                           args.temperature_c))
+        soc0 = initial_soc(model, series)
+    guess = soc0 if args.soc0_guess is None else args.soc0_guess
+    run = estimate_record(model, series, guess, soc0, settings,
+                          current_offset_a=args.current_offset_a,
+                          current_gain=args.current_gain, temperature_c=args.temperature_c)
+    if out is not None:
+        write_atomic(out, estimate_csv_text(run))
+    f, cc = run.filter, run.coulomb_counting
+    if args.json:
+        print(json.dumps(estimate_json(run, soc0=soc0, soc0_guess=guess,
+                                       current_offset_a=args.current_offset_a,
+                                       current_gain=args.current_gain,
+                                       filter=settings.filter,
+                                       settings=asdict(settings))))
+    else:
+        conv = "never" if f.converge_s is None else f"{f.converge_s:.0f} s"
+        print(f"{Path(args.cycle).name}: {settings.filter} SOC RMSE {f.soc_rmse * 100:.2f} %, "
+              f"max {f.soc_max_abs * 100:.2f} % ({f.soc_max_abs_after_600s * 100:.2f} % "
+              f"after 600 s), within 2 % from {conv}; coulomb counting RMSE "
+              f"{cc.soc_rmse * 100:.2f} %, max {cc.soc_max_abs * 100:.2f} % "
+              f"(soc0 {soc0:.4f}, guess {guess:.4f})")
+    return 0
+
+
+def _settings_from_validation(cfg, model, settings, cycle: Path):
+    """[estimator] model_error / error_correlation_s not set in the config: measured on the
+    config's validation cycles (data.cycle, data.extra_cycles), leaving out the cycle being
+    estimated, so that its own residual never tunes its filter."""
+    from dataclasses import replace
+
+    from .estimate.residual import settings_from_cycles
+    from .pipeline import read_series
+
+    given = cfg.raw.get("estimator", {})
+    if "model_error" in given and "error_correlation_s" in given:
+        return settings
+    paths = ([(cfg.cycle, "cycle")] if cfg.cycle else []) + \
+        [(p, "extra_cycles") for p in cfg.extra_cycles]
+    others = [read_series(cfg, p, role) for p, role in paths
+              if p.resolve() != cycle.resolve()]
+    figures = settings_from_cycles(model, others, cfg.soc0, settings.voltage_noise_v)
+    if figures is None:
+        return settings
+    return replace(settings, **{k: v for k, v in figures.as_dict().items() if k not in given})
+
+
 def cmd_codegen(args) -> int:
     from .c.codegen import generate_c
     from .model.model import load_model
@@ -192,10 +287,20 @@ def cmd_diagnose(args) -> int:
     return 0
 
 
+class _Parser(argparse.ArgumentParser):
+    """Bad arguments are bad input too: one line ``ecmgen: error: ...``, exit 2."""
+
+    def error(self, message):
+        where = self.prog.removeprefix("ecmgen").strip()
+        print(f"ecmgen: error: {where + ': ' if where else ''}{' '.join(message.split())}",
+              file=sys.stderr)
+        sys.exit(2)
+
+
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="ecmgen", description=__doc__)
+    p = _Parser(prog="ecmgen", description=__doc__)
     p.add_argument("--version", action="version", version=f"ecmgen {__version__}")
-    sub = p.add_subparsers(dest="command", required=True)
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     b = sub.add_parser("build", help="run the whole chain from a config file")
     b.add_argument("config")
@@ -240,6 +345,29 @@ def parser() -> argparse.ArgumentParser:
                    help="validate on the rows with T0 <= time <= T1 s (the file's own time)")
     v.add_argument("-q", "--quiet", action="store_true", help="(no progress is shown anyway)")
     v.set_defaults(func=cmd_validate)
+
+    e = sub.add_parser("estimate", help="run the SOC filter over a measured cycle and "
+                                        "compare it with coulomb counting")
+    e.add_argument("model")
+    e.add_argument("cycle")
+    e.add_argument("--soc0-guess", type=float, help="start SOC the filter is told "
+                   "(default: --soc0)")
+    e.add_argument("--soc0", type=float, help="true start SOC, for the reference SOC by "
+                   "coulomb counting the measured current (default: from the OCV)")
+    e.add_argument("--current-offset-a", type=float, default=0.0,
+                   help="offset added to the current the filter sees, A")
+    e.add_argument("--current-gain", type=float, default=1.0,
+                   help="gain applied to the current the filter sees")
+    e.add_argument("--temperature-c", type=float, default=None,
+                   help="cell temperature in degC for a file without a temperature column")
+    e.add_argument("--filter", choices=["ekf", "ukf"],
+                   help="override the config's estimator.filter (default ekf)")
+    e.add_argument("--config", help="a build config: its [estimator] settings and the "
+                   "[data.columns] of the cycle's CSV")
+    e.add_argument("--out", help="write time_s,soc,soc_sigma,voltage_pred_v,soc_ref here")
+    e.add_argument("--json", action="store_true")
+    e.add_argument("--quiet", action="store_true", help="(no progress is shown anyway)")
+    e.set_defaults(func=cmd_estimate)
 
     c = sub.add_parser("codegen", help="write the C of a model.json (e.g. an augmented one)")
     c.add_argument("model")
