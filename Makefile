@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(VENV)/bin/ecmgen build examples/panasonic-25degC/config.toml --out $(DEMO_OUT)
+	$(VENV)/bin/ecmgen build examples/panasonic-temperature/config.toml --out $(DEMO_OUT)
 
 test: $(STAMP)
 	$(PY) -m pytest -n $(JOBS) -q
