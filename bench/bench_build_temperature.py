@@ -1,6 +1,7 @@
-"""Benchmark: `ecmgen build` over temperature from the four shared pulse tests (25, 0, -10,
--20 degC), every method, C included, validated on the eight shared drive cycles; one run,
-printed as a stage breakdown (wall seconds).
+"""Benchmark: `ecmgen build` over temperature from the four Panasonic pulse tests (25, 0,
+-10, -20 degC; the bundled copies of the shared data, examples/panasonic-temperature), every
+method, C included, validated on the eight drive cycles; one run, printed as a stage
+breakdown (wall seconds).
 
   fit         the pulse tests on `--workers` processes (each: read, pulses, DC-IR, OCV,
               then every method), joined over temperature; per test below
@@ -11,20 +12,19 @@ printed as a stage breakdown (wall seconds).
 Target (issue 8): under 30 s on the 2-core machine.
 
 Run:  python bench/bench_build_temperature.py [--workers 2] [--methods ga lm curve]
-                                               [--no-c] [--no-plots]
+                                               [--no-c] [--no-plots] [--config CFG]
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from shared_temperature import write_config  # noqa: E402
+REPO = Path(__file__).resolve().parents[1]
+EXAMPLE = REPO / "examples" / "panasonic-temperature" / "config.toml"
 
 
 def main() -> int:
@@ -38,19 +38,20 @@ def main() -> int:
     ap.add_argument("--no-c", action="store_true")
     ap.add_argument("--no-plots", action="store_true")
     ap.add_argument("--table", action="store_true", help="also print the validation table")
-    ap.add_argument("--config-extra", default="", help="TOML appended to the config")
+    ap.add_argument("--config", type=Path, default=EXAMPLE)
     args = ap.parse_args()
+    cfg = load_config(args.config)
+    cfg = replace(cfg, methods=tuple(args.methods),
+                  best=cfg.best if cfg.best in args.methods else args.methods[-1],
+                  c_numeric=() if args.no_c else cfg.c_numeric)
     with tempfile.TemporaryDirectory() as tmp:
-        cfg_path = write_config(Path(tmp) / "cell.toml", methods=tuple(args.methods),
-                                c_numeric=() if args.no_c else ("float", "fixed"),
-                                extra=args.config_extra.replace("\\n", "\n"))
-        cfg = load_config(cfg_path)
         t0 = time.perf_counter()
         result = build(cfg, Path(tmp) / "out", plots=not args.no_plots,
                        c_code=not args.no_c, workers=args.workers)
         total = time.perf_counter() - t0
-    print(f"ecmgen build, 4 pulse tests, methods {' '.join(args.methods)}, "
-          f"{args.workers} worker(s), C {'off' if args.no_c else 'float+fixed'}")
+    print(f"ecmgen build {args.config.name}, {len(cfg.pulse_tests)} pulse tests, methods "
+          f"{' '.join(args.methods)}, {args.workers} worker(s), C "
+          f"{'off' if args.no_c else '+'.join(cfg.c_numeric)}")
     print(f"{'stage':<34} {'s':>7}")
     for stage, s in result.timings.items():
         print(f"{stage:<34} {s:7.2f}")

@@ -11,16 +11,25 @@ with ecmgen.model.simulate.validate on each cycle's measured cell temperature
 :func:`assemble_arrhenius_5k` was the stand-in for the pipeline's assembly;
 ``--pipeline-assembly`` uses ecmgen.model.temperature.assemble_over_temperature instead.
 
+``--build [CONFIG]`` goes through the build chain instead, for every method of the config
+(default: the bundled examples/panasonic-temperature/config.toml, the demo): each pulse
+test fitted once by ecmgen.pipeline.fit_pulse_tests (as `ecmgen build` does, 2 processes),
+then per method the model from all four tests and, for each temperature, the model from
+the other three (model.temperature.assemble_over_temperature with the config's [model]
+settings), validated on the cycles.
+
 Cells: MAE / RMSE / max |error| in mV.
 
 Run:  OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/loto_temperature.py [--no-loto]
       [--no-steps] [--no-bv] [--no-diffusion]
+      .venv/bin/python bench/loto_temperature.py --build [CONFIG] [--step-c 5] [--lag 1]
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -185,7 +194,12 @@ def main(argv=None):
     ap.add_argument("--lag", type=int, default=0, help="samples of current-to-voltage lag")
     ap.add_argument("--pipeline-assembly", action="store_true",
                     help="assemble with ecmgen.model.temperature instead of the stand-in")
+    ap.add_argument("--build", nargs="?", const=str(EXAMPLE_CONFIG), metavar="CONFIG",
+                    help="every method through the build chain (default config: the demo)")
+    ap.add_argument("--step-c", type=float, help="--build: [model] temperature_step_c")
     a = ap.parse_args(argv)
+    if a.build:
+        return main_build(a)
     t0 = time.perf_counter()
     parts = {}
     for temp in TEMPS:
@@ -217,6 +231,51 @@ def main(argv=None):
             loto.update(validate_on(m, (temp,), a.lag))
         print(row("LOTO", loto), flush=True)
     print(f"\ntotal {time.perf_counter() - t0:.1f} s")
+
+
+EXAMPLE_CONFIG = (Path(__file__).resolve().parents[1] / "examples" / "panasonic-temperature" /
+                  "config.toml")
+
+
+def main_build(a) -> None:
+    """--build: the per-test fits of the build chain, assembled all-4 and leave-one-out."""
+    from dataclasses import replace
+
+    from ecmgen.config import load_config
+    from ecmgen.model.temperature import assemble_over_temperature
+    from ecmgen.pipeline import fit_pulse_tests
+
+    t0 = time.perf_counter()
+    cfg = load_config(a.build)
+    if a.step_c is not None:
+        cfg = replace(cfg, temperature_step_c=a.step_c)
+    warm = cfg.warm_row_c if a.t_hi == 45.0 else a.t_hi
+    tests = fit_pulse_tests(cfg, workers=2)
+    keys = [_temperature_key(t.temperature_c) for t in tests]
+    print(f"fits ({', '.join(f'{k} {t.seconds:.1f} s' for k, t in zip(keys, tests))}): "
+          f"{time.perf_counter() - t0:.1f} s wall; grid {cfg.temperature_step_c:g} K, "
+          f"warm row {warm} degC\n")
+    print(header())
+    for method in cfg.methods:
+        def model(use):
+            sel = [t for k, t in zip(keys, tests) if k in use]
+            return assemble_over_temperature([t.models[method] for t in sel],
+                                             [t.temperature_c for t in sel],
+                                             step_c=cfg.temperature_step_c, warm_c=warm)
+
+        print(row(f"{method}, all 4", validate_on(model(keys), TEMPS, a.lag)), flush=True)
+        if not a.no_loto:
+            loto = {}
+            for temp in TEMPS:
+                loto.update(validate_on(model([k for k in keys if k != temp]), (temp,), a.lag))
+            print(row(f"{method}, LOTO", loto), flush=True)
+    print(f"\ntotal {time.perf_counter() - t0:.1f} s")
+
+
+def _temperature_key(t_c: float) -> str:
+    """The TEMPS key of a pulse test at t_c degC (the nearest of 25, 0, -10, -20)."""
+    nominal = {"25degC": 25.0, "0degC": 0.0, "n10degC": -10.0, "n20degC": -20.0}
+    return min(nominal, key=lambda k: abs(nominal[k] - t_c))
 
 
 if __name__ == "__main__":

@@ -57,7 +57,7 @@ def pulse_test_table(result) -> str:
     """The pulse tests of a build over temperature: one line per temperature breakpoint."""
     head = f"{'temperature':>12}  {'from':<8} {'pulses':>6} {'DC-IR rows':>10} {'fit s':>6}  file"
     lines = [head, "-" * len(head)]
-    for t in sorted(result.tests, key=lambda t: t.temperature_c):
+    for t in sorted(result.tests, key=lambda t: -t.temperature_c):
         src = "config" if t.temperature_from == "configured" else "pulses"
         lines.append(f"{t.temperature_c:9.1f} degC  {src:<8} {len(t.inputs.pulses):6d} "
                      f"{len(t.inputs.dcir):10d} {t.seconds:6.1f}  {t.test.file.name} "
