@@ -195,3 +195,24 @@ def test_arrhenius_interp_falls_back_to_linear_for_zero():
     w = (x - x0) / (x1 - x0)
     assert mid[0] == pytest.approx(w)
     assert mid[1] == pytest.approx(2.0 ** (1 - w) * 4.0 ** w)
+
+
+def test_a_test_without_a_branch_gets_it_filled_in():
+    """A test whose fit found no current dependence (no i0) or no diffusion pair joins the
+    others: i0 from their Arrhenius line, r_diff = 0 with the nearest tau_diff."""
+    from dataclasses import replace
+
+    models = [one_temperature_model(t) for t in TEMPS]
+
+    def strip(m, **kw):
+        return replace(m, charge=replace(m.charge, **kw), discharge=replace(m.discharge, **kw))
+
+    models[0] = strip(models[0], i0_a=None)                       # 25.8 degC: no i0
+    models[2] = strip(models[2], r_diff_ohm=None, tau_diff_s=None)  # -9.9 degC: no diffusion
+    m = assemble_over_temperature(models, TEMPS, step_c=0.0, warm_c=None)
+    t = m.discharge
+    np.testing.assert_allclose(t.i0_a[-1], law("i0_a", 25.8), rtol=1e-9)   # Arrhenius truth
+    k = list(t.temperature_c).index(-9.9)
+    assert t.r_diff_ohm[k] == 0.0 and t.tau_diff_s[k] == 500.0
+    notes = "\n".join(m.notes)
+    assert "i0_a at 25.8 degC" in notes and "r_diff_ohm = 0 there" in notes

@@ -44,6 +44,7 @@ def test_pulse_tests_parse_with_their_defaults(folder):
     assert c.ocv is None
     assert cfg.methods == ("ga", "lm", "curve") and cfg.best == "curve"
     assert cfg.temperature_step_c == 5.0 and cfg.warm_row_c == 45.0
+    assert cfg.curve_branches          # on over temperature, off for data.pulses
 
 
 def test_a_global_ocv_file_applies_to_every_test_unless_one_says_otherwise(folder):
@@ -63,7 +64,10 @@ def test_model_section(folder):
 def test_the_single_pulses_form_is_unchanged(folder):
     cfg = load_config(_write(folder, HEAD + 'pulses = "a.csv"\nocv = "pulses"\n'))
     assert cfg.pulse_tests == () and not cfg.over_temperature
-    assert cfg.pulses == folder / "a.csv"
+    assert cfg.pulses == folder / "a.csv" and not cfg.curve_branches
+    cfg = load_config(_write(folder, HEAD + 'pulses = "a.csv"\nocv = "pulses"\n'
+                                            '[fit]\ncurve_branches = true\n'))
+    assert cfg.curve_branches
 
 
 BAD = [
@@ -89,6 +93,7 @@ BAD = [
     (_test() + "[model]\nwarm_row_c = true\n", "model.warm_row_c must be a number"),
     (_test() + "[model]\nwarm_row_c = 200\n", "model.warm_row_c must lie"),
     (_test() + "[model]\ngrid = 5\n", "[model]: unknown key(s) ['grid']"),
+    (_test() + "[fit]\ncurve_branches = 1\n", "fit.curve_branches must be true or false"),
 ]
 
 

@@ -39,6 +39,9 @@
     [dcir]   times_s = [0.1, 1, 3, 6, 10]   c_rate = "max" | "all" | 2.0
              min_rest_s = 30   max_pulse_s = 120   (what counts as a pulse from rest)
     [fit]    methods = ["ga", "lm", "curve"]   seed = 0   relax_s = 1800   best = "curve"
+             curve_branches = true | false   (the curve method's diffusion RC pair and
+             Butler-Volmer fast branch; default true with [[data.pulse_tests]], false with
+             data.pulses: measured, they pay off in the cold, not at 25 degC alone)
     [c]      prefix = "ecm"   numeric = ["float", "fixed"]   dt_s = 0.1
     [estimator]   filter = "ekf"   current_offset_a = 0.029   current_gain_error = 0.01
              voltage_noise_v = 0.005 ... (see EstimatorConfig; every key optional)
@@ -159,6 +162,7 @@ class BuildConfig:
     c_prefix: str = "ecm"
     c_numeric: tuple[str, ...] = ("float", "fixed")
     c_dt_s: float | None = None
+    curve_branches: bool = False       # [fit]: curve fit with diffusion pair + Butler-Volmer
     temperature_step_c: float = 5.0    # [model]: 0 = the measured breakpoints as they are
     warm_row_c: float | None = 45.0    # [model]: derived warm row (None: none)
     estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
@@ -377,6 +381,9 @@ def load_config(path: str | Path) -> BuildConfig:
     seed = fit.get("seed", 0)
     if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
         raise InputError(path, f"fit.seed must be a non-negative integer, got {seed!r}")
+    branches = fit.get("curve_branches", several)
+    if not isinstance(branches, bool):
+        raise InputError(path, f"fit.curve_branches must be true or false, got {branches!r}")
     best = fit.get("best", "curve" if "curve" in methods else methods[-1])
     if best not in methods:
         raise InputError(path, f"fit.best = {best!r} is not one of fit.methods {methods}")
@@ -422,6 +429,7 @@ def load_config(path: str | Path) -> BuildConfig:
         relax_s=_number(fit, "relax_s", path, "fit", 1800.0, positive=True),
         best=best, c_prefix=prefix, c_numeric=tuple(numeric),
         c_dt_s=_number(c, "dt_s", path, "c", None),
+        curve_branches=branches,
         temperature_step_c=step, warm_row_c=None if warm is False else warm,
         estimator=estimator_config(raw.get("estimator", {}), path),
         raw=raw, cycle_window_s=_cycle_windows(data, base, path))

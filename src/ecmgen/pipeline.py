@@ -34,10 +34,6 @@ from .parallel import Workers
 
 Progress = Callable[[str], None]
 
-# The curve method's diffusion RC pair and Butler-Volmer fast branch (issue 8): off until the
-# C step carries them (codegen refuses such models today); the fit library has them on.
-CURVE_BRANCHES = False
-
 def _quiet(_msg: str) -> None:
     pass
 
@@ -209,12 +205,14 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
         from .fit.curve import fit_pulse_curves
         from .fit.rate import fit_exchange_current
 
-        bv = fit_exchange_current(inputs.dcir, inputs.capacity_ah) if CURVE_BRANCHES else None
+        # the diffusion pair and the Butler-Volmer fast branch: [fit] curve_branches
+        branches = cfg.curve_branches
+        bv = fit_exchange_current(inputs.dcir, inputs.capacity_ah) if branches else None
         progress(f"whole-test fit of the pulse test ({len(inputs.pulses)} pulses"
                  f"{', SOC steps merged' if inputs.steps is not None else ''})")
         cf = fit_pulse_curves(inputs.pulses_series, list(inputs.pulses), inputs.ocv,
                               inputs.capacity_ah, i0_a=bv.i0_a if bv else None,
-                              diffusion=CURVE_BRANCHES, steps=inputs.steps,
+                              diffusion=branches, steps=inputs.steps,
                               relax_s=cfg.relax_s,
                               direction_deadband_a=common["direction_deadband_a"])
         models["curve"] = EcmModel(charge=RcTable(**cf.rc_columns("charge")),

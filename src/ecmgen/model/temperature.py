@@ -113,19 +113,40 @@ def _in_range(table: RcTable, soc: np.ndarray) -> np.ndarray:
     return inside & _converged(table, soc)
 
 
-def _measured_rows(tables: Sequence[RcTable], soc: np.ndarray) -> dict:
+def _measured_rows(tables: Sequence[RcTable], temps: np.ndarray, soc: np.ndarray
+                   ) -> tuple[dict, list[str]]:
     """Every field of one-temperature tables as rows (n_tests, n_soc) on ``soc`` (branch
-    fields (n_tests,)), and the in-range masks."""
+    fields (n_tests,)), the in-range masks, and notes on branch values filled in."""
     cols: dict = {k: np.vstack([np.interp(soc, t.soc, getattr(t, k)[0]) for t in tables])
                   for k in (*RC_FIELDS, "fit_error")}
     cols["converged"] = np.vstack([_converged(t, soc) for t in tables])
     cols["in_range"] = np.vstack([_in_range(t, soc) for t in tables])
+    notes: list[str] = []
     for k in BRANCH_FIELDS:
-        have = [getattr(t, k) is not None for t in tables]
-        if any(have) and not all(have):
-            raise ValueError(f"assemble_over_temperature: {k} is in some tables only")
-        cols[k] = np.concatenate([getattr(t, k) for t in tables]) if all(have) else None
-    return cols
+        have = np.array([getattr(t, k) is not None for t in tables])
+        values = np.array([getattr(t, k)[0] if h else np.nan for t, h in zip(tables, have)])
+        if have.all() or not have.any():
+            cols[k] = values if have.all() else None
+            continue
+        missing = ", ".join(f"{t:.1f}" for t in temps[~have])
+        if k == "i0_a":
+            # a test without a measurable current dependence: i0 from the others, ln(i0)
+            # linear in 1/T (least squares; one other test: its value)
+            x, y = inverse_kelvin(temps[have]), np.log(values[have])
+            slope = float(np.polyfit(x, y, 1)[0]) if have.sum() > 1 else 0.0
+            fill = np.exp(y.mean() + slope * (inverse_kelvin(temps[~have]) - x.mean()))
+            notes.append(f"i0_a at {missing} degC (no current dependence found in that test) "
+                         "from the other tests, ln(i0) linear in 1/T")
+        elif k == "r_diff_ohm":
+            fill = np.zeros((~have).sum())
+            notes.append(f"no diffusion pair fitted at {missing} degC: r_diff_ohm = 0 there")
+        else:   # tau_diff_s: the nearest test's (r_diff is 0 there anyway)
+            near = [int(np.argmin(np.where(have, np.abs(temps - t), np.inf)))
+                    for t in temps[~have]]
+            fill = values[near]
+        values[~have] = fill
+        cols[k] = values
+    return cols, notes
 
 
 def _warm_row(temps: np.ndarray, cols: dict, warm_c: float) -> tuple[dict, dict[str, float]]:
@@ -163,9 +184,10 @@ def temperature_grid(t_min_c: float, t_max_c: float, step_c: float) -> np.ndarra
 
 
 def _assemble_direction(tables: Sequence[RcTable], temps: np.ndarray, step_c: float,
-                        warm_c: float | None) -> tuple[RcTable, dict[str, float] | None]:
+                        warm_c: float | None
+                        ) -> tuple[RcTable, dict[str, float] | None, list[str]]:
     soc = tables[0].soc if len(tables) == 1 else _soc_union([t.soc for t in tables])
-    cols = _measured_rows(tables, soc)
+    cols, fill_notes = _measured_rows(tables, temps, soc)
     ea = None
     row_temps = temps.copy()
     if warm_c is not None and temps.size >= 2 and warm_c > temps[-1] + MIN_SPACING_K:
@@ -187,10 +209,10 @@ def _assemble_direction(tables: Sequence[RcTable], temps: np.ndarray, step_c: fl
             if cols[k] is not None:
                 out[k] = np.array([float(arrhenius_interp(row_temps, cols[k][:, None], t)[0])
                                    for t in grid])
-        return RcTable(soc=soc, temperature_c=grid, **out), ea
+        return RcTable(soc=soc, temperature_c=grid, **out), ea, fill_notes
     return RcTable(soc=soc, temperature_c=row_temps,
                    **{k: cols[k] for k in (*RC_FIELDS, "fit_error", "converged",
-                                           *BRANCH_FIELDS)}), ea
+                                           *BRANCH_FIELDS)}), ea, fill_notes
 
 
 def _both_neighbours(temps: np.ndarray, conv: np.ndarray, t: float) -> np.ndarray:
@@ -253,15 +275,17 @@ def assemble_over_temperature(models: Sequence[EcmModel], temperatures_c, *,
             raise ValueError("assemble_over_temperature takes one-temperature models "
                              "without effects")
 
-    tables, eas = {}, {}
+    tables, eas, fills = {}, {}, []
     for d in DIRECTIONS:
-        tables[d], eas[d] = _assemble_direction([m.table(d) for m in models], temps, step_c,
-                                                warm_c)
+        tables[d], eas[d], filled = _assemble_direction([m.table(d) for m in models], temps,
+                                                        step_c, warm_c)
+        fills += [f"{d}: {n}" for n in filled]
     ocv = _ocv_rows(models, temps)
     if len(models) == 1:
         ocv = OcvOverTemperature(temps, ocv.soc, ocv.ocv_v)
 
     notes = [f"[{_fmt_t(t)} degC] {n}" for t, m in zip(temps, models) for n in m.notes]
+    notes += fills
     if len(models) > 1:
         notes.append("temperature breakpoints measured: " + ", ".join(
             f"{_fmt_t(t)} degC ({lab})" for t, lab in zip(temps, labels)))
