@@ -118,3 +118,17 @@ def test_bad_pulse_tests_and_model_section(folder, capsys, body, needle):
 def test_model_must_be_a_table(folder):
     with pytest.raises(InputError, match=r"\[model\] must be a table"):
         load_config(_write(folder, "model = 5\n" + HEAD + _test()))
+
+
+def test_dcir_with_a_config_over_temperature_names_one_test(folder, capsys):
+    from conftest import make_pulse_test, synthetic_nca_model
+    from ecmgen.data.measure import write_timeseries_csv
+
+    series, _ = make_pulse_test(synthetic_nca_model(), soc_levels=(0.9, 0.6, 0.3),
+                                c_rates=(1.0,), rest_s=300.0)
+    write_timeseries_csv(series, folder / "a.csv")
+    cfg = _write(folder, HEAD + _test("a.csv", soc0=1.0) + _test("b.csv"))
+    assert main(["dcir", "--config", str(cfg), "--quiet"]) == 2
+    assert "name one, ecmgen dcir PULSES" in capsys.readouterr().err
+    assert main(["dcir", str(folder / "a.csv"), "--config", str(cfg), "--quiet"]) == 0
+    assert capsys.readouterr().out.startswith("soc,direction,c_rate,t_s,r_ohm\n")

@@ -52,6 +52,17 @@ def _dcir_with_config(args):
     from .pipeline import prepare
 
     cfg = load_config(args.config)
+    if cfg.pulse_tests:     # [[data.pulse_tests]]: the one named, with its own settings
+        from .pipeline import pulse_test_config
+
+        given = None if args.pulses is None else Path(args.pulses).resolve()
+        named = [t for t in cfg.pulse_tests if t.file == given]
+        if given is None:
+            raise InputError(cfg.path, "the config has pulse tests at several temperatures "
+                                       "([[data.pulse_tests]]): name one, ecmgen dcir PULSES "
+                                       "--config ...")
+        if named:
+            cfg = pulse_test_config(cfg, named[0])
     if args.pulses is None and cfg.pulses is None:
         raise InputError(cfg.path, "no data.pulses (a DC-IR table is not a pulse test); "
                                    "give the pulse test file: ecmgen dcir PULSES --config ...")
