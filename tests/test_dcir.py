@@ -164,3 +164,66 @@ def test_a_clean_test_has_no_voltage_limit():
     m = synthetic_nca_model()
     series, soc0 = make_pulse_test(m, soc_levels=(0.5, 0.1), c_rates=(1.0, 6.0))
     assert not any(p.cut_short for p in find_pulses(series, 2.9, soc0=soc0))
+
+
+def test_usabc_leaf_hppc_regen_pulse_straight_into_the_soc_move():
+    """A 30 s discharge pulse, 40 s rest, a 10 s regen pulse that runs straight into the
+    C/3 SOC move (the Leaf's Bitrode HPPC). Before, the regen pulse and the move were one
+    step (too long for a pulse): every charge pulse was missed."""
+    from conftest import make_usabc_hppc
+
+    truth = synthetic_nca_model(tau_fast_s=2.0, tau_slow_s=30.0)
+    series = make_usabc_hppc(truth)
+    pulses = find_pulses(series, 2.9, soc0=1.0)
+    assert [p.direction for p in pulses] == ["discharge", "charge"] * 4
+    assert [round(p.duration_s, 1) for p in pulses] == [30.0, 10.0] * 4
+    assert not any(p.cut_short for p in pulses)
+    charge = [p for p in pulses if p.direction == "charge"]
+    # the regen pulse ends at the step into the SOC move: no relaxation after it, except
+    # the last one, which rests
+    assert all(p.next_start == p.stop for p in charge[:-1]) and charge[-1].next_start > charge[-1].stop
+    assert all(series.current_a[p.stop] < 0 for p in charge[:-1])
+    table = extract_dcir(series, pulses, (0.1, 1.0, 3.0, 10.0, 30.0))
+    for k, p in enumerate(pulses):
+        par = (truth.charge if p.direction == "charge" else truth.discharge).at(p.soc)
+        t = table.t_s
+        # the 2RC's R(t) plus the OCV's move with the charge passed
+        dq = p.current_a * t / 3600.0 / 2.9
+        ocv_move = (truth.ocv.ocv_at(p.soc + dq) - truth.ocv.ocv_at(p.soc)) / (p.current_a)
+        expected = (par["r0_ohm"] + par["r_fast_ohm"] * -np.expm1(-t / par["tau_fast_s"])
+                    + par["r_slow_ohm"] * -np.expm1(-t / par["tau_slow_s"]) + ocv_move)
+        got = table.r_ohm[k]
+        ok = np.isfinite(got)
+        assert ok.sum() == (5 if p.direction == "discharge" else 4)     # 30 s: discharge only
+        # within 5 %: the regen pulse's rest still relaxes from the discharge pulse (2-3 %)
+        assert np.all(np.abs(got[ok] / expected[ok] - 1) < 0.05), (p.direction, p.soc)
+
+
+def test_a_pulse_is_a_plateau_whatever_follows_it():
+    """A discharge pulse that steps straight to another current (no rest in between)
+    still ends at the step; a steady current after a rest is a pulse up to max_pulse_s."""
+    m = flat(synthetic_nca_model())
+    from ecmgen.model.simulate import simulate
+
+    t = np.arange(0, 900.0, 0.1)
+    i = np.zeros_like(t)
+    i[(t > 300) & (t <= 310)] = -14.5          # 10 s at 5C ...
+    i[(t > 310) & (t <= 700)] = -1.0           # ... straight into a 390 s C/3 discharge
+    v = simulate(m, t, i, 0.8).voltage_v
+    pulses = find_pulses(TimeSeries(t, i, v, source="x.csv"), 2.9, soc0=0.8)
+    assert len(pulses) == 1
+    p = pulses[0]
+    assert p.duration_s == pytest.approx(10.0, abs=0.15) and p.current_a == pytest.approx(-14.5)
+    assert p.next_start == p.stop and i[p.stop] == -1.0
+
+
+def test_a_plateau_stepping_on_into_a_drive_profile_is_not_a_pulse():
+    """After a long rest, a dynamic profile's first few seconds are a plateau too; what
+    follows it keeps changing, so it is not a pulse (the A123 DST blocks)."""
+    t = np.arange(0, 1000.0)
+    rng = np.random.default_rng(1)
+    i = np.repeat(rng.uniform(-3.0, 1.0, 100), 10)
+    i[:300] = 0.0
+    series = TimeSeries(t, i, 3.7 + 0.02 * i, source="dst.csv")
+    with pytest.raises(InputError, match="dst.csv: no pulses found"):
+        find_pulses(series, 2.9, soc0=0.8)

@@ -1,10 +1,13 @@
 """Pulse test -> pulses -> DC-IR table ``R(t) = dV/dI``.
 
-A pulse is a current step from rest: a run of samples with |i| above the rest
-threshold, preceded by a rested sample, short (at most ``max_pulse_s``) and of
-near-constant current. ``R(t)`` is taken against the last rested sample before the
-edge; time is counted from that sample, so the first on-sample is the paper's
-"0.1 s" point on a 10 Hz logger.
+A pulse is a current plateau that starts from rest and ends at the next step of the
+current, whatever comes after it: a rest, another plateau of current (a charge pulse
+running straight into the constant-current SOC move of a USABC-style HPPC), or the end
+of the record; a plateau that steps on into a changing current (the first second of a
+drive cycle) is not a pulse. It must follow at least ``min_rest_s`` of rest and last at most
+``max_pulse_s``. ``R(t)`` is taken against the last rested sample before the edge;
+time is counted from that sample, so the first on-sample is the paper's "0.1 s" point
+on a 10 Hz logger.
 """
 
 from __future__ import annotations
@@ -29,8 +32,9 @@ class Pulse:
 
     rest_index: int          # last rested sample before the edge (the reference)
     start: int               # first sample with current on
-    stop: int                # first sample after the current switched off (exclusive end)
-    next_start: int          # first on-sample after the pulse's relaxation (or len(series))
+    stop: int                # first sample after the plateau (exclusive end)
+    next_start: int          # end of the relaxation after it: the next current (== stop
+                             # when the pulse runs straight into another current)
     current_a: float         # median current in the pulse (positive = charge)
     direction: str           # "charge" | "discharge"
     c_rate: float            # |current| / capacity, rounded to 0.01
@@ -126,14 +130,41 @@ def read_dcir_csv(path: str | Path) -> DcirTable:
                      times, r)
 
 
+STEP_TOLERANCE = 0.1    # a plateau's current stays within 10 % (+ the rest threshold)
+
+
+def _plateau_end(i: np.ndarray, a: int, r: int, thr: float) -> int:
+    """End (exclusive) of the current plateau that starts at sample ``a`` within the run
+    [a, r) of on-samples: the first sample from which the current stays (two samples)
+    more than STEP_TOLERANCE away from the plateau's level. The first sample may catch
+    the current while it ramps; the level is the median of the next three."""
+    if r - a <= 2:
+        return r
+    level = float(np.median(i[a + 1:min(r, a + 4)]))
+    off = np.abs(i[a + 1:r] - level) > STEP_TOLERANCE * abs(level) + thr
+    both = off[:-1] & off[1:]
+    hits = np.flatnonzero(np.append(both, off[-1]))
+    return r if hits.size == 0 else a + 1 + int(hits[0])
+
+
+def _steady(seg: np.ndarray, thr: float) -> bool:
+    """True when a run of current is one plateau (what may follow a pulse without a rest:
+    the SOC move, a regen pulse): 90 % of it within STEP_TOLERANCE of its median (the
+    first and last sample may ramp)."""
+    med = float(np.median(seg))
+    return bool(np.mean(np.abs(seg - med) <= STEP_TOLERANCE * abs(med) + thr) >= 0.9 or
+                seg.size <= 2)
+
+
 def find_pulses(series: TimeSeries, capacity_ah: float, *, soc0: float,
                 rest_current_a: float | None = None, max_pulse_s: float = 120.0,
                 min_rest_s: float = 30.0) -> list[Pulse]:
-    """Find the current steps from rest in a pulse test.
+    """Find the current plateaus from rest in a pulse test (see the module doc).
 
     A pulse must follow at least ``min_rest_s`` of rest (else the voltage it starts
     from is not a rested one; 30 s admits the 40 s rest between the discharge and the
-    regen pulse of a USABC-style HPPC) and last at most ``max_pulse_s``.
+    regen pulse of a USABC-style HPPC) and last at most ``max_pulse_s`` (a longer
+    plateau is a constant-current segment: an SOC move, a charge).
 
     SOC at each pulse comes from ``soc0`` plus the record's cumulative charge (its Ah
     column where it has one, which is right even when the file leaves out the
@@ -146,25 +177,23 @@ def find_pulses(series: TimeSeries, capacity_ah: float, *, soc0: float,
     stops = np.flatnonzero(~on[1:] & on[:-1]) + 1
     if on[-1]:
         stops = np.append(stops, len(i))
-    first_rest = 0 if not on[0] else int(np.argmax(~on))  # where the record's first rest begins
     stops = stops[stops > (starts[0] if starts.size else len(i))]
+    first_rest = 0 if not on[0] else int(np.argmax(~on))  # where the record's first rest begins
     q_ah = series.coulomb_ah()
     pulses: list[Pulse] = []
-    for n, (a, b) in enumerate(zip(starts, stops)):
-        dur = t[b - 1] - t[a - 1]
-        if dur > max_pulse_s:
-            continue  # a CC segment (SOC move, charge), not a pulse
+    for n, (a, r) in enumerate(zip(starts, stops)):
         # a record is taken to start rested: a rest from its first sample always counts
         rest_start = stops[n - 1] if n > 0 else first_rest
         if rest_start > 0 and t[a - 1] - t[rest_start] < min_rest_s:
             continue
-        seg = i[a:b]
-        med = float(np.median(seg))
-        # a step: the current stays near its median (the first sample may ramp)
-        steady = np.abs(seg[1:] - med) <= 0.1 * abs(med) + thr if seg.size > 1 else np.array([True])
-        if np.mean(steady) < 0.9:
-            continue
-        nxt = starts[n + 1] if n + 1 < starts.size else len(i)
+        b = _plateau_end(i, int(a), int(r), thr)
+        dur = t[b - 1] - t[a - 1]
+        if dur > max_pulse_s:
+            continue  # a CC segment (SOC move, charge), not a pulse
+        if b < r and not _steady(i[b:r], thr):
+            continue  # steps on into a dynamic profile (a drive cycle), not a pulse test
+        med = float(np.median(i[a:b]))
+        nxt = b if b < r else (starts[n + 1] if n + 1 < starts.size else len(i))
         pulses.append(Pulse(
             rest_index=int(a - 1), start=int(a), stop=int(b), next_start=int(nxt),
             current_a=med, direction="charge" if med > 0 else "discharge",
@@ -189,8 +218,10 @@ def flag_cut_short(series: TimeSeries, pulses: list[Pulse], *, rel_duration: flo
     """Mark the pulses a voltage limit stopped (``cut_short``).
 
     A pulse is cut short when it lasts less than ``rel_duration`` x the median duration
-    over ALL pulses of the file (the nominal pulse length; a median over the pulses of one
-    C-rate fails when most of them are cut, as the 6C pulses of a cold test), or when the
+    over ALL pulses of its direction in the file (the nominal pulse length; a median over
+    the pulses of one C-rate fails when most of them are cut, as the 6C pulses of a cold
+    test; one over both directions when they differ, as the 30 s discharge and 10 s regen
+    pulses of a USABC/Leaf HPPC), or when the
     file shows a voltage limit and the pulse came within ``limit_margin_v`` of it. The
     file shows a limit when a pulse cut by the duration rule ended within the margin of the
     file's lowest (discharge) or highest (charge) voltage; a test that never hit a limit
@@ -198,8 +229,9 @@ def flag_cut_short(series: TimeSeries, pulses: list[Pulse], *, rel_duration: flo
     if not pulses:
         return []
     v = series.voltage_v
-    nominal = float(np.median([p.duration_s for p in pulses]))
-    short = [p.duration_s < rel_duration * nominal for p in pulses]
+    nominal = {d: float(np.median([p.duration_s for p in pulses if p.direction == d]))
+               for d in {p.direction for p in pulses}}
+    short = [p.duration_s < rel_duration * nominal[p.direction] for p in pulses]
     v_lo, v_hi = float(np.min(v)), float(np.max(v))
     lo = [float(np.min(v[p.start:p.stop])) <= v_lo + limit_margin_v for p in pulses]
     hi = [float(np.max(v[p.start:p.stop])) >= v_hi - limit_margin_v for p in pulses]
@@ -211,6 +243,15 @@ def flag_cut_short(series: TimeSeries, pulses: list[Pulse], *, rel_duration: flo
             (b and limit_hi and p.direction == "charge")
         out.append(replace(p, cut_short=bool(s or at_limit)))
     return out
+
+
+def relaxation_s(series: TimeSeries, pulses, relax_s: float = np.inf) -> np.ndarray:
+    """The rest each pulse is followed by before the next current (0 for a pulse running
+    straight into another current), at most ``relax_s``: the relaxation a test really
+    has to fit slow time constants on."""
+    t = series.time_s
+    return np.array([min(float(t[p.next_start - 1] - t[p.stop - 1]), relax_s)
+                     for p in pulses])
 
 
 def extract_dcir(series: TimeSeries, pulses: list[Pulse],
