@@ -183,14 +183,18 @@ def test_nearly_matching_layout_names_what_is_missing(tmp_path):
 # --------------------------------------------------------------------------- per-role mapping
 
 def _project(tmp_path: Path, cell, columns: str, *, extra: str = "") -> Path:
-    """A config over Leaf-like headerless files: pulses, a cycle and an extra cycle."""
-    _, series, cycle = cell
+    """A config over Leaf-like headerless files: pulses, a cycle and an extra cycle, and
+    the cell's OCV table (the headerless pulse file has no Ah column, so its rests, with
+    the SOC moves left out of the record, cannot give an OCV)."""
+    truth, series, cycle = cell
     write_bitrode_like(series, tmp_path / "hppc.csv")
     write_bitrode_like(cycle, tmp_path / "cycle1.csv")
     write_bitrode_like(cycle, tmp_path / "cycle2.csv")
+    np.savetxt(tmp_path / "ocv.csv", np.column_stack([truth.ocv.soc, truth.ocv.ocv_v[0]]),
+               delimiter=",", header="soc,ocv_v", comments="")
     cfg = tmp_path / "leaf.toml"
     cfg.write_text('[cell]\ncapacity_ah = 2.9\n[data]\npulses = "hppc.csv"\n'
-                   'pulses_soc0 = 1.0\nocv = "pulses"\ncycle = "cycle1.csv"\n'
+                   'pulses_soc0 = 1.0\nocv = "ocv.csv"\ncycle = "cycle1.csv"\n'
                    'extra_cycles = ["cycle2.csv"]\n' + extra + columns)
     return cfg
 

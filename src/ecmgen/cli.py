@@ -37,7 +37,7 @@ def cmd_build(args) -> int:
             print(pulse_test_table(result))
             print()
         print(validation_table(result))
-        for n in result.models[result.best].notes:
+        for n in list(result.models[result.best].notes) + result.notes:
             print(f"note: {n}")
         print(f"wrote {len(result.files)} files to {result.out_dir}")
     return 0
@@ -154,18 +154,21 @@ def cmd_validate(args) -> int:
         plot_validation(val, Path(args.plot))
     if args.json:
         t_range = val.temperature_range_c
-        print(json.dumps(dict(val.overall.as_dict(), soc0=val.soc0,
+        print(json.dumps(dict(val.overall.as_dict(), soc0=val.soc0, soc0_how=val.soc0_how,
                               soc_above_10=val.soc_above_10.as_dict(),
+                              warnings=list(val.warnings),
                               temperature_c=None if t_range is None else
                               {"min": t_range[0], "max": t_range[1]})))
     else:
         m = val.overall
-        src = "from the OCV of the first rested voltage" if val.soc0_from_ocv else "given"
+        src = f"from {val.soc0_how}" if val.soc0_from_ocv else "given"
         print(f"{Path(args.cycle).name}: MAE {m.mae_v * 1e3:.2f} mV  RMSE {m.rmse_v * 1e3:.2f} mV"
               f"  max {m.max_abs_v * 1e3:.1f} mV  (soc0 {val.soc0:.4f} {src}; "
               f"MAE at SOC>10 % {val.soc_above_10.mae_v * 1e3:.2f} mV"
               + ("" if val.temperature_range_c is None else
                  "; cell {:.1f}..{:.1f} degC".format(*val.temperature_range_c)) + ")")
+        for w in val.warnings:
+            print(f"note: {w}")
     return 0
 
 

@@ -4,11 +4,29 @@
     capacity_ah = 2.9
     [data]
     pulses = "hppc.mat"        # a pulse/HPPC test, or: dcir = "dcir.csv"
-    pulses_soc0 = 1.0          # SOC at the start of the pulse test (default: from the
-                               # OCV of its first rested voltage, or 1.0 with OCV = "pulses")
-    ocv = "ocv-c20.mat"        # a soc,ocv_v table, a low-rate test, or "pulses" (rests)
+    pulses_soc0 = 1.0          # SOC at the start of the pulse test (default: 1.0 if it
+                               # opens at or above the top of the OCV of the other sources,
+                               # else fitted so that all its rested voltages match that OCV,
+                               # with a hysteresis offset; 1.0 with "pulses" only)
+    ocv = "ocv-c20.mat"        # a soc,ocv_v table, a low-rate test, or "pulses" (the rests
+                               # of the pulse test), or a list of them merged in order:
+                               # ocv = ["pulses", "ocv-c20.mat"]: the first source over its
+                               # SOC span, each next one only beyond what is covered (shifted
+                               # to meet it); flat beyond all spans. Checked against the
+                               # pulse test's rests (a warning above 10 mV RMS); an OCV
+                               # flat over half the SOC range is an error
+    ocv_cycle = 2              # the cycle of a low-rate test holding several (1-based;
+                               # default the last complete discharge + charge pair)
+    ocv_branch = "auto"        # "both" (the average), "charge", "discharge", or "auto"
+                               # (default): with a pulse test, the one of the three
+                               # closest to its rested voltages, else "both"
+    ocv_soc0 = 1.0             # optional: SOC at the low-rate test's first sample; SOC is
+                               # then counted with cell.capacity_ah instead of normalising
+                               # each branch to its own charge
     cycle = "us06.mat"         # validation drive cycle
-    soc0 = 1.0                 # optional; from the first rested voltage when absent
+    soc0 = 1.0                 # optional; when absent from the cycle's rests (1.0 after a
+                               # constant-voltage charge it opens with; else the last sample
+                               # of the rest it opens with; on a flat OCV a fit over its rests)
     extra_cycles = ["hwfet-a.mat"]   # optional further validation cycles
     cycle_window_s = [t0, t1]  # optional: validate on this time window of each cycle file
                                # (or a table: file name -> [t0, t1])
@@ -144,9 +162,9 @@ class BuildConfig:
     # [[data.pulse_tests]] (a model over temperature); the data.pulses form is one test
     # at an unknown temperature (and leaves this empty)
     pulse_tests: tuple["PulseTest", ...]
-    ocv: Path | None              # None: from the pulse-test rests
+    ocv: Path | None              # the first OCV file; None: from the pulse-test rests
     ocv_soc0: float | None
-    ocv_branch: str               # "both" | "charge" | "discharge"
+    ocv_branch: str               # "auto" | "both" | "charge" | "discharge"
     cycle: Path | None
     soc0: float | None
     extra_cycles: tuple[Path, ...]
@@ -159,6 +177,8 @@ class BuildConfig:
     seed: int
     relax_s: float
     best: str
+    ocv_sources: tuple = ()       # in merge order: "pulses" or a Path (data.ocv)
+    ocv_cycle: int | None = None  # cycle of the low-rate test (1-based); None: the last
     c_prefix: str = "ecm"
     c_numeric: tuple[str, ...] = ("float", "fixed")
     c_dt_s: float | None = None
@@ -334,19 +354,33 @@ def load_config(path: str | Path) -> BuildConfig:
         raise InputError(path, "data.pulses_soc0 goes with data.pulses; give soc0 in each "
                                "[[data.pulse_tests]] table")
     ocv_raw = data.get("ocv", "pulses" if several else None)
-    if ocv_raw == "pulses":
-        if pulses is None and not several:
-            raise InputError(path, "data.ocv = \"pulses\" needs data.pulses")
-        ocv = None
-    elif ocv_raw is None:
+    if ocv_raw is None:
         raise InputError(path, "missing data.ocv (a soc,ocv_v table, a low-rate test, "
-                               "or \"pulses\" for the rests of the pulse test)")
-    else:
-        ocv = _file(base, data, "ocv", path)
+                               "\"pulses\" for the rests of the pulse test, or a list of them)")
+    names = ocv_raw if isinstance(ocv_raw, list) else [ocv_raw]
+    if not names or not all(isinstance(n, str) and n for n in names):
+        raise InputError(path, "data.ocv must be a file name, \"pulses\" or a non-empty list "
+                               "of them")
+    if len(set(names)) != len(names):
+        raise InputError(path, "data.ocv names a source twice")
+    sources: list = []
+    for name in names:
+        if name == "pulses":
+            if pulses is None and not several:
+                raise InputError(path, "data.ocv = \"pulses\" needs data.pulses")
+            sources.append("pulses")
+        else:
+            sources.append(_file(base, {"ocv": name}, "ocv", path))
+    ocv = next((s for s in sources if s != "pulses"), None)
+    ocv_cycle = data.get("ocv_cycle")
+    if ocv_cycle is not None and (isinstance(ocv_cycle, bool) or not isinstance(ocv_cycle, int)
+                                  or ocv_cycle < 1):
+        raise InputError(path, f"data.ocv_cycle must be a cycle number from 1, got {ocv_cycle!r}")
     pulse_tests = _pulse_tests(data, base, path, ocv) if several else ()
-    branch = data.get("ocv_branch", "both")
-    if branch not in ("both", "charge", "discharge"):
-        raise InputError(path, f"data.ocv_branch must be both, charge or discharge, got {branch!r}")
+    branch = data.get("ocv_branch", "auto")
+    if branch not in ("auto", "both", "charge", "discharge"):
+        raise InputError(path, "data.ocv_branch must be auto, both, charge or discharge, "
+                               f"got {branch!r}")
 
     extra = data.get("extra_cycles", [])
     if not isinstance(extra, list):
@@ -427,7 +461,8 @@ def load_config(path: str | Path) -> BuildConfig:
         max_pulse_s=_number(dcir_t, "max_pulse_s", path, "dcir", 120.0, positive=True),
         methods=tuple(methods), seed=seed,
         relax_s=_number(fit, "relax_s", path, "fit", 1800.0, positive=True),
-        best=best, c_prefix=prefix, c_numeric=tuple(numeric),
+        best=best, ocv_sources=tuple(sources), ocv_cycle=ocv_cycle,
+        c_prefix=prefix, c_numeric=tuple(numeric),
         c_dt_s=_number(c, "dt_s", path, "c", None),
         curve_branches=branches,
         temperature_step_c=step, warm_row_c=None if warm is False else warm,

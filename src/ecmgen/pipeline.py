@@ -24,8 +24,8 @@ import numpy as np
 from .config import COLUMN_ROLE_FALLBACK, WINDOW_ROLES, BuildConfig, PulseTest
 from .data import dcir as dcir_mod
 from .data.measure import ColumnMap, TimeSeries, read_timeseries
-from .data.ocv import (OcvTable, looks_like_ocv_table, ocv_from_low_rate, ocv_from_pulse_rests,
-                       read_ocv_table)
+from .data import ocv as ocv_mod
+from .data.ocv import OcvTable
 from .errors import InputError
 from .files import file_sha256
 from .model.model import RC_FIELDS, EcmModel, InputRecord, RcTable
@@ -54,6 +54,7 @@ class Inputs:
     records: tuple[InputRecord, ...]
     notes: tuple[str, ...]
     steps: TimeSeries | None = None     # SOC steps the pulse test left out (curve fit)
+    ocv_report: ocv_mod.OcvReport | None = None
 
 
 @dataclass
@@ -70,6 +71,9 @@ class BuildResult:
     c_report: dict | None = None
     tests: list["TestFit"] = field(default_factory=list)   # [[data.pulse_tests]]: per test
     timings: dict[str, float] = field(default_factory=dict)   # wall seconds per stage
+    fit_flags: dict[str, list] = field(default_factory=dict)   # method -> [FitFlag]
+    usage: dict[str, dict[str, dict]] = field(default_factory=dict)  # method -> cycle -> use
+    notes: list[str] = field(default_factory=list)   # of the validation (SOC range, spans)
 
 
 def read_series(cfg: BuildConfig, path: Path, role: str = "") -> TimeSeries:
@@ -84,51 +88,65 @@ def read_series(cfg: BuildConfig, path: Path, role: str = "") -> TimeSeries:
     return series if window is None else series.window(*window)
 
 
+def _ocv_file_curve(cfg: BuildConfig, path: Path, progress: Progress) -> ocv_mod.OcvCurve:
+    """The OCV curve of one file source: a soc,ocv_v table or a low-rate test."""
+    if ocv_mod.looks_like_ocv_table(path):
+        return ocv_mod.curve_from_table(ocv_mod.read_ocv_table(path), path.name)
+    progress(f"reading low-rate OCV test {path.name}")
+    low = read_series(cfg, path, "ocv")
+    return ocv_mod.curve_from_low_rate(low, cfg.capacity_ah, path.name, soc0=cfg.ocv_soc0,
+                                       branch=cfg.ocv_branch, cycle=cfg.ocv_cycle)
+
+
+def pulse_test_soc0(cfg: BuildConfig, series: TimeSeries, rests, reference: OcvTable | None,
+                    given: float | None) -> tuple[float, str]:
+    """Start SOC of one pulse test: ``given`` (data.pulses_soc0) wins; else fitted on
+    all its rests against ``reference`` (the OCV of the other sources); else 1.0."""
+    from .data.soc import pulse_test_start_soc
+
+    if given is not None:
+        return given, ""
+    if reference is not None and len(rests) >= 2:
+        fit = pulse_test_start_soc(reference, cfg.capacity_ah, rests, series.source)
+        return fit.soc0, f"pulse test {fit.note} (set data.pulses_soc0 to override)"
+    return 1.0, "pulse test assumed to start at SOC 1.0 (set data.pulses_soc0)"
+
+
 def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
     """Read the measurement files; extract pulses, the DC-IR table and the OCV."""
+    from .data.soc import find_rests
+
     notes: list[str] = []
     records: list[InputRecord] = []
     q = cfg.capacity_ah
-    ocv = None
-    if cfg.ocv is not None and looks_like_ocv_table(cfg.ocv):
-        ocv = read_ocv_table(cfg.ocv)
-        records.append(InputRecord("ocv", cfg.ocv.name, file_sha256(cfg.ocv)))
-    elif cfg.ocv is not None:
-        progress(f"reading low-rate OCV test {cfg.ocv.name}")
-        low = read_series(cfg, cfg.ocv, "ocv")
-        records.append(InputRecord("ocv", cfg.ocv.name, file_sha256(cfg.ocv)))
-        ocv, n = ocv_from_low_rate(low, q, cfg.ocv_soc0, branch=cfg.ocv_branch)
-        notes.extend(n)
+    sources = cfg.ocv_sources or (("pulses",) if cfg.ocv is None else (cfg.ocv,))
+    file_curves = {}
+    for src in sources:
+        if src != "pulses":
+            file_curves[src] = _ocv_file_curve(cfg, src, progress)
+            records.append(InputRecord("ocv", src.name, file_sha256(src)))
+    reference = None
+    if file_curves:
+        reference = ocv_mod.merge_curves([file_curves[s] for s in sources if s != "pulses"])[0]
 
-    series, pulses = None, ()
+    series, pulses, rests, soc0 = None, (), None, None
     if cfg.pulses is not None:
         progress(f"reading pulse test {cfg.pulses.name}")
         series = read_series(cfg, cfg.pulses, "pulses")
         records.append(InputRecord("pulses", cfg.pulses.name, file_sha256(cfg.pulses)))
-        soc0 = cfg.pulses_soc0
-        if soc0 is None and ocv is not None:
-            from .model.simulate import rested_soc
-
-            try:
-                soc0 = rested_soc(ocv, q, series)
-                notes.append(f"pulse test start SOC {soc0:.3f} from the OCV of its first "
-                             "rested voltage (set data.pulses_soc0 to override)")
-            except InputError:
-                soc0 = 1.0  # a record that never rests has no pulses: find_pulses says so
-        elif soc0 is None:
-            soc0 = 1.0
-            notes.append("pulse test assumed to start at SOC 1.0 (set data.pulses_soc0)")
+        rests = find_rests(series, max(0.02 * q, 1e-3), ocv_mod.MIN_OCV_REST_S)
+        soc0, n = pulse_test_soc0(cfg, series, rests, reference, cfg.pulses_soc0)
+        if n:
+            notes.append(n)
         pulses = tuple(dcir_mod.find_pulses(series, q, soc0=soc0, min_rest_s=cfg.min_rest_s,
                                             max_pulse_s=cfg.max_pulse_s))
         table = dcir_mod.extract_dcir(series, list(pulses), cfg.times_s)
         notes.extend(table.notes)
         progress(f"{len(pulses)} pulses, {len(table)} DC-IR rows")
-        if ocv is None:
-            ocv, n = ocv_from_pulse_rests(series, pulses, q, soc0)
-            notes.extend(n)
     else:
         table = dcir_mod.read_dcir_csv(cfg.dcir)
         records.append(InputRecord("dcir", cfg.dcir.name, file_sha256(cfg.dcir)))
+
     steps = None
     steps_file = cfg.pulse_tests[0].steps if len(cfg.pulse_tests) == 1 else None
     if steps_file is not None and series is not None:
@@ -136,7 +154,11 @@ def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
         progress(f"reading SOC steps {steps_file.name}")
         steps = read_series(cfg, steps_file, "pulses")      # the pulse test's cycler
         records.append(InputRecord("steps", steps_file.name, file_sha256(steps_file)))
-    return Inputs(q, ocv, table, series, pulses, tuple(records), tuple(notes), steps)
+    paths = {s: (cfg.pulses if s == "pulses" else s) for s in sources}
+    ocv, n, report = ocv_mod.assemble(sources, file_curves, paths, rests, soc0, q,
+                                      auto=cfg.ocv_branch == "auto")
+    notes.extend(n)
+    return Inputs(q, ocv, table, series, pulses, tuple(records), tuple(notes), steps, report)
 
 
 def _rc_tables(soc, direction, cols: dict[str, np.ndarray], fit_error, converged,
@@ -170,12 +192,14 @@ def _rc_tables(soc, direction, cols: dict[str, np.ndarray], fit_error, converged
 def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
                ) -> tuple[dict[str, EcmModel], dict]:
     """Fit every method of the config; returns the models and the raw fits (for plots)."""
+    from .fit.checks import curve_fit_flags, flag_notes, point_fit_flags
     from .fit.ga import fit_ga
     from .fit.lm import fit_lm
     from .fit.points import five_point_rows
+    from .model.spans import model_span_notes
 
     models: dict[str, EcmModel] = {}
-    raw: dict = {}
+    raw: dict = {"flags": {}}
     common = dict(capacity_ah=inputs.capacity_ah, ocv=inputs.ocv, seed=cfg.seed,
                   inputs=inputs.records, direction_deadband_a=0.01 * inputs.capacity_ah)
     point_methods = [m for m in cfg.methods if m in ("ga", "lm")]
@@ -198,8 +222,11 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
                                      f.converged, cfg.pulses or cfg.dcir)
             bad = int(np.sum(~f.converged))
             n3 = [f"{m}: {bad} of {f.converged.size} table cells did not converge"] if bad else []
-            models[m] = EcmModel(charge=ch, discharge=dis, method=m,
-                                 notes=inputs.notes + tuple(n) + tuple(n2) + tuple(n3), **common)
+            flags = point_fit_flags(m, f, rows)
+            raw["flags"][m] = flags
+            model = EcmModel(charge=ch, discharge=dis, method=m, **common)
+            n3 += flag_notes(flags) + model_span_notes(model, _copied(n2))
+            models[m] = replace(model, notes=inputs.notes + tuple(n) + tuple(n2) + tuple(n3))
         raw["point_fits"] = fits
     if "curve" in cfg.methods:
         from .fit.curve import fit_pulse_curves
@@ -208,18 +235,26 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
         # the diffusion pair and the Butler-Volmer fast branch: [fit] curve_branches
         branches = cfg.curve_branches
         bv = fit_exchange_current(inputs.dcir, inputs.capacity_ah) if branches else None
-        progress(f"whole-test fit of the pulse test ({len(inputs.pulses)} pulses"
+        relax = dcir_mod.relaxation_s(inputs.pulses_series,
+                                      [p for p in inputs.pulses if not p.cut_short], cfg.relax_s)
+        progress(f"whole-test fit of the pulse test ({len(inputs.pulses)} pulses, "
+                 f"{_relax_words(relax, cfg.relax_s)}"
                  f"{', SOC steps merged' if inputs.steps is not None else ''})")
         cf = fit_pulse_curves(inputs.pulses_series, list(inputs.pulses), inputs.ocv,
                               inputs.capacity_ah, i0_a=bv.i0_a if bv else None,
                               diffusion=branches, steps=inputs.steps,
                               relax_s=cfg.relax_s,
                               direction_deadband_a=common["direction_deadband_a"])
-        models["curve"] = EcmModel(charge=RcTable(**cf.rc_columns("charge")),
-                                   discharge=RcTable(**cf.rc_columns("discharge")),
-                                   method="curve",
-                                   notes=inputs.notes + (bv.notes if bv else ()) + cf.notes,
-                                   **common)
+        flags = curve_fit_flags(cf, float(relax.max()) if relax.size else None)
+        raw["flags"]["curve"] = flags
+        model = EcmModel(charge=RcTable(**cf.rc_columns("charge")),
+                         discharge=RcTable(**cf.rc_columns("discharge")), method="curve",
+                         **common)
+        copied = set() if len(cf.directions) > 1 else \
+            {"charge", "discharge"} - set(cf.directions)
+        extra = tuple(flag_notes(flags)) + tuple(model_span_notes(model, copied))
+        models["curve"] = replace(model, notes=inputs.notes + (bv.notes if bv else ()) +
+                                  cf.notes + extra)
         raw["curve_fit"] = cf
     return models, raw
 
@@ -249,9 +284,12 @@ def temperature_label(t: float) -> str:
 
 def pulse_test_config(cfg: BuildConfig, test: PulseTest) -> BuildConfig:
     """The one-test config of a [[data.pulse_tests]] entry: what prepare and fit_models
-    read (``pulse_tests`` then holds that one test, e.g. for its ``steps`` file)."""
+    read (``pulse_tests`` then holds that one test, e.g. for its ``steps`` file). The
+    test's OCV sources are data.ocv's unless the entry names its own ``ocv``."""
+    own = test.ocv != cfg.ocv
+    sources = (("pulses",) if test.ocv is None else (test.ocv,)) if own else cfg.ocv_sources
     return replace(cfg, pulses=test.file, pulses_soc0=test.soc0, ocv=test.ocv,
-                   pulse_tests=(test,))
+                   ocv_sources=sources, pulse_tests=(test,))
 
 
 def pulses_temperature_c(inputs: Inputs) -> float | None:
@@ -280,10 +318,11 @@ def fit_pulse_test(cfg: BuildConfig, k: int, plots: bool = False,
             raise InputError(test.file, exc.message) from None
         raise
     if plots:
-        from .plots import fit_pngs
+        from .plots import fit_pngs, ocv_png
 
         t1 = time.perf_counter()
         fit.pngs = fit_pngs(fit.raw, f"-{fit.label}")
+        fit.pngs[f"ocv-{fit.label}.png"] = ocv_png(fit.inputs)
         fit.timings["plots"] = time.perf_counter() - t1
     fit.seconds = time.perf_counter() - t0
     return fit
@@ -436,6 +475,21 @@ def _cycles(cfg: BuildConfig) -> list[tuple[Path, str, str]]:
     return list(zip(paths, roles, short_names(paths))) if paths else []
 
 
+def _copied(notes: list[str]) -> set[str]:
+    """Directions whose table _rc_tables copied from the other."""
+    return {d for d in ("charge", "discharge") for n in notes if f"the {d} parameters are" in n}
+
+
+def _relax_words(relax: np.ndarray, relax_s: float) -> str:
+    """The relaxation the whole-curve fit actually uses, for the progress line."""
+    if relax.size == 0:
+        return "no relaxation"
+    lo, med, hi = float(relax.min()), float(np.median(relax)), float(relax.max())
+    return (f"{lo:.0f}..{hi:.0f} s of relaxation each (median {med:.0f} s; "
+            f"fit.relax_s = {relax_s:g} s)" if hi - lo > 1 else
+            f"{med:.0f} s of relaxation each (fit.relax_s = {relax_s:g} s)")
+
+
 def validate_all(cfg: BuildConfig, models: dict[str, EcmModel], progress: Progress = _quiet,
                  *, workers: Workers | None = None, plot_best: str | None = None):
     """Each model on the config's validation cycle(s); ``soc0`` applies to every cycle.
@@ -497,6 +551,8 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
         validated = validate_all(cfg, models, progress, workers=pool,
                                  plot_best=cfg.best if plots else None)
         result.validations, cycle_pngs = validated if plots else (validated, {})
+        result.fit_flags = raw.get("flags", {})
+        _usage(result)
         lap("validate" + (" + plots" if plots else ""))
 
         with _staged(out_dir, given) as (staging, files):
@@ -513,10 +569,10 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
                 result.c_report = _write_c(cfg, result, staging, progress)
                 lap("c")
             if plots:
-                from .plots import fit_pngs
+                from .plots import fit_pngs, ocv_png
 
                 progress("writing plots")
-                pngs = dict(fit_pngs(raw)) if not tests else {}
+                pngs = dict(fit_pngs(raw), **{"ocv.png": ocv_png(inputs)}) if not tests else {}
                 for t in tests:
                     pngs.update(t.pngs)
                 for m, task in param_tasks.items():
@@ -534,6 +590,24 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
     result.files = files
     result.out_dir = out_dir
     return result
+
+
+def _usage(result: BuildResult) -> None:
+    """Fit flags, and the SOC each validation ran through against the measured spans."""
+    from .model.spans import usage, usage_notes
+
+    report = result.inputs.ocv_report
+    ocv_span = None
+    if report is not None and report.curves:
+        ocv_span = (min(c.span[0] for c in report.curves), max(c.span[1] for c in report.curves))
+    for m, vals in result.validations.items():
+        result.usage[m] = {}
+        for name, v in vals.items():
+            use = usage(result.models[m], v, ocv_span)
+            result.usage[m][name] = use
+            if m == result.best:
+                result.notes.extend(v.warnings)
+                result.notes.extend(usage_notes(result.models[m], name, use, ocv_span))
 
 
 def _write_c(cfg: BuildConfig, result: BuildResult, staging: Path, progress: Progress):
@@ -611,7 +685,8 @@ def _only_method(cfg: BuildConfig, method: str) -> BuildConfig:
 
 def _given(cfg: BuildConfig) -> set[Path]:
     """Every file the config names (outputs must never replace one)."""
-    files = [cfg.path, cfg.pulses, cfg.dcir, cfg.ocv, cfg.cycle, *cfg.extra_cycles]
+    files = [cfg.path, cfg.pulses, cfg.dcir, cfg.ocv, cfg.cycle, *cfg.extra_cycles,
+             *(p for p in cfg.ocv_sources if p != "pulses")]
     for t in cfg.pulse_tests:
         files += [t.file, t.steps, t.ocv]
     return {p.resolve() for p in files if p is not None}

@@ -181,6 +181,49 @@ def plot_parameters(model, path, temperatures_c=None, derived_c=(), title: str =
     return path
 
 
+def plot_ocv(inputs, path: Path) -> Path:
+    """The chosen OCV, what each source was made of (low-rate branches, table points)
+    and the pulse test's rested voltages; below, their difference from the OCV."""
+    plt = _plt()
+    report = inputs.ocv_report
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(9, 7), sharex=True,
+                                 gridspec_kw={"height_ratios": [3, 1]})
+    ocv = inputs.ocv
+    colour = 1
+    for c in report.curves if report is not None else ():
+        for label, soc, v in c.raw:
+            if label == "rests":
+                continue
+            style = dict(ms=6, marker="s", ls="none") if np.size(soc) < 3 else dict(lw=0.8)
+            a1.plot(soc * 100, v, color=f"C{colour}", alpha=0.8, label=f"{c.name}: {label}",
+                    **style)
+            a2.plot(soc * 100, (v - ocv.ocv_at(soc)) * 1e3, color=f"C{colour}",
+                    **(dict(lw=0.6) if np.size(soc) >= 3 else style))
+            colour += 1
+    if report is not None and report.rests_soc is not None:
+        a1.plot(report.rests_soc * 100, report.rests_v, "k.", ms=4,
+                label="rested voltages of the pulse test")
+        a2.plot(report.rests_soc * 100, (report.rests_v - ocv.ocv_at(report.rests_soc)) * 1e3,
+                "k.", ms=4)
+    a1.plot(ocv.soc * 100, ocv.ocv_v, "C0", lw=1.6, label="OCV (model)")
+    title = "OCV: " + " + ".join(report.sources) if report is not None else "OCV"
+    if report is not None and report.check is not None:
+        title += f"  (vs pulse rests: {report.check.rms_v * 1e3:.1f} mV RMS)"
+    a1.set_title(title, fontsize=10)
+    a1.set_ylabel("voltage [V]")
+    a1.grid(alpha=0.3)
+    a1.legend(fontsize=7, loc="lower right")
+    a2.axhline(0.0, color="C0", lw=1)
+    a2.set_ylabel("minus OCV [mV]")
+    a2.set_xlabel("SOC [%]")
+    a2.set_ylim(-60, 60)
+    a2.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
 RC_NAMES = ("r0_ohm", "r_fast_ohm", "tau_fast_s", "r_slow_ohm", "tau_slow_s")
 
 
@@ -202,6 +245,11 @@ def fit_pngs(raw: dict, suffix: str = "", progress=None) -> dict[str, bytes]:
     if raw.get("curve_fit") is not None:
         out[f"curve-fit{suffix}.png"] = _png(plot_curve_fits, raw["curve_fit"])
     return out
+
+
+def ocv_png(inputs, progress=None) -> bytes:
+    """ocv.png: the OCV of a build, its sources and the pulse test's rests."""
+    return _png(plot_ocv, inputs)
 
 
 def parameters_png(model, measured_c=None, progress=None) -> bytes:

@@ -76,10 +76,12 @@ def build_json(result) -> dict:
         entry["soc_above_10"] = first.soc_above_10.as_dict()
         entry["soc0"] = first.soc0
         entry["cycles"] = {}
+        usage = getattr(result, "usage", {}).get(method, {})
         for name, v in vals.items():
             tr = _t_range(v)
             entry["cycles"][name] = dict(
-                v.overall.as_dict(), soc0=v.soc0,
+                v.overall.as_dict(), soc0=v.soc0, soc0_how=v.soc0_how,
+                warnings=list(v.warnings), **usage.get(name, {}),
                 temperature_c=None if tr is None else {"min": tr[0], "max": tr[1]})
         validation[method] = entry
     doc = {
@@ -87,7 +89,8 @@ def build_json(result) -> dict:
         "best": result.best,
         "models": {m: str(out_dir / f"model-{m}.json") for m in result.models} if out_dir else {},
         "validation": validation,
-        "notes": list(result.models[result.best].notes),
+        "notes": list(result.models[result.best].notes) + list(getattr(result, "notes", [])),
+        "checks": checks_json(result),
     }
     if result.tests:
         best = result.models[result.best]
@@ -100,6 +103,25 @@ def build_json(result) -> dict:
         }
     if result.c_report is not None:
         doc["c"] = result.c_report
+    return doc
+
+
+def checks_json(result) -> dict:
+    """What the build could not measure or found suspect: the OCV's sources, spans and
+    cross-check, the fit flags (time constants on a bound or beyond the data, levels
+    left out) and the SOC span of each model's RC tables."""
+    from .model.spans import table_spans
+
+    report = result.inputs.ocv_report
+    doc = {
+        "ocv": report.as_dict() if report is not None else None,
+        "fit_flags": {m: [f.as_dict() for f in flags]
+                      for m, flags in getattr(result, "fit_flags", {}).items()},
+        "soc_spans": {m: table_spans(model) for m, model in result.models.items()},
+    }
+    if getattr(result, "tests", None):        # [[data.pulse_tests]]: each test's OCV
+        doc["ocv_per_test"] = {t.label: t.inputs.ocv_report.as_dict()
+                               for t in result.tests if t.inputs.ocv_report is not None}
     return doc
 
 
@@ -121,7 +143,8 @@ def write_build_report(cfg, result, out_dir: Path) -> Path:
         lines += ["Each cycle is simulated on its own measured cell temperature; "
                   "`cell degC` is its range.", ""]
     lines += ["```", validation_table(result), "```", "", "## Notes", ""]
-    lines += [f"- {n}" for n in best.notes] or ["- none"]
+    notes = list(best.notes) + list(getattr(result, "notes", []))
+    lines += [f"- {n}" for n in notes] or ["- none"]
     lines += ["", "## Inputs", ""]
     lines += [f"- {r.role}: `{r.name}` sha256 {r.sha256[:16]}…" for r in best.inputs]
     lines += ["", f"model.json sha256: {best.sha256()}", ""]

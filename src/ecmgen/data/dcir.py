@@ -246,12 +246,20 @@ def flag_cut_short(series: TimeSeries, pulses: list[Pulse], *, rel_duration: flo
 
 
 def relaxation_s(series: TimeSeries, pulses, relax_s: float = np.inf) -> np.ndarray:
-    """The rest each pulse is followed by before the next current (0 for a pulse running
-    straight into another current), at most ``relax_s``: the relaxation a test really
-    has to fit slow time constants on."""
+    """The rest each pulse is followed by before the next current or a stretch the file
+    leaves out (0 for a pulse running straight into another current), at most
+    ``relax_s``: the relaxation a test really has to fit slow time constants on."""
+    from .steps import pulse_test_gaps
+
     t = series.time_s
-    return np.array([min(float(t[p.next_start - 1] - t[p.stop - 1]), relax_s)
-                     for p in pulses])
+    gaps = pulse_test_gaps(series)             # unlogged stretches end a rest too
+    out = []
+    for p in pulses:
+        end = p.next_start - 1
+        g = gaps[(gaps >= p.stop - 1) & (gaps < end)]
+        end = int(g[0]) if g.size else end
+        out.append(min(float(t[end] - t[p.stop - 1]), relax_s))
+    return np.array(out)
 
 
 def extract_dcir(series: TimeSeries, pulses: list[Pulse],

@@ -38,6 +38,14 @@ def nca_like_ocv(soc: np.ndarray, shift: float = 0.0) -> np.ndarray:
             + 0.06 * s ** 6)
 
 
+def lfp_like_ocv(soc: np.ndarray, shift: float = 0.0) -> np.ndarray:
+    """An LFP-like OCV curve (2.75 .. 3.55 V): steep knees below 5 % and above 97 % SOC,
+    two flat plateaus (about 0.6 mV per % SOC) with a 50 mV step near 60 %."""
+    s = np.asarray(soc, dtype=np.float64)
+    return (3.22 + shift + 0.06 * s + 0.025 * np.tanh((s - 0.6) / 0.03)
+            - 0.45 * np.exp(-s / 0.025) + 0.25 * np.exp(-(1.0 - s) / 0.02))
+
+
 @dataclass(frozen=True)
 class SyntheticCell:
     """A hidden cell model plus how it is measured.
@@ -98,11 +106,12 @@ class SyntheticCell:
     # -- records -----------------------------------------------------------------------------
     def pulse_test(self, levels=(0.95, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2, 0.1),
                    c_rates_discharge=(0.5, 1.0, 2.0, 4.0), c_rates_charge=(0.5, 1.0, 2.0),
-                   pulse_s: float = 10.0, rest_s: float = 600.0, seed: int | None = None
-                   ) -> TimeSeries:
-        """Discharge and charge pulses at each SOC level (true SOC), starting full and
-        rested; the SOC moves between levels by C/2 discharges followed by 30 min rests.
-        0.1 s sampling in pulses and the first 30 s after them, 2 s in rests."""
+                   pulse_s: float = 10.0, rest_s: float = 600.0, seed: int | None = None,
+                   soc_start: float = 1.0) -> TimeSeries:
+        """Discharge and charge pulses at each SOC level (true SOC) below ``soc_start``,
+        starting rested at ``soc_start`` (default full); the SOC moves between levels by
+        C/2 discharges followed by 30 min rests. 0.1 s sampling in pulses and the first
+        30 s after them, 2 s in rests."""
         rng = np.random.default_rng(self.seed + 11 if seed is None else seed)
         q = self.true_capacity_ah
         qn = self.capacity_ah
@@ -117,8 +126,8 @@ class SyntheticCell:
             now[0] += n * dt
 
         seg(1800.0, 0.0, 10.0)
-        soc = 1.0
-        for level in levels:
+        soc = soc_start
+        for level in (x for x in levels if x <= soc_start + 1e-9):
             move = soc - level
             if move > 0:
                 seg(move * q * 3600.0 / (0.5 * qn), -0.5 * qn, 5.0)
@@ -132,7 +141,7 @@ class SyntheticCell:
                     soc += sign * c * qn * pulse_s / 3600.0 / q
         t = np.concatenate(ts)
         i = np.concatenate(cur)
-        return self._measure(t, i, 1.0, rng, "pulses")
+        return self._measure(t, i, soc_start, rng, "pulses")
 
     def ocv_test(self, c_rate: float = 0.05, dt: float = 10.0, seed: int | None = None
                  ) -> TimeSeries:
@@ -323,11 +332,14 @@ def _fit_pulse(dt: np.ndarray, i: np.ndarray, target: np.ndarray):
     return params, math.sqrt(float(np.mean(res ** 2))), bool(sol.status > 0)
 
 
-def random_base(rng: np.random.Generator, capacity_ah: float | None = None) -> EcmModel:
-    """A random, plausible NCA-like 2RC model (no effects)."""
+def random_base(rng: np.random.Generator, capacity_ah: float | None = None,
+                chemistry: str = "nca") -> EcmModel:
+    """A random, plausible 2RC model (no effects), with an NCA-like or (``chemistry`` =
+    "lfp") an LFP-like OCV."""
     q = float(rng.uniform(2.4, 3.4)) if capacity_ah is None else capacity_ah
     soc = np.linspace(0.0, 1.0, 11)
-    ocv = OcvTable(SOC_GRID.copy(), nca_like_ocv(SOC_GRID, float(rng.uniform(-0.05, 0.05))))
+    shape = {"nca": nca_like_ocv, "lfp": lfp_like_ocv}[chemistry]
+    ocv = OcvTable(SOC_GRID.copy(), shape(SOC_GRID, float(rng.uniform(-0.05, 0.05))))
     scale = 2.9 / q
     r0 = scale * rng.uniform(0.015, 0.025) * (1 + 0.6 * (1 - soc) ** 3)
     rf = scale * rng.uniform(0.006, 0.012) * (1 + 0.5 * (1 - soc) ** 2)
@@ -369,9 +381,16 @@ def random_effect(name: str, base: EcmModel, rng: np.random.Generator, ambient_c
     raise ValueError(f"unknown effect {name!r}")
 
 
-def random_cell(seed: int, effect: str | None = None, **kw) -> SyntheticCell:
-    """A random cell with at most one hidden effect (``effect`` = its name or None)."""
+def random_cell(seed: int, effect: str | None = None, chemistry: str = "nca",
+                effect_options: dict | None = None, **kw) -> SyntheticCell:
+    """A random cell with at most one hidden effect (``effect`` = its name or None);
+    ``effect_options`` replace fields of the drawn effect (e.g. the hysteresis's
+    ``initial_state``)."""
+    from dataclasses import replace
+
     rng = np.random.default_rng(seed)
-    base = random_base(rng)
+    base = random_base(rng, chemistry=chemistry)
     effects = () if effect is None else (random_effect(effect, base, rng),)
+    if effect_options:
+        effects = tuple(replace(e, **effect_options) for e in effects)
     return SyntheticCell(hidden=base.with_effects(effects), effect=effect, seed=seed, **kw)

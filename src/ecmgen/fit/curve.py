@@ -108,6 +108,8 @@ class CurveFit:
     n_rows: int
     notes: tuple[str, ...]
     windows: tuple = ()
+    tau_ranges: dict | None = None   # {"fast": (lo, hi), "slow": ..., "diff": ...}, s
+    rest_used_s: float | None = None  # the longest rest after a current change with rows
 
     def table(self, direction: str) -> DirectionFit:
         return self.charge if direction == "charge" else self.discharge
@@ -502,7 +504,8 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
                     float(taus["fast"]), float(taus["slow"]),
                     float(taus["diff"]) if diffusion else None, i0_a, rms,
                     int(prob.rows.size), tuple(notes),
-                    _windows(series, complete, rec, fitted))
+                    _windows(series, complete, rec, fitted), dict(ranges),
+                    float(rec.rest_used_s))
 
 
 def _identified(nodes, low, high):

@@ -22,6 +22,7 @@ defined in :mod:`ecmgen.model.effects`; without effects the step above is untouc
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -136,27 +137,37 @@ def simulate(model: EcmModel, time_s, current_a, soc0: float,
 
 
 def initial_soc(model: EcmModel, series: TimeSeries) -> float:
-    """SOC at the start of a record from the OCV of its first rested voltage."""
-    return rested_soc(model.ocv, model.capacity_ah, series,
-                      max(model.direction_deadband_a, model.capacity_ah / 100.0))
+    """SOC at the start of a record from its rested voltages
+    (:func:`ecmgen.data.soc.record_start_soc`)."""
+    return start_soc(model, series)[0]
 
 
-def rested_soc(ocv, capacity_ah: float, series: TimeSeries, rest_a: float | None = None
-               ) -> float:
-    """SOC at a record's first sample: the first sample whose |current| is at most
-    ``rest_a`` (default C/100) is taken as rested, its voltage inverted through the OCV,
-    and the charge passed before it subtracted."""
-    rest_a = capacity_ah / 100.0 if rest_a is None else rest_a
-    rested = np.flatnonzero(np.abs(series.current_a) <= rest_a)
-    if rested.size == 0:
-        raise InputError(series.source, "no rested sample to find the start SOC from; "
-                                        "give soc0")
-    k = int(rested[0])
-    temp = None if series.temperature_c is None else float(series.temperature_c[k])
-    soc_k = float(ocv.soc_at(series.voltage_v[k], temp) if temp is not None and
-                  getattr(ocv, "n_temperatures", 1) > 1 else ocv.soc_at(series.voltage_v[k]))
-    passed = float(np.sum(series.current_a[1:k + 1] * np.diff(series.time_s[:k + 1])))
-    return soc_k - passed / (3600.0 * capacity_ah)
+def start_soc(model: EcmModel, series: TimeSeries) -> tuple[float, str]:
+    """(start SOC, how it was found) of a record for ``model``; a model over temperature
+    uses its OCV at the record's first temperature."""
+    from ..data.soc import record_start_soc
+
+    temps = sample_temperatures(model, series.time_s.size, series.temperature_c,
+                                series.source)
+    ocv = model.ocv.at_temperature(None if temps is None or model.ocv.n_temperatures == 1
+                                   else float(temps[0]))
+    return record_start_soc(ocv, model.capacity_ah, series,
+                            max(model.direction_deadband_a, model.capacity_ah / 100.0))
+
+
+SOC_RANGE_TOLERANCE = 0.005   # simulated SOC this far outside [0, 1] is warned about
+
+
+def soc_range_warning(soc: np.ndarray, source: str = "") -> str | None:
+    """A warning when a simulated SOC leaves [0, 1] (where the OCV and the parameters
+    are held at their end values)."""
+    lo, hi = float(np.min(soc)), float(np.max(soc))
+    if lo >= -SOC_RANGE_TOLERANCE and hi <= 1.0 + SOC_RANGE_TOLERANCE:
+        return None
+    where = f"{source}: " if source else ""
+    return (f"{where}simulated SOC runs {lo:.3f}..{hi:.3f}, outside [0, 1]; the OCV and "
+            "the parameters are held at their end values there (check the start SOC, soc0, "
+            "and cell.capacity_ah) (warning)")
 
 
 @dataclass(frozen=True)
@@ -191,6 +202,8 @@ class Validation:
     sim: SimResult
     measured_v: np.ndarray
     temperature_c: np.ndarray | None = None   # the cell temperature simulated on, degC
+    soc0_how: str = ""               # how the start SOC was found ("given" if given)
+    warnings: tuple[str, ...] = ()   # e.g. the simulated SOC left [0, 1]
 
     @property
     def temperature_range_c(self) -> tuple[float, float] | None:
@@ -214,9 +227,13 @@ def validate(model: EcmModel, series: TimeSeries, soc0: float | None = None,
     temps = sample_temperatures(model, series.time_s.size, series.temperature_c,
                                 series.source)
     from_ocv = soc0 is None
+    how = "given"
     if from_ocv:
-        soc0 = initial_soc(model, series)
+        soc0, how = start_soc(model, series)
     sim = simulate(model, series.time_s, series.current_a, float(soc0), temps)
     err = sim.voltage_v - series.voltage_v
+    name = Path(series.source).name if series.source else ""
+    warn = soc_range_warning(sim.soc, name)
     return Validation(series.source, float(soc0), from_ocv, Metrics.of(err),
-                      Metrics.of(err[sim.soc > 0.10]), sim, series.voltage_v, temps)
+                      Metrics.of(err[sim.soc > 0.10]), sim, series.voltage_v, temps, how,
+                      (warn,) if warn else ())
