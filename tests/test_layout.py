@@ -28,7 +28,10 @@ LEVELS = [
     {"data": ("ecmgen.data",)},
     {"fit": ("ecmgen.fit",)},
     {"model": ("ecmgen.model",)},
-    {"c": ("ecmgen.c",), "diagnosis": ("ecmgen.diagnosis",), "estimate": ("ecmgen.estimate",)},
+    # the C generates the estimator of the estimate stage (ecmgen.c.estc: its noise model,
+    # compared with its float64 filter), so estimate sits below c
+    {"estimate": ("ecmgen.estimate",)},
+    {"c": ("ecmgen.c",), "diagnosis": ("ecmgen.diagnosis",)},
     {"plots": ("ecmgen.plots",), "report": ("ecmgen.report",)},
     {"pipeline": ("ecmgen.pipeline",)},
     {"cli": ("ecmgen.cli",)},

@@ -270,8 +270,13 @@ def cmd_codegen(args) -> int:
     from .model.model import load_model
 
     # the files are named <prefix>_ecm.* and ecmrt*.h, never a model.json
+    estimator = None
+    if args.estimator != "none":
+        from .config import EstimatorConfig
+
+        estimator = EstimatorConfig()
     files = generate_c(load_model(args.model), Path(args.out), prefix=args.prefix,
-                       numeric=args.numeric, dt_s=args.dt_s)
+                       numeric=args.numeric, dt_s=args.dt_s, estimator=estimator)
     if not args.quiet:
         for f in files:
             print(f)
@@ -389,6 +394,9 @@ def parser() -> argparse.ArgumentParser:
     c.add_argument("--prefix", default="ecm", help="C symbol prefix")
     c.add_argument("--numeric", choices=["float", "fixed"], default="float")
     c.add_argument("--dt-s", type=float, help="fixed step in s (default: variable dt)")
+    c.add_argument("--estimator", choices=["none", "ekf"], default="none",
+                   help="also generate the SOC filter <prefix>_est_init/_est_step (float, "
+                        "variable dt; the [estimator] defaults)")
     c.add_argument("-q", "--quiet", action="store_true", help="do not list the files written")
     c.set_defaults(func=cmd_codegen)
 

@@ -61,6 +61,8 @@
              Butler-Volmer fast branch; default true with [[data.pulse_tests]], false with
              data.pulses: measured, they pay off in the cold, not at 25 degC alone)
     [c]      prefix = "ecm"   numeric = ["float", "fixed"]   dt_s = 0.1
+             estimator = "none" | "ekf"   (the SOC filter next to the float step:
+             <prefix>_est_init / <prefix>_est_step, settings from [estimator])
     [estimator]   filter = "ekf"   current_offset_a = 0.029   current_gain_error = 0.01
              voltage_noise_v = 0.005 ... (see EstimatorConfig; every key optional)
 """
@@ -124,6 +126,7 @@ class EstimatorConfig:
 
 
 ESTIMATOR_FILTERS = ("ekf", "ukf")
+C_ESTIMATORS = ("none", "ekf")      # [c] estimator: the filter generated into the float C
 
 
 def estimator_config(table: dict, path: Path | None) -> EstimatorConfig:
@@ -182,6 +185,7 @@ class BuildConfig:
     c_prefix: str = "ecm"
     c_numeric: tuple[str, ...] = ("float", "fixed")
     c_dt_s: float | None = None
+    c_estimator: str | None = None     # [c] estimator = "ekf": the SOC filter in the float C
     curve_branches: bool = False       # [fit]: curve fit with diffusion pair + Butler-Volmer
     temperature_step_c: float = 5.0    # [model]: 0 = the measured breakpoints as they are
     warm_row_c: float | None = 45.0    # [model]: derived warm row (None: none)
@@ -430,6 +434,16 @@ def load_config(path: str | Path) -> BuildConfig:
     prefix = c.get("prefix", "ecm")
     if not isinstance(prefix, str) or not prefix.isidentifier():
         raise InputError(path, f"c.prefix must be a C identifier, got {prefix!r}")
+    c_estimator = c.get("estimator", "none")
+    if c_estimator not in C_ESTIMATORS:
+        raise InputError(path, f"c.estimator must be one of {', '.join(map(repr, C_ESTIMATORS))}, "
+                               f"got {c_estimator!r}")
+    if c_estimator != "none":
+        if "float" not in numeric:
+            raise InputError(path, "c.estimator needs c.numeric \"float\": the C estimator "
+                                   "is float32 only")
+        if c.get("dt_s") is not None:
+            raise InputError(path, "c.estimator needs the variable-dt step: leave c.dt_s unset")
 
     step = _number(model_t, "temperature_step_c", path, "model", 5.0)
     if not 0.0 <= step <= 50.0:
@@ -464,6 +478,7 @@ def load_config(path: str | Path) -> BuildConfig:
         best=best, ocv_sources=tuple(sources), ocv_cycle=ocv_cycle,
         c_prefix=prefix, c_numeric=tuple(numeric),
         c_dt_s=_number(c, "dt_s", path, "c", None),
+        c_estimator=None if c_estimator == "none" else c_estimator,
         curve_branches=branches,
         temperature_step_c=step, warm_row_c=None if warm is False else warm,
         estimator=estimator_config(raw.get("estimator", {}), path),

@@ -257,29 +257,48 @@ def _load(name: str, path: Path):
     return mod
 
 
-def write_sources(spec: CSpec, out_dir: Path, harness: bool = True) -> list[Path]:
+def _harness_texts(spec: CSpec, estimator=None) -> tuple[str, str]:
+    """(ecmh_harness.h, ecmh_harness.c), with the estimator's trace when there is one."""
+    header, source = harness_header(spec), harness_source(spec)
+    if estimator is not None:
+        from . import estc
+
+        header = header.replace("#endif\n", estc.harness_decls(spec, estimator) + "#endif\n")
+        source += estc.harness_source(spec, estimator)
+    return header, source
+
+
+def write_sources(spec: CSpec, out_dir: Path, harness: bool = True,
+                  estimator=None) -> list[Path]:
     """Generated files (+ harness.c) into out_dir; returns the .c files."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    for name, text in render(spec).items():
+    for name, text in render(spec, None, estimator).items():
         (out_dir / name).write_text(text)
     srcs = [out_dir / file_names(spec.prefix, spec.numeric)["source"]]
     if harness:
-        (out_dir / "ecmh_harness.h").write_text(harness_header(spec))
-        (out_dir / "ecmh_harness.c").write_text(harness_source(spec))
+        header, source = _harness_texts(spec, estimator)
+        (out_dir / "ecmh_harness.h").write_text(header)
+        (out_dir / "ecmh_harness.c").write_text(source)
         srcs.append(out_dir / "ecmh_harness.c")
     return srcs
 
 
-def compile_spec(spec: CSpec, cache: Path | None = None, opt=HOST_OPT) -> "CModel":
-    """Compile (or fetch from the cache) the C of ``spec`` and return a :class:`CModel`."""
+def compile_spec(spec: CSpec, cache: Path | None = None, opt=HOST_OPT,
+                 estimator=None) -> "CModel":
+    """Compile (or fetch from the cache) the C of ``spec`` (with the SOC filter of
+    ``estimator``, an ecmgen.c.estc.EstSpec) and return a :class:`CModel`."""
     import cffi
 
     cache = Path(cache) if cache is not None else cache_dir()
     cache.mkdir(parents=True, exist_ok=True)
     cc = host_cc()
-    files = render(spec)
-    harness = harness_header(spec) + harness_source(spec)
+    files = render(spec, None, estimator)
+    harness = "".join(_harness_texts(spec, estimator))
     cdef = _cdef(spec)
+    if estimator is not None:
+        from . import estc
+
+        cdef += "\n" + estc.cdef(spec, estimator)
     flags = [*STRICT_CFLAGS, *opt, "-fPIC"]
     h = hashlib.sha256()
     for part in [*(f"{k}\0{v}" for k, v in sorted(files.items())), harness, cdef, " ".join(flags),
@@ -294,7 +313,7 @@ def compile_spec(spec: CSpec, cache: Path | None = None, opt=HOST_OPT) -> "CMode
         build = Path(tempfile.mkdtemp(prefix=f".{name}.", dir=cache))
         try:
             objs = []
-            for src in write_sources(spec, build):
+            for src in write_sources(spec, build, estimator=estimator):
                 obj = src.with_suffix(".o")
                 run_cc([*cc, *flags, "-I", str(build), "-c", str(src), "-o", str(obj)])
                 objs.append(str(obj))
@@ -311,7 +330,7 @@ def compile_spec(spec: CSpec, cache: Path | None = None, opt=HOST_OPT) -> "CMode
             shutil.rmtree(build, ignore_errors=True)
         _prune(cache)
     mod = _load(name, so)
-    return CModel(spec, mod.ffi, mod.lib, so)
+    return CModel(spec, mod.ffi, mod.lib, so, estimator)
 
 
 @dataclass
@@ -324,6 +343,7 @@ class CModel:
     ffi: object
     lib: object
     path: Path
+    estimator: object = None       # the EstSpec of the SOC filter compiled with it, or None
 
     @property
     def _t(self):

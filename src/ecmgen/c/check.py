@@ -30,15 +30,26 @@ def build_c_outputs(cfg, result, out_dir, progress=lambda msg: None) -> dict:
     specs = {n: prepare(model, numeric=n, dt_s=dt_s, prefix=prefix) for n in numerics}  # checks first
     vals = (getattr(result, "validations", None) or {}).get(result.best) or {}
     val = next(iter(vals.values()), None)
+    est_cfg = cfg.estimator if getattr(cfg, "c_estimator", None) else None
+    est = None
+    if est_cfg is not None and "float" in specs:
+        from .estc import prepare_estimator
+
+        est = prepare_estimator(model, specs["float"], est_cfg)           # checks first
     eq: dict = {}
+    est_eq: dict | None = None
     if val is not None:
         progress(f"checking the C against Python on {Path(val.source).name or 'the cycle'}")
         series = TimeSeries(val.sim.time_s, val.sim.current_a, val.measured_v,
                             getattr(val, "temperature_c", None), source=val.source)
         try:
             eq = c_equivalence(model, series, val.soc0, dt_s=dt_s, prefix=prefix, numerics=numerics)
+            if est is not None:
+                progress("checking the C estimator against its references")
+                est_eq = _estimator_block(model, specs["float"], est, series, val.soc0)
         except CBuildError as exc:
             eq = {n: {"skipped": str(exc).strip().splitlines()[0]} for n in numerics}
+            est_eq = None if est is None else {"skipped": eq["float"]["skipped"]}
         for r in eq.values():
             r["cycle"] = Path(val.source).name
     out_dir = Path(out_dir)
@@ -46,9 +57,26 @@ def build_c_outputs(cfg, result, out_dir, progress=lambda msg: None) -> dict:
     for n in numerics:
         progress(f"writing {n} C ({prefix}_ecm.c)")
         files = generate_c(model, out_dir / "c" / n, prefix=prefix, numeric=n, dt_s=dt_s,
-                           equivalence={n: eq[n]} if n in eq else None)
+                           equivalence={n: eq[n]} if n in eq else None,
+                           estimator=est_cfg if n == "float" else None)
         entry = dict(eq.get(n, {"skipped": "no validation cycle to compare on"}))
+        if est is not None and n == "float":
+            entry["estimator"] = est_eq or {"skipped": "no validation cycle to compare on"}
         entry.update({"dir": f"c/{n}", "files": [p.relative_to(out_dir).as_posix() for p in files],
                       "table_bytes": describe(specs[n])["table_bytes"]})
         block[n] = entry
     return block
+
+
+def _estimator_block(model, spec, est, series, soc0: float) -> dict:
+    """The estimator's figures of ``--json``: the C filter over the validation cycle from
+    the true start SOC with the measured current, against its float32 reference (bit for
+    bit) and the float64 Python filter (largest SOC difference)."""
+    from .cbuild import compile_spec
+    from .estcheck import estimator_equivalence
+
+    cm = compile_spec(spec, estimator=est)
+    out = estimator_equivalence(model, cm, series.time_s, series.current_a, series.voltage_v,
+                                soc0, series.temperature_c)
+    out.update({"kind": est.kind, "states": list(est.names), "soc0": float(soc0)})
+    return out

@@ -366,16 +366,29 @@ def _equivalence_rows(eq: dict | None) -> list[dict]:
     return rows
 
 
-def render(spec: CSpec, equivalence: dict | None = None) -> dict[str, str]:
+def render(spec: CSpec, equivalence: dict | None = None, estimator=None) -> dict[str, str]:
     """File name -> text of every file generate_c writes (runtime headers included).
-    ``equivalence``: the dict of cbuild.c_equivalence, tabulated in the report."""
+    ``equivalence``: the dict of cbuild.c_equivalence, tabulated in the report;
+    ``estimator``: an :class:`ecmgen.c.estc.EstSpec` (the SOC filter next to the step)."""
     env = _env()
     ctx = _context(spec)
     ctx["equivalence"] = _equivalence_rows(equivalence)
     names = file_names(spec.prefix, spec.numeric)
+    if estimator is not None:
+        from .estc import est_file_names
+
+        est_names = est_file_names(spec.prefix)
+        names["est_header"] = est_names["est_header"]
+        names["runtime"] = names["runtime"] + [est_names["est_runtime"]]
     ctx["files"] = names
     out = {names["header"]: env.get_template("ecm.h.j2").render(ctx),
            names["source"]: env.get_template("ecm.c.j2").render(ctx)}
+    if estimator is not None:
+        from .estc import render_estimator
+
+        code, header = render_estimator(env, ctx, estimator, c_float)
+        out[names["source"]] += code
+        out[names["est_header"]] = header
     rdir = runtime_dir()
     for name in names["runtime"]:
         out[name] = (rdir / name).read_text()
@@ -401,17 +414,24 @@ def describe(spec: CSpec) -> dict:
 
 def generate_c(model, out_dir, prefix: str = "ecm", numeric: str = "float",
                dt_s: float | None = None, i_max_a: float | None = None,
-               equivalence: dict | None = None) -> list[Path]:
+               equivalence: dict | None = None, estimator=None) -> list[Path]:
     """Write ``<prefix>_ecm.h``, ``<prefix>_ecm.c``, the runtime headers, a make include
     listing them and a short report into ``out_dir``; return the paths written.
 
     ``model`` is an EcmModel or a model.json path; ``dt_s`` None gives the variable-dt step,
     a number the fixed-dt one; ``i_max_a`` sets the current range (default 32 C, rounded up
     to a power of two); ``equivalence`` (the dict of cbuild.c_equivalence) is tabulated in
-    the report. Everything is checked and rendered in memory first: a bad model or option
+    the report; ``estimator`` (an EstimatorConfig) adds the SOC filter (``<prefix>_est.h``,
+    ``<prefix>_est_init`` / ``<prefix>_est_step`` in ``<prefix>_ecm.c``, ecmgen.c.estc).
+    Everything is checked and rendered in memory first: a bad model or option
     raises InputError before any file is written."""
     spec = prepare(model, numeric=numeric, dt_s=dt_s, prefix=prefix, i_max_a=i_max_a)
-    files = render(spec, equivalence)
+    est = None
+    if estimator is not None:
+        from .estc import prepare_estimator
+
+        est = prepare_estimator(_as_model(model), spec, estimator)
+    files = render(spec, equivalence, est)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []

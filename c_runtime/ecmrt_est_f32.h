@@ -1,0 +1,405 @@
+/*
+ * ecmrt_est_f32.h - ecmgen C runtime: the extended Kalman filter (SOC estimator) on the
+ * model's own float32 step (hand-written, model-independent).
+ *
+ * Included by a generated <prefix>_ecm.c built with `[c] estimator = "ekf"`, after
+ * ecmrt_f32.h (whose configuration it reuses), with ECMRT_EST_T defined as the estimator's
+ * state type (<prefix>_est_t of <prefix>_est.h: the model's state `m`, the covariance
+ * `p[ECMRT_EST_N * ECMRT_EST_N]` and `first`). The generated <prefix>_est_step() calls
+ *     ecmrt_est_f32_prior()   sanitise i and dt as the step does, keep the RC voltages;
+ *     <prefix>_step()         the model's own step: the predicted state and voltage;
+ *     ecmrt_est_f32_update()  Jacobians, covariance prediction, measurement update.
+ * The filter is the one of src/ecmgen/estimate/ekf.py (states soc, u_fast, u_slow and,
+ * with ECMRT_DIFF, u_diff), operation for operation mirrored in float32 by
+ * src/ecmgen/c/estref.py (bit-identical results, checked through cffi and under QEMU):
+ *
+ *   F = d step / d x at the state before the step (a_j = 1 - c_j on the diagonal, the SOC
+ *       column through the tables' SOC slopes at the new SOC), P = F P F^T + Q;
+ *   H = [dOCV/dsoc + dr0/dsoc i, 1, 1 (, 1)], R from the model error and its correlation
+ *       time (R = 0: the sample carries no information, e.g. dt = 0 after the first);
+ *   K = P H^T / (H P H^T + R), iterated (relinearised at the updated SOC, at most 5 times)
+ *       while the update moves the SOC by more than 1e-3; Joseph form
+ *       P = (I - K H) P (I - K H)^T + R K K^T, then exactly symmetric; SOC to [0, 1].
+ *
+ * Noise constants (ecmrt_est_f32_noise_t) come from the [estimator] settings, baked into
+ * the generated .c. No effects (diagnose), no fixed dt, no offset state: the generator
+ * refuses those models and settings.
+ */
+#ifndef ECMRT_EST_F32_H
+#define ECMRT_EST_F32_H
+
+#if !defined(ECMRT_F32_H) || !defined(ECMRT_EST_T)
+#error "ecmrt_est_f32.h is included by a generated <prefix>_ecm.c after ecmrt_f32.h"
+#endif
+#if !ECMRT_VARIABLE_DT || ECMRT_FX_HYST || ECMRT_FX_XRC || ECMRT_FX_CDR || ECMRT_FX_ARR
+#error "the estimator needs the variable-dt step of a model without effects"
+#endif
+
+#define ECMRT_EST_N (3u + (unsigned)ECMRT_DIFF)       /* soc, u_fast, u_slow (, u_diff) */
+#define ECMRT_EST_ITER 5                              /* relinearisations at most */
+#define ECMRT_EST_ITER_SOC 1.0e-3f                    /* ... when the update moves the SOC more */
+#define ECMRT_EST_ITER_TOL 1.0e-5f                    /* ... until an iteration moves it less */
+
+/* the filter's settings (ecmgen.estimate.ekf.NoiseModel), float32 */
+typedef struct {
+    float p0_soc;             /* initial SOC variance, soc0_sigma^2 */
+    float p0_u;               /* initial RC voltage variance, u0_sigma_v^2, V^2 */
+    float offset_a;           /* current sensor offset, 1 sigma, A */
+    float gain;               /* current sensor gain error, 1 sigma */
+    float noise_a;            /* white current noise per sample, A */
+    float horizon_s;          /* drift horizon of the sensor bias, s */
+    float pol;                /* polarization_error */
+    float vn2;                /* voltage_noise_v^2, V^2 */
+    float model_error;        /* model voltage error / model overpotential */
+    float corr_s;             /* error_correlation_s */
+} ecmrt_est_f32_noise_t;
+
+/* What the update needs from before the step. */
+typedef struct {
+    float u[ECMRT_EST_N];     /* u[0] unused; the RC voltages before the step */
+} ecmrt_est_f32_prior_t;
+
+/* The table accessor: the values and SOC slopes (d/dsoc) the Jacobians need, of direction
+ * dir at SOC soc, at the temperature of the model state's last step (its row k_t and weight
+ * w_t), by the runtime's own search and interpolation (ecmrt_f32_locate, the tables' pairs).
+ * A slope is that of the segment the SOC is in (the segment on the right at a breakpoint) and
+ * 0 outside the table (clamped), as ecmgen.estimate.process. The segment hints of the state
+ * are read, never written. all = 0: only r0 and the OCV. */
+typedef struct {
+    float r0, dr0, rf, drf, tf, dtf, rs, drs, ts, dts, ocv, docv;
+} ecmrt_est_f32_par_t;
+
+#if ECMRT_TEMP
+#define ECMRT_EST_VS(row, j, v, sl)                                                         \
+    do {                                                                                    \
+        const float a_ = (row)[j] + (row)[(j) + 1u] * w;                                    \
+        const float b_ = (row)[st + (j)] + (row)[st + (j) + 1u] * w;                        \
+        const float sa_ = (row)[(j) + 1u] * inv;                                            \
+        const float sb_ = (row)[st + (j) + 1u] * inv;                                       \
+        (v) = a_ + (b_ - a_) * wt;                                                          \
+        (sl) = sa_ + (sb_ - sa_) * wt;                                                      \
+    } while (0)
+#else
+#define ECMRT_EST_VS(row, j, v, sl)                                                         \
+    do {                                                                                    \
+        (v) = (row)[j] + (row)[(j) + 1u] * w;                                               \
+        (sl) = (row)[(j) + 1u] * inv;                                                       \
+    } while (0)
+#endif
+
+/* a per-temperature branch value (r_diff, tau_diff, i0) at the state's temperature */
+#if ECMRT_TEMP
+#define ECMRT_EST_TV(b, j) ((b)[j] + (b)[(j) + 1u] * wt)
+#else
+#define ECMRT_EST_TV(b, j) ((b)[j])
+#endif
+
+/* 1 / spacing of segment k of grid g, or 0 when v is outside [x[0], x[n-1]] (or NaN) */
+static inline float ecmrt_est_f32_inv(const ecmrt_f32_grid_t *g, unsigned k, float v)
+{
+    return (v >= g->x[0] && v <= g->x[(unsigned)g->n - 1u]) ? g->inv_dx[k] : 0.0f;
+}
+
+static inline void ecmrt_est_f32_params(const ecmrt_f32_model_t *m, const ECMRT_STATE *s,
+                                        unsigned dir, float soc, ecmrt_est_f32_par_t *p,
+                                        int all)
+{
+    const ecmrt_f32_dir_t *d = &m->dir[dir];
+    const float *row;
+    unsigned kd = s->k_dir[dir];
+    float w, inv;
+#if ECMRT_TEMP
+    unsigned kt = s->k_t, st;
+    const float wt = s->w_t;
+    if (kt > (unsigned)m->t.n - 2u) {
+        kt = (unsigned)m->t.n - 2u;
+    }
+    st = ECMRT_NPAR * (unsigned)d->g.n;
+    w = ecmrt_f32_locate(&d->g, soc, &kd);
+    row = d->rows + st * kt + ECMRT_NPAR * kd;
+#else
+    w = ecmrt_f32_locate(&d->g, soc, &kd);
+    row = d->rows + ECMRT_NPAR * kd;
+#endif
+    inv = ecmrt_est_f32_inv(&d->g, kd, soc);
+    ECMRT_EST_VS(row, ECMRT_P_R0, p->r0, p->dr0);
+    if (all) {
+        ECMRT_EST_VS(row, ECMRT_P_RF, p->rf, p->drf);
+        ECMRT_EST_VS(row, ECMRT_P_KF, p->tf, p->dtf);
+        ECMRT_EST_VS(row, ECMRT_P_RS, p->rs, p->drs);
+        ECMRT_EST_VS(row, ECMRT_P_KS, p->ts, p->dts);
+    }
+#if ECMRT_OCV_SHARED
+    ECMRT_EST_VS(row, ECMRT_P_OCV, p->ocv, p->docv);
+#else
+    {
+        unsigned ko = s->k_ocv;
+        w = ecmrt_f32_locate(&m->ocv_g, soc, &ko);
+        inv = ecmrt_est_f32_inv(&m->ocv_g, ko, soc);
+#if ECMRT_TEMP
+        st = 2u * (unsigned)m->ocv_g.n;
+        row = m->ocv + 2u * ((unsigned)m->ocv_g.n * kt + ko);
+#else
+        row = m->ocv + 2u * ko;
+#endif
+        ECMRT_EST_VS(row, 0u, p->ocv, p->docv);
+    }
+#endif
+}
+
+/* Before the model's step: i and dt sanitised exactly as the step does (so that the filter
+ * uses the step's own inputs; the step's sanitising is then a no-op), the RC voltages kept. */
+static inline void ecmrt_est_f32_prior(const ecmrt_f32_model_t *m, const ECMRT_STATE *s,
+                                       float *i, float *dt, ecmrt_est_f32_prior_t *pr)
+{
+    union {
+        uint32_t u;
+        float f;
+    } bits;
+    if (!(*i >= -m->i_max_a)) {
+        *i = (*i == *i) ? -m->i_max_a : 0.0f;
+    } else if (*i > m->i_max_a) {
+        *i = m->i_max_a;
+    }
+    bits.f = *dt;
+    if (bits.u - 1u >= 0x46FFFE00u) {
+        *dt = (*dt > 0.0f) ? ECMRT_F32_DT_MAX : 0.0f;
+    }
+    pr->u[0] = 0.0f;
+    pr->u[1] = s->u_fast;
+    pr->u[2] = s->u_slow;
+#if ECMRT_DIFF
+    pr->u[3] = s->u_diff;
+#endif
+}
+
+/* y . h, summed from the first entry on */
+static inline float ecmrt_est_f32_dot(const float *y, const float *h)
+{
+    unsigned b;
+    float sum = y[0] * h[0];
+    for (b = 1u; b < ECMRT_EST_N; b++) {
+        sum = sum + y[b] * h[b];
+    }
+    return sum;
+}
+
+/* gain: c = P h, K = c / (h c + R), x = x0 + K e; returns 0 when h P h^T + R is not > 0 */
+static inline int ecmrt_est_f32_gain(const float *P, const float *h, float r, const float *x0,
+                                     float e, float *c, float *k, float *x)
+{
+    unsigned a;
+    float sum;
+    for (a = 0u; a < ECMRT_EST_N; a++) {
+        c[a] = ecmrt_est_f32_dot(P + ECMRT_EST_N * a, h);
+    }
+    sum = ecmrt_est_f32_dot(h, c) + r;
+    if (!(sum > 0.0f) || sum > FLT_MAX) {
+        return 0;
+    }
+    for (a = 0u; a < ECMRT_EST_N; a++) {
+        k[a] = c[a] / sum;
+        x[a] = x0[a] + k[a] * e;
+    }
+    return 1;
+}
+
+/* the SOC into [0, 1] (NaN: 0) */
+static inline float ecmrt_est_f32_clamp(float soc)
+{
+    if (!(soc >= 0.0f)) {
+        return 0.0f;
+    }
+    return soc > 1.0f ? 1.0f : soc;
+}
+
+static inline float ecmrt_est_f32_abs(float x)
+{
+    return x < 0.0f ? -x : x;
+}
+
+/* After the model's step s (current i, dt as sanitised by ecmrt_est_f32_prior, predicted
+ * voltage vp): the covariance prediction and the update with the measured voltage vm
+ * (not finite: no update). P is the N x N covariance, row-major, exactly symmetric. */
+static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
+                                        const ecmrt_est_f32_noise_t *nz, ECMRT_STATE *s,
+                                        float *P, uint8_t *first,
+                                        const ecmrt_est_f32_prior_t *pr, float i, float dt,
+                                        float vp, float vm)
+{
+#define N ECMRT_EST_N
+    const unsigned dir = s->charging;
+    float a[N], f[N], q[N], h[N], x0[N], xu[N], xn[N], c[N], k[N], d[N], fp[N * N], mm[N * N];
+    const float ai = i < 0.0f ? -i : i;
+    float r, e, kk, b, one_a, da, rg, vi;
+    float gf = 1.0f;
+    ecmrt_est_f32_par_t p;
+    unsigned u, v;
+    int it, ok;
+#if ECMRT_BV || ECMRT_DIFF
+#if ECMRT_TEMP
+    unsigned kt = s->k_t;
+    const float wt = s->w_t;
+    const float *br;
+#else
+    const float *br = m->dir[dir].branch;
+#endif
+#endif
+#if ECMRT_BV
+    float xb;
+#endif
+#if ECMRT_DIFF
+    float rd, ad;
+#endif
+#if ECMRT_TEMP && (ECMRT_BV || ECMRT_DIFF)
+    if (kt > (unsigned)m->t.n - 2u) {
+        kt = (unsigned)m->t.n - 2u;
+    }
+    br = m->dir[dir].branch + 2u * ECMRT_NB * kt;
+#endif
+
+    /* 1. the Jacobian of the step, at the new SOC (where the step looked its tables up) */
+    x0[0] = s->soc;
+    x0[1] = s->u_fast;
+    x0[2] = s->u_slow;
+#if ECMRT_DIFF
+    x0[3] = s->u_diff;
+#endif
+    ecmrt_est_f32_params(m, s, dir, x0[0], &p, 1);
+#if ECMRT_BV
+    xb = ai / ECMRT_EST_TV(br, ECMRT_B_I0);           /* the step's factor asinh(x)/x */
+    gf = ecmrt_f32_asinh(&xb);
+    gf = gf / xb;
+#endif
+    a[0] = 1.0f;
+    f[0] = 0.0f;
+    q[0] = 0.0f;
+    /* fast and slow pairs: u' = a u + r g (1 - a) i, a = exp(-dt / tau(soc)) */
+    one_a = ecmrt_f32_one_minus_exp_neg(dt / p.tf);
+    a[1] = 1.0f - one_a;
+    da = ((a[1] * dt) / (p.tf * p.tf)) * p.dtf;
+    f[1] = da * pr->u[1] + ((p.drf * one_a - p.rf * da) * gf) * i;
+    rg = p.rf * gf;
+    e = (nz->pol * rg) * i;
+    q[1] = (e * e) * (1.0f - a[1] * a[1]);
+    one_a = ecmrt_f32_one_minus_exp_neg(dt / p.ts);
+    a[2] = 1.0f - one_a;
+    da = ((a[2] * dt) / (p.ts * p.ts)) * p.dts;
+    f[2] = da * pr->u[2] + (p.drs * one_a - p.rs * da) * i;
+    e = (nz->pol * p.rs) * i;
+    q[2] = (e * e) * (1.0f - a[2] * a[2]);
+#if ECMRT_DIFF
+    rd = ECMRT_EST_TV(br, ECMRT_B_RD);                /* r_diff, tau_diff: no SOC slope */
+    ad = 1.0f - ecmrt_f32_one_minus_exp_neg(dt / ECMRT_EST_TV(br, ECMRT_B_KD));
+    a[3] = ad;
+    f[3] = 0.0f;
+    e = (nz->pol * rd) * i;
+    q[3] = (e * e) * (1.0f - ad * ad);
+#endif
+    /* SOC: the sensor's bias over the drift horizon, and white current noise */
+    if (dt > 0.0f) {
+        kk = dt * m->k_soc;
+        b = nz->gain * ai + nz->offset_a;
+        e = b * kk;
+        r = nz->noise_a * kk;
+        q[0] = (e * e) * (nz->horizon_s / dt) + r * r;
+    } else {
+        for (u = 0u; u < N; u++) {
+            q[u] = 0.0f;
+        }
+    }
+    /* 2. P = F P F^T + Q (F: diagonal a, SOC column f) */
+    for (u = 0u; u < N; u++) {
+        for (v = 0u; v < N; v++) {
+            fp[N * u + v] = a[u] * P[N * u + v] + f[u] * P[v];
+        }
+    }
+    for (u = 0u; u < N; u++) {
+        for (v = u; v < N; v++) {
+            r = a[v] * fp[N * u + v] + f[v] * fp[N * u];
+            if (u == v) {
+                r = r + q[u];
+            }
+            P[N * u + v] = r;
+            P[N * v + u] = r;
+        }
+    }
+    /* 3. the measurement: h = dv/dx, R */
+    h[0] = p.docv + p.dr0 * i;
+    for (u = 1u; u < N; u++) {
+        h[u] = 1.0f;
+    }
+    e = nz->model_error * (vp - p.ocv);
+    r = nz->vn2 + e * e;
+    if (!*first && dt < nz->corr_s) {
+        r = dt > 0.0f ? r * (nz->corr_s / dt) : 0.0f;
+    }
+    *first = 0u;
+    if (!(vm == vm) || vm > FLT_MAX || vm < -FLT_MAX) {
+        r = 0.0f;                                     /* no measurement */
+    }
+    /* 4. the update, iterated while it moves the SOC */
+    if (r > 0.0f) {
+        ok = ecmrt_est_f32_gain(P, h, r, x0, vm - vp, c, k, xu);
+        for (it = 0; ok && it < ECMRT_EST_ITER; it++) {
+            xu[0] = ecmrt_est_f32_clamp(xu[0]);
+            if (ecmrt_est_f32_abs(xu[0] - x0[0]) < ECMRT_EST_ITER_SOC) {
+                break;
+            }
+            ecmrt_est_f32_params(m, s, dir, xu[0], &p, 0);
+            vi = ((p.ocv + p.r0 * i) + xu[1]) + xu[2];
+#if ECMRT_DIFF
+            vi = vi + xu[3];
+#endif
+            h[0] = p.docv + p.dr0 * i;
+            e = vm - vi;
+            for (u = 0u; u < N; u++) {
+                e = e - h[u] * (x0[u] - xu[u]);
+            }
+            ok = ecmrt_est_f32_gain(P, h, r, x0, e, c, k, xn);
+            if (ok) {
+                da = ecmrt_est_f32_abs(xn[0] - xu[0]);
+                for (u = 0u; u < N; u++) {
+                    xu[u] = xn[u];
+                }
+                if (da < ECMRT_EST_ITER_TOL) {
+                    break;
+                }
+            }
+        }
+        if (ok) {
+            /* Joseph form: M = P - K c^T, d = M h, P = M - d K^T + R K K^T, symmetrised */
+            for (u = 0u; u < N; u++) {
+                for (v = 0u; v < N; v++) {
+                    mm[N * u + v] = P[N * u + v] - k[u] * c[v];
+                }
+                d[u] = ecmrt_est_f32_dot(mm + N * u, h);
+            }
+            for (u = 0u; u < N; u++) {
+                for (v = 0u; v < N; v++) {
+                    fp[N * u + v] = (mm[N * u + v] - d[u] * k[v]) + r * (k[u] * k[v]);
+                }
+            }
+            for (u = 0u; u < N; u++) {
+                for (v = u; v < N; v++) {
+                    e = 0.5f * (fp[N * u + v] + fp[N * v + u]);
+                    P[N * u + v] = e;
+                    P[N * v + u] = e;
+                }
+            }
+            s->u_fast = xu[1];
+            s->u_slow = xu[2];
+#if ECMRT_DIFF
+            s->u_diff = xu[3];
+#endif
+            x0[0] = xu[0];
+        }
+    }
+    s->soc = ecmrt_est_f32_clamp(x0[0]);
+    s->soc_c = 0.0f;          /* the filter's SOC is its estimate, not a compensated sum */
+#undef N
+}
+
+#undef ECMRT_EST_VS
+#undef ECMRT_EST_TV
+#endif /* ECMRT_EST_F32_H */

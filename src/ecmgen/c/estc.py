@@ -1,0 +1,160 @@
+"""The SOC estimator in C (``[c] estimator = "ekf"``): its spec, its rendering next to the
+model's step, and its cffi harness.
+
+``<prefix>_est.h`` declares ``<prefix>_est_t`` (the model's state, the covariance, a
+first-sample flag) and ``<prefix>_est_init`` / ``<prefix>_est_step``; their bodies are
+appended to ``<prefix>_ecm.c`` (same translation unit as the model's ``static const``
+tables, so the filter's table accessor reads them and the model's step inlines), with the
+filter itself in the hand-written ``c_runtime/ecmrt_est_f32.h``. The filter is the extended
+Kalman filter of :mod:`ecmgen.estimate.ekf` (chosen over the sigma-point filter by
+measurement, issue 10), its noise settings (:class:`ecmgen.config.EstimatorConfig`) baked
+in as float32 constants.
+
+Float32 only, by decision: the covariance spans 0.09 (the start SOC's variance) down to
+~1e-9 (a settled SOC's, and the cross terms) and the Joseph update subtracts nearly equal
+numbers; a fixed-point covariance would need block floating point (see README, measured
+figures in bench/bench_estimator_c.py). The model step under it is the float32 step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..config import EstimatorConfig
+from ..errors import InputError
+from ..estimate.ekf import NoiseModel
+from .spec import CSpec, state_fields
+
+ESTIMATORS = ("ekf",)
+RUNTIME_FILE = "ecmrt_est_f32.h"
+# ecmrt_est_f32_noise_t, in order: field, comment
+NOISE_FIELDS = (("p0_soc", "initial SOC variance, soc0_sigma^2"),
+                ("p0_u", "initial RC voltage variance, u0_sigma_v^2, V^2"),
+                ("offset_a", "current sensor offset, 1 sigma, A"),
+                ("gain", "current sensor gain error, 1 sigma"),
+                ("noise_a", "white current noise per sample, A"),
+                ("horizon_s", "drift horizon of the sensor bias, s"),
+                ("pol", "polarization_error (RC process noise)"),
+                ("vn2", "voltage_noise_v^2, V^2"),
+                ("model_error", "model voltage error / model overpotential"),
+                ("corr_s", "error_correlation_s, s"))
+
+
+@dataclass(frozen=True)
+class EstSpec:
+    """What the generated estimator holds: its kind, state names and float32 constants."""
+
+    kind: str
+    names: tuple[str, ...]
+    noise: dict                 # NOISE_FIELDS name -> np.float32
+    settings: EstimatorConfig   # what the constants were made from
+
+    @property
+    def n(self) -> int:
+        return len(self.names)
+
+
+def prepare_estimator(model, spec: CSpec, cfg: EstimatorConfig | None = None,
+                      kind: str = "ekf") -> EstSpec:
+    """The estimator's spec for the float spec ``spec`` of ``model``; InputError when the C
+    estimator cannot run on it."""
+    cfg = cfg or EstimatorConfig()
+    if kind not in ESTIMATORS:
+        raise InputError(None, f"c.estimator must be one of {', '.join(ESTIMATORS)}, got {kind!r}")
+    if spec.fixed:
+        raise InputError(None, "the C estimator is float32 only: build it with numeric "
+                               "\"float\"")
+    if not spec.variable_dt:
+        raise InputError(None, "the C estimator needs the variable-dt step: leave c.dt_s unset")
+    if spec.has_fx:
+        names = sorted(e.name for e in model.effects if e.name != "capacity_error")
+        raise InputError(None, f"the C estimator does not take the model's effects yet "
+                               f"({', '.join(names)}); estimate on the model without them")
+    if cfg.offset_state:
+        raise InputError(None, "the C estimator has no current-offset state: set "
+                               "estimator.offset_state = false")
+    nm = NoiseModel.from_config(cfg, model.capacity_ah)
+    vals = {"p0_soc": nm.soc0_sigma ** 2, "p0_u": nm.u0_sigma_v ** 2,
+            "offset_a": nm.offset_sigma_a, "gain": nm.gain_sigma,
+            "noise_a": nm.current_noise_a, "horizon_s": nm.drift_horizon_s,
+            "pol": nm.polarization_error, "vn2": nm.voltage_noise_v ** 2,
+            "model_error": nm.model_error, "corr_s": nm.error_correlation_s}
+    noise = {k: np.float32(vals[k]) for k, _ in NOISE_FIELDS}
+    for k, v in noise.items():
+        if not np.isfinite(v):
+            raise InputError(None, f"estimator setting {k} does not fit float32")
+    names = ("soc", "u_fast_v", "u_slow_v") + (("u_diff_v",) if spec.diff else ())
+    return EstSpec(kind, names, noise, cfg)
+
+
+def est_file_names(prefix: str) -> dict[str, str]:
+    return {"est_header": f"{prefix}_est.h", "est_runtime": RUNTIME_FILE}
+
+
+def render_estimator(env, ctx: dict, est: EstSpec, c_float) -> tuple[str, str]:
+    """(the code appended to <prefix>_ecm.c, the text of <prefix>_est.h); ``env`` and
+    ``ctx`` the renderer's jinja2 environment and context, ``c_float`` its float literal."""
+    ectx = dict(ctx, n=est.n, names=est.names,
+                noise=[(k, c_float(est.noise[k]), c) for k, c in NOISE_FIELDS])
+    return (env.get_template("ecm_est.c.j2").render(ectx),
+            env.get_template("ecm_est.h.j2").render(ectx))
+
+
+# --------------------------------------------------------------------------------------
+# cffi harness
+# --------------------------------------------------------------------------------------
+
+def _trace_sig(spec: CSpec) -> str:
+    p = spec.prefix
+    return (f"void ecmh_est_trace({p}_est_t *e, const float *i, const float *temp, "
+            "const float *dt, const float *v, float *vp, float *x, float *pm, size_t n)")
+
+
+def harness_source(spec: CSpec, est: EstSpec) -> str:
+    n = est.n
+    xs = ["soc", "u_fast", "u_slow"] + (["u_diff"] if spec.diff else [])
+    rec = "".join(f"        x[{n}u * k + {j}u] = e->m.{f};\n" for j, f in enumerate(xs))
+    return f"""
+#include "{spec.prefix}_est.h"
+{_trace_sig(spec)}
+{{
+    size_t k;
+    unsigned j;
+    for (k = 0u; k < n; k++) {{
+        vp[k] = {spec.prefix}_est_step(e, i[k], temp[k], dt[k], v[k]);
+{rec}        for (j = 0u; j < {n * n}u; j++) {{
+            pm[{n * n}u * k + j] = e->p[j];
+        }}
+    }}
+}}
+
+size_t ecmh_est_size(void)
+{{
+    return sizeof({spec.prefix}_est_t);
+}}
+"""
+
+
+def harness_decls(spec: CSpec, est: EstSpec) -> str:
+    return f'#include "{spec.prefix}_est.h"\n{_trace_sig(spec)};\nsize_t ecmh_est_size(void);\n'
+
+
+def cdef(spec: CSpec, est: EstSpec) -> str:
+    p = spec.prefix
+    return "\n".join([
+        f"typedef struct {{ {p}_state_t m; float p[{est.n * est.n}]; uint8_t first; }} {p}_est_t;",
+        f"void {p}_est_init({p}_est_t *e, float soc0);",
+        f"float {p}_est_step({p}_est_t *e, float i, float temperature, float dt, float v);",
+        _trace_sig(spec) + ";",
+        "size_t ecmh_est_size(void);",
+    ])
+
+
+def est_state_bytes(spec: CSpec, est: EstSpec) -> int:
+    """sizeof(<prefix>_est_t) on a 32-bit target."""
+    size = {"int64_t": 8, "int32_t": 4, "uint32_t": 4, "float": 4, "uint8_t": 1}
+    m = sum(size[t] * (2 if name.endswith("[2]") else 1) for t, name, _ in state_fields(spec))
+    m = -(-m // 4) * 4
+    return -(-(m + 4 * est.n * est.n + 1) // 4) * 4

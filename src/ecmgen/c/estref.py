@@ -1,0 +1,369 @@
+"""Float32 reference of the generated SOC estimator (``c_runtime/ecmrt_est_f32.h`` around
+the model's step of ``ecmrt_f32.h``), operation for operation: bit-identical to the C at
+every step (tests/test_codegen_estimator.py, through cffi and under QEMU).
+
+The model's step is mirrored here per sample (the filter changes the state between
+steps, so :func:`ecmgen.c.cref.simulate_f32`, which runs a whole record at once, cannot
+drive it); what does not depend on the state (the sanitised inputs, the direction, the
+temperature row and weight, the per-temperature branch values, the Butler-Volmer factor)
+is computed for the whole record at once, as cref does. numpy float32 scalars round once
+per operation, as the C built with -ffp-contract=off.
+"""
+
+from __future__ import annotations
+
+from bisect import bisect_right
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import cref
+from .codegen import branch_rows, ocv_rows, table_rows
+from .estc import EstSpec
+from .qformat import DT_MAX_S, SOC_LIM
+from .spec import CSpec
+
+F32 = np.float32
+ZERO, ONE, HALF = F32(0.0), F32(1.0), F32(0.5)
+ITER, ITER_SOC, ITER_TOL = 5, F32("1.0e-3"), F32("1.0e-5")
+P_R0, P_RF, P_KF, P_RS, P_KS, P_OCV = 0, 2, 4, 6, 8, 10
+
+
+@dataclass(frozen=True)
+class EstRef:
+    """Per-sample outputs: the predicted voltage, the state after the update (n x N) and
+    the covariance (n x N x N), float32."""
+
+    v_pred: np.ndarray
+    x: np.ndarray
+    p: np.ndarray
+
+    @property
+    def soc(self) -> np.ndarray:
+        return self.x[:, 0]
+
+
+class _Grid:
+    def __init__(self, g):
+        self.x = [F32(v) for v in g.x]
+        self.xf = [float(v) for v in g.x]
+        self.inv = [F32(v) for v in g.inv_dx]
+        self.n = g.n
+
+    def locate(self, v):
+        """ecmrt_f32_locate: (k, w)."""
+        if not v >= self.x[0]:
+            return 0, ZERO
+        last = self.n - 2
+        if v >= self.x[-1]:
+            return last, ONE
+        k = min(bisect_right(self.xf, float(v)) - 1, last)
+        return k, (v - self.x[k]) * self.inv[k]
+
+    def inv_at(self, k, v):
+        """ecmrt_est_f32_inv: 1/spacing of segment k, 0 outside the grid."""
+        return self.inv[k] if (v >= self.x[0] and v <= self.x[-1]) else ZERO
+
+
+def _locate_vec(g, v: np.ndarray):
+    """ecmrt_f32_locate over an array (the temperature)."""
+    x = g.x
+    k = np.clip(np.searchsorted(x, v, side="right") - 1, 0, x.size - 2)
+    with np.errstate(all="ignore"):
+        w = ((v - x[k]) * g.inv_dx[k]).astype(F32)
+    w = np.where(v >= x[-1], ONE, w)
+    k = np.where(v >= x[-1], x.size - 2, k)
+    below = ~(v >= x[0])
+    return np.where(below, 0, k), np.where(below, ZERO, w).astype(F32)
+
+
+class _Tables:
+    """The spec's tables as the C holds them, as nested lists of float32 scalars."""
+
+    def __init__(self, spec: CSpec):
+        self.spec = spec
+        self.grids = [_Grid(d.grid) for d in spec.dirs]
+        self.rows = [[[list(map(F32, pt)) for pt in row] for row in table_rows(spec, d)]
+                     for d in spec.dirs]
+        self.shared = spec.ocv_shared
+        if not self.shared:
+            self.ocv_grid = _Grid(spec.ocv_grid)
+            self.ocv = [[list(map(F32, pt)) for pt in row] for row in ocv_rows(spec)]
+
+    def _vs(self, rows, kt, k, j, w, wt, inv, slope: bool):
+        r1 = rows[kt][k]
+        if wt is None:
+            v = r1[j] + r1[j + 1] * w
+            return v, (r1[j + 1] * inv if slope else None)
+        r2 = rows[kt + 1][k]
+        a = r1[j] + r1[j + 1] * w
+        b = r2[j] + r2[j + 1] * w
+        v = a + (b - a) * wt
+        if not slope:
+            return v, None
+        sa = r1[j + 1] * inv
+        sb = r2[j + 1] * inv
+        return v, sa + (sb - sa) * wt
+
+    def values(self, d, soc, kt, wt, fields, slope: bool):
+        """{field: (value, slope)} of direction d at soc (the step's lookups; with slope:
+        the accessor ecmrt_est_f32_params)."""
+        g = self.grids[d]
+        k, w = g.locate(soc)
+        inv = g.inv_at(k, soc) if slope else None
+        out = {f: self._vs(self.rows[d], kt, k, f, w, wt, inv, slope) for f in fields}
+        if self.shared:
+            out[P_OCV] = self._vs(self.rows[d], kt, k, P_OCV, w, wt, inv, slope)
+        else:
+            k, w = self.ocv_grid.locate(soc)
+            inv = self.ocv_grid.inv_at(k, soc) if slope else None
+            out[P_OCV] = self._vs(self.ocv, kt, k, 0, w, wt, inv, slope)
+        return out
+
+
+def _inputs(spec: CSpec, current_a, temperature_c, dt_s):
+    """The record's sanitised float32 inputs and what depends on them alone."""
+    i = np.asarray(current_a, dtype=np.float64).astype(F32)
+    imax = F32(spec.i_lim_a)
+    i = np.where(np.isnan(i), ZERO, np.clip(i, -imax, imax)).astype(F32)
+    dt = np.asarray(dt_s, dtype=np.float64).astype(F32)
+    dt = np.where(dt > 0, np.minimum(dt, F32(DT_MAX_S)), ZERO).astype(F32)
+    n = i.size
+    temp = np.broadcast_to(np.asarray(temperature_c if temperature_c is not None else 0.0,
+                                      dtype=np.float64), (n,)).astype(F32)
+    chg = cref._direction(i, spec.deadband)
+    if spec.temp:
+        kt, wt = _locate_vec(spec.temp_grid, temp)
+    else:
+        kt, wt = np.zeros(n, dtype=np.int64), None
+    branch = {}
+    names = [k for k in ("r_diff", "k_diff", "i0") if getattr(spec.dirs[0], k) is not None]
+    if names:
+        for j, name in enumerate(names):
+            per_dir = []
+            for d in spec.dirs:
+                b = branch_rows(spec, d)             # [row][pairs]
+                y, dy = b[kt, 2 * j], b[kt, 2 * j + 1]
+                per_dir.append(y + dy * wt if wt is not None else y)
+            branch[name] = np.where(chg == 1, per_dir[1], per_dir[0]).astype(F32)
+    ai = np.abs(i).astype(F32)
+    out = {"i": i, "dt": dt, "chg": chg, "kt": kt, "wt": wt,
+           "dsoc": ((i * dt) * F32(spec.k_soc)).astype(F32)}
+    if "i0" in branch:
+        with np.errstate(all="ignore"):
+            a, x = cref.asinh_f32(ai / branch["i0"])
+            out["g_bv"] = (a / x).astype(F32)
+    if "r_diff" in branch:
+        out["r_diff"] = branch["r_diff"]
+        with np.errstate(all="ignore"):
+            out["c_diff"] = cref.one_minus_exp_neg_f32(dt / branch["k_diff"])
+    return out
+
+
+def simulate_estimator_f32(spec: CSpec, est: EstSpec, current_a, dt_s, voltage_v,
+                           soc0: float, temperature_c=None) -> EstRef:
+    """The C estimator's float32 reference: ``<prefix>_est_init(soc0)``, then
+    ``<prefix>_est_step(i[k], T[k], dt[k], v[k])`` for every sample (``current_a`` the
+    current the filter sees, ``dt_s`` per sample, e.g. cref.dt_from_time)."""
+    if spec.fixed or not spec.variable_dt or spec.has_fx:
+        raise ValueError("the estimator runs on the variable-dt float step without effects")
+    tab = _Tables(spec)
+    inp = _inputs(spec, current_a, temperature_c, dt_s)
+    vm_all = np.asarray(voltage_v, dtype=np.float64).astype(F32)
+    n, N = inp["i"].size, est.n
+    nz = {k: F32(v) for k, v in est.noise.items()}
+    diff, bv = spec.diff, spec.has_bv
+    # est_init: the model's init (SOC saturated to [-2, 2], NaN 0), then [0, 1]
+    s0 = F32(soc0)
+    s0 = ZERO if np.isnan(s0) else min(max(s0, F32(-SOC_LIM)), F32(SOC_LIM))
+    soc = _clamp(F32(s0))
+    u = [ZERO] * N                   # u[0] unused
+    P = [[ZERO] * N for _ in range(N)]
+    P[0][0] = nz["p0_soc"]
+    for r in range(1, N):
+        P[r][r] = nz["p0_u"]
+    first = True
+    v_out = np.empty(n, dtype=F32)
+    x_out = np.empty((n, N), dtype=F32)
+    p_out = np.empty((n, N, N), dtype=F32)
+    slo, shi = F32(-SOC_LIM), F32(SOC_LIM)
+    i_a, dt_a, chg, kt_a, wt_a = inp["i"], inp["dt"], inp["chg"], inp["kt"], inp["wt"]
+    fields_all = (P_R0, P_RF, P_KF, P_RS, P_KS)
+    for t in range(n):
+        i, dt, d, kt = i_a[t], dt_a[t], int(chg[t]), int(kt_a[t])
+        wt = None if wt_a is None else wt_a[t]
+        ai = -i if i < ZERO else i
+        # ---- the model's step (ecmrt_f32_step) ----
+        u_prev = list(u)
+        y = inp["dsoc"][t] - ZERO                          # soc_c is 0 after every est step
+        sn = soc + y
+        if sn < slo:
+            sn = slo
+        elif sn > shi:
+            sn = shi
+        soc = sn
+        pv = tab.values(d, soc, kt, wt, fields_all, False)
+        r0, rf, tf, rs, ts, ocv = (pv[f][0] for f in (*fields_all, P_OCV))
+        if bv:
+            rf = rf * inp["g_bv"][t]
+        # the accessor (ecmrt_est_f32_params) at the same SOC
+        pa = tab.values(d, soc, kt, wt, fields_all, True)
+        c4 = (omexp(dt / tf), omexp(dt / ts), omexp(dt / pa[P_KF][0]), omexp(dt / pa[P_KS][0]))
+        cf, cs = c4[0], c4[1]
+        uf = u[1] + cf * (rf * i - u[1])
+        us = u[2] + cs * (rs * i - u[2])
+        vp = ((ocv + r0 * i) + uf) + us
+        u[1], u[2] = uf, us
+        if diff:
+            rd = inp["r_diff"][t]
+            ud = u[3] + inp["c_diff"][t] * (rd * i - u[3])
+            vp = vp + ud
+            u[3] = ud
+        # ---- the filter (ecmrt_est_f32_update) ----
+        x0 = [soc] + u[1:]
+        gf = inp["g_bv"][t] if bv else ONE
+        a, f, q = [ONE] + [ZERO] * (N - 1), [ZERO] * N, [ZERO] * N
+        (rf_, drf), (tf_, dtf) = pa[P_RF], pa[P_KF]
+        (rs_, drs), (ts_, dts) = pa[P_RS], pa[P_KS]
+        one_a = c4[2]
+        a[1] = ONE - one_a
+        da = ((a[1] * dt) / (tf_ * tf_)) * dtf
+        f[1] = da * u_prev[1] + ((drf * one_a - rf_ * da) * gf) * i
+        rg = rf_ * gf
+        e = (nz["pol"] * rg) * i
+        q[1] = (e * e) * (ONE - a[1] * a[1])
+        one_a = c4[3]
+        a[2] = ONE - one_a
+        da = ((a[2] * dt) / (ts_ * ts_)) * dts
+        f[2] = da * u_prev[2] + (drs * one_a - rs_ * da) * i
+        e = (nz["pol"] * rs_) * i
+        q[2] = (e * e) * (ONE - a[2] * a[2])
+        if diff:
+            ad = ONE - inp["c_diff"][t]
+            a[3] = ad
+            e = (nz["pol"] * inp["r_diff"][t]) * i
+            q[3] = (e * e) * (ONE - ad * ad)
+        if dt > ZERO:
+            kk = dt * F32(spec.k_soc)
+            b = nz["gain"] * ai + nz["offset_a"]
+            e = b * kk
+            r = nz["noise_a"] * kk
+            q[0] = (e * e) * (nz["horizon_s"] / dt) + r * r
+        else:
+            q = [ZERO] * N
+        fp = [[a[r] * P[r][c] + f[r] * P[0][c] for c in range(N)] for r in range(N)]
+        for r in range(N):
+            for c in range(r, N):
+                val = a[c] * fp[r][c] + f[c] * fp[r][0]
+                if r == c:
+                    val = val + q[r]
+                P[r][c] = P[c][r] = val
+        h = [pa[P_OCV][1] + pa[P_R0][1] * i] + [ONE] * (N - 1)
+        e = nz["model_error"] * (vp - pa[P_OCV][0])
+        R = nz["vn2"] + e * e
+        if not first and dt < nz["corr_s"]:
+            R = R * (nz["corr_s"] / dt) if dt > ZERO else ZERO
+        first = False
+        vm = vm_all[t]
+        if not np.isfinite(vm):
+            R = ZERO
+        if R > ZERO:
+            g = _gain(P, h, R, x0, vm - vp)
+            ok = g is not None
+            if ok:
+                c, k, xu = g
+            for _ in range(ITER):
+                if not ok:
+                    break
+                xu[0] = _clamp(xu[0])
+                if _abs(xu[0] - x0[0]) < ITER_SOC:
+                    break
+                pi = tab.values(d, xu[0], kt, wt, (P_R0,), True)
+                vi = ((pi[P_OCV][0] + pi[P_R0][0] * i) + xu[1]) + xu[2]
+                if diff:
+                    vi = vi + xu[3]
+                h[0] = pi[P_OCV][1] + pi[P_R0][1] * i
+                e = vm - vi
+                for j in range(N):
+                    e = e - h[j] * (x0[j] - xu[j])
+                g = _gain(P, h, R, x0, e)
+                ok = g is not None
+                if ok:
+                    c, k, xn = g
+                    dd = _abs(xn[0] - xu[0])
+                    xu = xn
+                    if dd < ITER_TOL:
+                        break
+            if ok:
+                mm = [[P[r][j] - k[r] * c[j] for j in range(N)] for r in range(N)]
+                dv = [_dot(mm[r], h) for r in range(N)]
+                pn = [[(mm[r][j] - dv[r] * k[j]) + R * (k[r] * k[j]) for j in range(N)]
+                      for r in range(N)]
+                for r in range(N):
+                    for j in range(r, N):
+                        P[r][j] = P[j][r] = HALF * (pn[r][j] + pn[j][r])
+                u[1:] = xu[1:]
+                x0[0] = xu[0]
+        soc = _clamp(x0[0])
+        v_out[t] = vp
+        x_out[t, 0] = soc
+        x_out[t, 1:] = u[1:]
+        p_out[t] = P
+    return EstRef(v_out, x_out, p_out)
+
+
+def _gain(P, h, R, x0, e):
+    """ecmrt_est_f32_gain: (c, K, x) or None when h P h^T + R is not a positive number."""
+    N = len(h)
+    c = [_dot(P[r], h) for r in range(N)]
+    sm = _dot(h, c) + R
+    if not (sm > ZERO and np.isfinite(sm)):
+        return None
+    k = [cr / sm for cr in c]
+    return c, k, [x0[r] + k[r] * e for r in range(N)]
+
+
+_SERIES_X, _XMAX, _HALF_LN2 = cref.F_SERIES_X, cref.F_XMAX, cref.F_HALF_LN2
+_INVLN2, _LN2_HI, _LN2_LO, _TAYLOR = cref.F_INVLN2, cref.F_LN2_HI, cref.F_LN2_LO, cref.F_TAYLOR
+
+
+def omexp(x):
+    """cref.one_minus_exp_neg_f32 (ecmrt_f32_one_minus_exp_neg) for one float32 scalar, 30x
+    faster than the array version (tests/test_codegen_estimator.py checks they agree)."""
+    if not x > ZERO:
+        return ZERO
+    if x < _SERIES_X:
+        return -(x * (x * (HALF + x * (x * _TAYLOR[3] - _TAYLOR[4])) - ONE))
+    if not x < _XMAX:
+        return ONE
+    n = 0 if x < _HALF_LN2 else int(x * _INVLN2 + HALF)
+    if n == 0:
+        r = x
+    else:
+        fn = F32(n)
+        r = (x - fn * _LN2_HI) - fn * _LN2_LO
+    t = -r
+    q = _TAYLOR[0]
+    for c in _TAYLOR[1:]:
+        q = c + t * q
+    q = t * q
+    sc = F32(2.0 ** -n)
+    return (ONE - sc) - sc * q
+
+
+def _dot(y, h):
+    """ecmrt_est_f32_dot: y . h summed from the first entry on."""
+    sm = y[0] * h[0]
+    for j in range(1, len(h)):
+        sm = sm + y[j] * h[j]
+    return sm
+
+
+def _clamp(soc):
+    if not soc >= ZERO:
+        return ZERO
+    return ONE if soc > ONE else soc
+
+
+def _abs(x):
+    return -x if x < ZERO else x
