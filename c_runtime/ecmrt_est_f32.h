@@ -39,6 +39,7 @@
 #define ECMRT_EST_ITER 5                              /* relinearisations at most */
 #define ECMRT_EST_ITER_SOC 1.0e-3f                    /* ... when the update moves the SOC more */
 #define ECMRT_EST_ITER_TOL 1.0e-5f                    /* ... until an iteration moves it less */
+#define ECMRT_EST_V_MAX 1000.0f      /* a reading beyond +-1 kV is no cell voltage: no update */
 
 /* the filter's settings (ecmgen.estimate.ekf.NoiseModel), float32 */
 typedef struct {
@@ -229,7 +230,7 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 {
 #define N ECMRT_EST_N
     const unsigned dir = s->charging;
-    float a[N], f[N], q[N], h[N], x0[N], xu[N], xn[N], c[N], k[N], d[N], fp[N * N], mm[N * N];
+    float a[N], f[N], q[N], h[N], x0[N], xu[N], xn[N], c[N], k[N], d[N], fp[N * N];
     const float ai = i < 0.0f ? -i : i;
     float r, e, kk, b, one_a, da, rg, vi;
     float gf = 1.0f;
@@ -296,13 +297,14 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     e = (nz->pol * rd) * i;
     q[3] = (e * e) * (1.0f - ad * ad);
 #endif
-    /* SOC: the sensor's bias over the drift horizon, and white current noise */
+    /* SOC: the sensor's bias over the drift horizon, (b k dt)^2 (horizon / dt) written
+     * (b k)^2 (dt horizon) (no 0 * inf for a denormal dt), and white current noise */
     if (dt > 0.0f) {
         kk = dt * m->k_soc;
         b = nz->gain * ai + nz->offset_a;
-        e = b * kk;
+        e = b * m->k_soc;
         r = nz->noise_a * kk;
-        q[0] = (e * e) * (nz->horizon_s / dt) + r * r;
+        q[0] = (e * e) * (dt * nz->horizon_s) + r * r;
     } else {
         for (u = 0u; u < N; u++) {
             q[u] = 0.0f;
@@ -335,8 +337,8 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
         r = dt > 0.0f ? r * (nz->corr_s / dt) : 0.0f;
     }
     *first = 0u;
-    if (!(vm == vm) || vm > FLT_MAX || vm < -FLT_MAX) {
-        r = 0.0f;                                     /* no measurement */
+    if (!(vm >= -ECMRT_EST_V_MAX && vm <= ECMRT_EST_V_MAX)) {
+        r = 0.0f;                                     /* no measurement (NaN, inf, absurd) */
     }
     /* 4. the update, iterated while it moves the SOC */
     if (r > 0.0f) {
@@ -368,18 +370,23 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
             }
         }
         if (ok) {
-            /* Joseph form: M = P - K c^T, d = M h, P = M - d K^T + R K K^T, symmetrised */
+            /* Joseph form: M = P - K c^T, d = M h, P = M - d K^T + R K K^T, symmetrised
+             * (M, then the new P before symmetrising, in fp) */
             for (u = 0u; u < N; u++) {
                 for (v = 0u; v < N; v++) {
-                    mm[N * u + v] = P[N * u + v] - k[u] * c[v];
+                    fp[N * u + v] = P[N * u + v] - k[u] * c[v];
                 }
-                d[u] = ecmrt_est_f32_dot(mm + N * u, h);
+                d[u] = ecmrt_est_f32_dot(fp + N * u, h);
             }
             for (u = 0u; u < N; u++) {
                 for (v = 0u; v < N; v++) {
-                    fp[N * u + v] = (mm[N * u + v] - d[u] * k[v]) + r * (k[u] * k[v]);
+                    fp[N * u + v] = (fp[N * u + v] - d[u] * k[v]) + r * (k[u] * k[v]);
+                    ok = ok && ecmrt_est_f32_abs(fp[N * u + v]) <= FLT_MAX;
                 }
+                ok = ok && ecmrt_est_f32_abs(xu[u]) <= FLT_MAX;
             }
+        }
+        if (ok) {                      /* applied only when all of it is finite */
             for (u = 0u; u < N; u++) {
                 for (v = u; v < N; v++) {
                     e = 0.5f * (fp[N * u + v] + fp[N * v + u]);

@@ -26,6 +26,7 @@ from .spec import CSpec
 F32 = np.float32
 ZERO, ONE, HALF = F32(0.0), F32(1.0), F32(0.5)
 ITER, ITER_SOC, ITER_TOL = 5, F32("1.0e-3"), F32("1.0e-5")
+V_MAX = F32(1000.0)          # ECMRT_EST_V_MAX: a reading beyond is no measurement
 P_R0, P_RF, P_KF, P_RS, P_KS, P_OCV = 0, 2, 4, 6, 8, 10
 
 
@@ -164,9 +165,15 @@ def simulate_estimator_f32(spec: CSpec, est: EstSpec, current_a, dt_s, voltage_v
                            soc0: float, temperature_c=None) -> EstRef:
     """The C estimator's float32 reference: ``<prefix>_est_init(soc0)``, then
     ``<prefix>_est_step(i[k], T[k], dt[k], v[k])`` for every sample (``current_a`` the
-    current the filter sees, ``dt_s`` per sample, e.g. cref.dt_from_time)."""
+    current the filter sees, ``dt_s`` per sample, e.g. cref.dt_from_time). Overflow to inf
+    and the like are IEEE results the C gets too, not errors."""
     if spec.fixed or not spec.variable_dt or spec.has_fx:
         raise ValueError("the estimator runs on the variable-dt float step without effects")
+    with np.errstate(all="ignore"):
+        return _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c)
+
+
+def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c) -> EstRef:
     tab = _Tables(spec)
     inp = _inputs(spec, current_a, temperature_c, dt_s)
     vm_all = np.asarray(voltage_v, dtype=np.float64).astype(F32)
@@ -246,9 +253,9 @@ def simulate_estimator_f32(spec: CSpec, est: EstSpec, current_a, dt_s, voltage_v
         if dt > ZERO:
             kk = dt * F32(spec.k_soc)
             b = nz["gain"] * ai + nz["offset_a"]
-            e = b * kk
+            e = b * F32(spec.k_soc)
             r = nz["noise_a"] * kk
-            q[0] = (e * e) * (nz["horizon_s"] / dt) + r * r
+            q[0] = (e * e) * (dt * nz["horizon_s"]) + r * r
         else:
             q = [ZERO] * N
         fp = [[a[r] * P[r][c] + f[r] * P[0][c] for c in range(N)] for r in range(N)]
@@ -265,7 +272,7 @@ def simulate_estimator_f32(spec: CSpec, est: EstSpec, current_a, dt_s, voltage_v
             R = R * (nz["corr_s"] / dt) if dt > ZERO else ZERO
         first = False
         vm = vm_all[t]
-        if not np.isfinite(vm):
+        if not (vm >= -V_MAX and vm <= V_MAX):
             R = ZERO
         if R > ZERO:
             g = _gain(P, h, R, x0, vm - vp)
@@ -299,6 +306,8 @@ def simulate_estimator_f32(spec: CSpec, est: EstSpec, current_a, dt_s, voltage_v
                 dv = [_dot(mm[r], h) for r in range(N)]
                 pn = [[(mm[r][j] - dv[r] * k[j]) + R * (k[r] * k[j]) for j in range(N)]
                       for r in range(N)]
+                ok = bool(np.all(np.isfinite(pn)) and np.all(np.isfinite(xu)))
+            if ok:
                 for r in range(N):
                     for j in range(r, N):
                         P[r][j] = P[j][r] = HALF * (pn[r][j] + pn[j][r])

@@ -1,0 +1,165 @@
+"""The generated SOC estimator on Cortex-M: cross-compile it, measure it, and run it under
+QEMU bit for bit against the host build (the estimator's counterpart of
+:mod:`ecmgen.c.target`, whose startup code, linker script and QEMU runner it reuses).
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from . import target
+from .cbuild import STRICT_CFLAGS, CBuildError, compile_spec
+from .codegen import CSpec, file_names, prepare, render
+from .estc import EstSpec, prepare_estimator
+from .estcheck import run_estimator_c
+from .target import CPUS, GCC, SECTION_FLAGS, _array, _run
+
+
+def cross_compile_estimator(spec: CSpec, est: EstSpec, out_dir, cpu: str = "m4f",
+                            opt: str = "-Os", extra=()) -> target.CrossObject:
+    """<prefix>_ecm.c with the estimator -> object for ``cpu`` (STRICT_CFLAGS)."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for name, text in render(spec, None, est).items():
+        (out_dir / name).write_text(text)
+    src = out_dir / file_names(spec.prefix, spec.numeric)["source"]
+    obj = out_dir / f"{spec.prefix}_ecm_est.{cpu}.o"
+    proc = _run([GCC, *CPUS[cpu]["flags"], *STRICT_CFLAGS, opt, *SECTION_FLAGS, *extra,
+                 "-I", out_dir, "-c", src, "-o", obj], cwd=out_dir)
+    return target.CrossObject(obj, cpu, opt, proc.stderr.strip())
+
+
+def firmware_main(spec: CSpec, est: EstSpec, i, temp, dt, v, soc0: float) -> str:
+    """main(): est_init, est_step over the inputs, then the predicted voltages, states and
+    covariances (n x (1 + N + N^2) floats) written through semihosting."""
+    p, n, N = spec.prefix, int(np.size(i)), est.n
+    xs = ["soc", "u_fast", "u_slow"] + (["u_diff"] if spec.diff else [])
+    rec = "".join(f"        out[{1 + N + N * N}u * k + {1 + j}u] = e.m.{f};\n"
+                  for j, f in enumerate(xs))
+    arrays = "".join(_array(name, a, False) for name, a in
+                     (("in_i", i), ("in_t", temp), ("in_dt", dt), ("in_v", v)))
+    w = 1 + N + N * N
+    return f"""#include <stdint.h>
+#include <stddef.h>
+#include "{p}_est.h"
+typedef union {{ uint32_t u; float f; }} ecmh_f32_t;
+int ecmh_semihost(int op, void *arg);
+{arrays}
+static float out[{w * n}];
+
+static int write_all(int h, const void *buf, size_t len)
+{{
+    uint32_t blk[3];
+    blk[0] = (uint32_t)h;
+    blk[1] = (uint32_t)buf;
+    blk[2] = (uint32_t)len;
+    return ecmh_semihost(0x05, blk);
+}}
+
+int main(void)
+{{
+    static const char name[] = "{target.OUT_NAME}";
+    {p}_est_t e;
+    uint32_t blk[3];
+    size_t k;
+    unsigned j;
+    int h;
+    {p}_est_init(&e, {float(np.float32(soc0)).hex()}f);
+    for (k = 0; k < {n}u; k++) {{
+        out[{w}u * k] = {p}_est_step(&e, in_i[k].f, in_t[k].f, in_dt[k].f, in_v[k].f);
+{rec}        for (j = 0u; j < {N * N}u; j++) {{
+            out[{w}u * k + {1 + N}u + j] = e.p[j];
+        }}
+    }}
+    blk[0] = (uint32_t)name;
+    blk[1] = 5u;
+    blk[2] = sizeof name - 1u;
+    h = ecmh_semihost(0x01, blk);
+    if (h < 0) return 1;
+    if (write_all(h, out, sizeof out) != 0) return 2;
+    blk[0] = (uint32_t)h;
+    ecmh_semihost(0x02, blk);
+    return 0;
+}}
+"""
+
+
+def build_firmware(spec: CSpec, est: EstSpec, inputs: tuple, soc0: float, out_dir,
+                   cpu: str = "m4f", opt: str = "-O2") -> Path:
+    out_dir = Path(out_dir)
+    flags = CPUS[cpu]["flags"]
+    objs = [cross_compile_estimator(spec, est, out_dir, cpu=cpu, opt=opt).obj]
+    (out_dir / "startup.c").write_text(target.STARTUP)
+    (out_dir / "fw_main.c").write_text(firmware_main(spec, est, *inputs, soc0))
+    (out_dir / "link.ld").write_text(target.LINKER_SCRIPT)
+    for name in ("startup.c", "fw_main.c"):
+        obj = out_dir / name.replace(".c", ".o")
+        _run([GCC, *flags, "-std=gnu99", "-O2", "-ffp-contract=off", "-I", out_dir, "-c",
+              out_dir / name, "-o", obj], cwd=out_dir)
+        objs.append(obj)
+    elf = out_dir / f"fw_est_{cpu}.elf"
+    _run([GCC, *flags, "-nostartfiles", "-T", out_dir / "link.ld", *objs, "-lgcc", "-o", elf],
+         cwd=out_dir)
+    return elf
+
+
+def qemu_estimator_equivalence(model, time_s, current_a, voltage_v, soc0: float,
+                               temperature_c=None, cfg=None, cpu: str = "m4f", opt: str = "-O2",
+                               cache=None) -> dict:
+    """The estimator over a record on the emulated Cortex-M4F and on the host (cffi): every
+    predicted voltage, state and covariance entry compared bit for bit."""
+    from . import cref
+
+    if CPUS[cpu]["machine"] is None or cpu != "m4f":
+        raise CBuildError("the float estimator runs on the Cortex-M4F (hard float) image")
+    spec = prepare(model, numeric="float", prefix="fe")
+    est = prepare_estimator(model, spec, cfg)
+    f32 = np.float32
+    n = int(np.size(current_a))
+    dt = cref.dt_from_time(np.asarray(time_s, dtype=np.float64))
+    temp = np.broadcast_to(np.asarray(0.0 if temperature_c is None else temperature_c,
+                                      dtype=np.float64), (n,))
+    inputs = tuple(np.asarray(a, dtype=np.float64).astype(f32)
+                   for a in (current_a, temp, dt, voltage_v))
+    host = run_estimator_c(compile_spec(spec, cache=cache, estimator=est), *inputs[:1],
+                           inputs[2], inputs[3], soc0, inputs[1])
+    with tempfile.TemporaryDirectory(prefix="ecmgen-qemu-est-") as tmp:
+        raw = target.run_qemu(build_firmware(spec, est, inputs, soc0, tmp, cpu, opt), cpu=cpu)
+    N = est.n
+    w = 1 + N + N * N
+    if len(raw) != 4 * w * n:
+        raise CBuildError(f"target wrote {len(raw)} bytes, expected {4 * w * n}")
+    arr = np.frombuffer(raw, dtype=np.uint32).reshape(n, w)
+    fields = {"v_pred": (arr[:, 0], host.v_pred), "x": (arr[:, 1:1 + N], host.x),
+              "p": (arr[:, 1 + N:], host.p.reshape(n, N * N))}
+    per = {k: int(np.count_nonzero(a != np.ascontiguousarray(b).view(np.uint32)))
+           for k, (a, b) in fields.items()}
+    return {"cpu": CPUS[cpu]["name"], "machine": CPUS[cpu]["machine"], "steps": n,
+            "mismatches": per, "bit_exact": sum(per.values()) == 0}
+
+
+def estimator_sizes(model, cfg=None, cpu: str = "m4f", opt: str = "-Os") -> dict:
+    """Flash / RAM of the estimator on ``cpu``: the object with it minus the object
+    without it (code, tables), sizeof(<prefix>_est_t) and the stack frames of est_step
+    and of what it calls (from -fstack-usage)."""
+    from .estc import est_state_bytes
+
+    spec = prepare(model, numeric="float", prefix="fe")
+    est = prepare_estimator(model, spec, cfg)
+    with tempfile.TemporaryDirectory(prefix="ecmgen-est-size-") as tmp:
+        with_est = cross_compile_estimator(spec, est, Path(tmp) / "e", cpu=cpu, opt=opt)
+        plain = target.cross_compile(spec, Path(tmp) / "p", cpu=cpu, opt=opt)
+        a, b = target.sizes(with_est.obj), target.sizes(plain.obj)
+        su = target.stack_usage(with_est.obj)
+        funcs = target.undefined_symbols(with_est.obj)
+    frames = {k: v for k, v in su.items() if not k.endswith(("_init", "_run"))}
+    return {"cpu": CPUS[cpu]["name"], "opt": opt,
+            "code_total": a["code"], "code_estimator": a["code"] - b["code"],
+            "tables_total": a["tables"], "tables_estimator": a["tables"] - b["tables"],
+            "ram_static": a["ram"], "state_bytes": est_state_bytes(spec, est),
+            "stack_frames": frames,
+            "stack_est_step": sum(frames.values()),     # est_step + what it calls, at most
+            "libgcc": funcs}
