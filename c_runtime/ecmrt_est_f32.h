@@ -36,6 +36,11 @@
 #endif
 
 #define ECMRT_EST_N (3u + (unsigned)ECMRT_DIFF)       /* soc, u_fast, u_slow (, u_diff) */
+#if ECMRT_VERSION >= 3 && ECMRT_TAU_T
+#define ECMRT_EST_TAU_T 1          /* time constants of the temperature only: the state's kc */
+#else
+#define ECMRT_EST_TAU_T 0
+#endif
 #define ECMRT_EST_ITER 5                              /* relinearisations at most */
 #define ECMRT_EST_ITER_SOC 1.0e-3f                    /* ... when the update moves the SOC more */
 #define ECMRT_EST_ITER_TOL 1.0e-5f                    /* ... until an iteration moves it less */
@@ -70,6 +75,113 @@ typedef struct {
     float r0, dr0, rf, drf, tf, dtf, rs, drs, ts, dts, ocv, docv;
 } ecmrt_est_f32_par_t;
 
+/* a per-temperature branch value (r_diff, tau_diff, i0) at the state's temperature */
+#if ECMRT_TEMP
+#define ECMRT_EST_TV(b, j) ((b)[j] + (b)[(j) + 1u] * wt)
+#else
+#define ECMRT_EST_TV(b, j) ((b)[j])
+#endif
+
+#if ECMRT_VERSION >= 3
+/* Runtime 3 (segment pairs at the temperature, uniform grids, ECMRT_TAU_T): a row of pairs
+ * (y at the segment's start, difference to its end) along SOC, at the temperature: a
+ * table row without ECMRT_TEMP, else ecmrt_f32_segment's (the state's cache pc when it is
+ * that segment's: the same numbers). value y + dy w, slope dy / spacing. */
+#define ECMRT_EST_VS(row, j, v, sl)                                                         \
+    do {                                                                                    \
+        (v) = (row)[j] + (row)[(j) + 1u] * w;                                               \
+        (sl) = (row)[(j) + 1u] * inv;                                                       \
+    } while (0)
+
+/* 1 / spacing of segment k, or 0 when v is outside the grid (or NaN) */
+static inline float ecmrt_est_f32_inv(const ecmrt_f32_grid_t *g, unsigned k, float v)
+{
+    return (v >= g->x[0] && v <= g->x[(unsigned)g->n - 1u]) ? g->inv_dx[k] : 0.0f;
+}
+
+static inline float ecmrt_est_f32_uinv(const ecmrt_f32_ugrid_t *g, unsigned k, float v)
+{
+    const float u = (v - g->x0) * g->inv_h;
+    (void)k;
+    return (u >= 0.0f && u <= g->um) ? g->inv_h : 0.0f;
+}
+#if ECMRT_RC_UNIFORM
+#define ECMRT_EST_RC_INV ecmrt_est_f32_uinv
+#else
+#define ECMRT_EST_RC_INV ecmrt_est_f32_inv
+#endif
+#if ECMRT_OCV_UNIFORM
+#define ECMRT_EST_OCV_INV ecmrt_est_f32_uinv
+#else
+#define ECMRT_EST_OCV_INV ecmrt_est_f32_inv
+#endif
+
+static inline void ecmrt_est_f32_params(const ecmrt_f32_model_t *m, const ECMRT_STATE *s,
+                                        unsigned dir, float soc, ecmrt_est_f32_par_t *p,
+                                        int all)
+{
+    const ecmrt_f32_dir_t *d = &m->dir[dir];
+    const float *row;
+    unsigned kd = ECMRT_HINT_DIR(s, dir);
+    float w, inv;
+#if ECMRT_TEMP
+    float pc[ECMRT_NPAR];
+    unsigned kt = s->k_t;
+    const float wt = s->w_t;
+#endif
+    (void)s;                        /* (uniform grids, one row, shared OCV: no hint, no cache) */
+#if ECMRT_TEMP
+    if (kt > (unsigned)m->t.n - 2u) {
+        kt = (unsigned)m->t.n - 2u;
+    }
+#endif
+    w = ECMRT_F32_RC_LOCATE(&d->g, soc, &kd);
+    inv = ECMRT_EST_RC_INV(&d->g, kd, soc);
+#if ECMRT_TEMP
+    if (((kd << 1) | dir) == (unsigned)s->pc_key) {
+        row = s->pc;
+    } else {
+        ecmrt_f32_segment(d->rows + ECMRT_NPAR * ((unsigned)d->g.n * kt + kd), ECMRT_NPAR,
+                          ECMRT_NPAR, wt, pc);
+        row = pc;
+    }
+#else
+    row = d->rows + ECMRT_NPAR * kd;
+#endif
+    ECMRT_EST_VS(row, ECMRT_P_R0, p->r0, p->dr0);
+    if (all) {
+        ECMRT_EST_VS(row, ECMRT_P_RF, p->rf, p->drf);
+        ECMRT_EST_VS(row, ECMRT_P_RS, p->rs, p->drs);
+#if ECMRT_TAU_T
+        p->tf = p->dtf = p->ts = p->dts = 0.0f;         /* the state's kc serve instead */
+#else
+        ECMRT_EST_VS(row, ECMRT_P_KF, p->tf, p->dtf);
+        ECMRT_EST_VS(row, ECMRT_P_KS, p->ts, p->dts);
+#endif
+    }
+#if ECMRT_OCV_SHARED
+    ECMRT_EST_VS(row, ECMRT_P_OCV, p->ocv, p->docv);
+#else
+    {
+        unsigned ko = ECMRT_HINT_OCV(s);
+        w = ECMRT_F32_OCV_LOCATE(&m->ocv_g, soc, &ko);
+        inv = ECMRT_EST_OCV_INV(&m->ocv_g, ko, soc);
+#if ECMRT_TEMP
+        if (ko == (unsigned)s->oc_key) {
+            row = s->oc;
+        } else {
+            ecmrt_f32_segment(m->ocv + 2u * ((unsigned)m->ocv_g.n * kt + ko), 2u, 2u, wt, pc);
+            row = pc;
+        }
+#else
+        row = m->ocv + 2u * ko;
+#endif
+        ECMRT_EST_VS(row, 0u, p->ocv, p->docv);
+    }
+#endif
+}
+
+#else /* runtime 2: tables interpolated in SOC, then temperature */
 #if ECMRT_TEMP
 #define ECMRT_EST_VS(row, j, v, sl)                                                         \
     do {                                                                                    \
@@ -86,13 +198,6 @@ typedef struct {
         (v) = (row)[j] + (row)[(j) + 1u] * w;                                               \
         (sl) = (row)[(j) + 1u] * inv;                                                       \
     } while (0)
-#endif
-
-/* a per-temperature branch value (r_diff, tau_diff, i0) at the state's temperature */
-#if ECMRT_TEMP
-#define ECMRT_EST_TV(b, j) ((b)[j] + (b)[(j) + 1u] * wt)
-#else
-#define ECMRT_EST_TV(b, j) ((b)[j])
 #endif
 
 /* 1 / spacing of segment k of grid g, or 0 when v is outside [x[0], x[n-1]] (or NaN) */
@@ -147,6 +252,8 @@ static inline void ecmrt_est_f32_params(const ecmrt_f32_model_t *m, const ECMRT_
     }
 #endif
 }
+
+#endif /* ECMRT_VERSION */
 
 /* Before the model's step: i and dt sanitised exactly as the step does (so that the filter
  * uses the step's own inputs; the step's sanitising is then a no-op), the RC voltages kept. */
@@ -275,23 +382,38 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     a[0] = 1.0f;
     f[0] = 0.0f;
     q[0] = 0.0f;
-    /* fast and slow pairs: u' = a u + r g (1 - a) i, a = exp(-dt / tau(soc)) */
+    /* fast and slow pairs: u' = a u + r g (1 - a) i, a = exp(-dt / tau(soc)); da/dsoc */
+#if ECMRT_EST_TAU_T
+    one_a = ecmrt_f32_one_minus_exp_neg(dt * ECMRT_KC(s, dir, ECMRT_K_F));
+    a[1] = 1.0f - one_a;
+    da = 0.0f;                                        /* tau of the temperature only */
+#else
     one_a = ecmrt_f32_one_minus_exp_neg(dt / p.tf);
     a[1] = 1.0f - one_a;
     da = ((a[1] * dt) / (p.tf * p.tf)) * p.dtf;
+#endif
     f[1] = da * pr->u[1] + ((p.drf * one_a - p.rf * da) * gf) * i;
     rg = p.rf * gf;
     e = (nz->pol * rg) * i;
     q[1] = (e * e) * (1.0f - a[1] * a[1]);
+#if ECMRT_EST_TAU_T
+    one_a = ecmrt_f32_one_minus_exp_neg(dt * ECMRT_KC(s, dir, ECMRT_K_S));
+    a[2] = 1.0f - one_a;
+#else
     one_a = ecmrt_f32_one_minus_exp_neg(dt / p.ts);
     a[2] = 1.0f - one_a;
     da = ((a[2] * dt) / (p.ts * p.ts)) * p.dts;
+#endif
     f[2] = da * pr->u[2] + (p.drs * one_a - p.rs * da) * i;
     e = (nz->pol * p.rs) * i;
     q[2] = (e * e) * (1.0f - a[2] * a[2]);
 #if ECMRT_DIFF
     rd = ECMRT_EST_TV(br, ECMRT_B_RD);                /* r_diff, tau_diff: no SOC slope */
+#if ECMRT_EST_TAU_T
+    ad = 1.0f - ecmrt_f32_one_minus_exp_neg(dt * ECMRT_KC(s, dir, ECMRT_K_D));
+#else
     ad = 1.0f - ecmrt_f32_one_minus_exp_neg(dt / ECMRT_EST_TV(br, ECMRT_B_KD));
+#endif
     a[3] = ad;
     f[3] = 0.0f;
     e = (nz->pol * rd) * i;

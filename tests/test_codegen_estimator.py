@@ -7,13 +7,14 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from dataclasses import replace
 import numpy as np
 import pytest
 
 from ecmgen.c import cref
 from ecmgen.c.cbuild import compile_spec
 from ecmgen.c.codegen import generate_c, prepare, render
-from ecmgen.c.estc import prepare_estimator
+from ecmgen.c.estc import est_state_bytes, prepare_estimator
 from ecmgen.c.estcheck import bits_equal, python_filter_soc, run_estimator_c
 from ecmgen.c.estref import simulate_estimator_f32
 from ecmgen.config import EstimatorConfig
@@ -116,8 +117,9 @@ def test_strict_flags_at_every_optimisation_level_give_the_same_bits(model):
     t, i, temp = drive_profile(600, seed=3)
     v = simulate(model, t, i, 0.6, temp).voltage_v
     dt = cref.dt_from_time(t)
-    runs = [run_estimator_c(compile_spec(spec, opt=(o,), estimator=est), i, dt, v, 0.9, temp)
-            for o in ("-O0", "-O2", "-Os")]
+    cms = [compile_spec(spec, opt=(o,), estimator=est) for o in ("-O0", "-O2", "-Os")]
+    assert cms[0].lib.ecmh_est_size() == est_state_bytes(spec, est)
+    runs = [run_estimator_c(cm, i, dt, v, 0.9, temp) for cm in cms]
     assert bits_equal(runs[0], runs[1]) and bits_equal(runs[0], runs[2])
     ref = simulate_estimator_f32(spec, est, i, dt, v, 0.9, temp)
     assert bits_equal(runs[0], ref), _first_difference(runs[0], ref)
@@ -178,6 +180,47 @@ def test_switch_combinations_dt_zero_gaps_and_missing_voltages(diffusion, bv, on
     got = run_estimator_c(cm, i, dt, v_nan, 0.5, temp)
     assert bits_equal(got, simulate_estimator_f32(spec, cm.estimator, i, dt, v_nan, 0.5, temp))
     assert np.all(np.isfinite(got.x)) and np.all(np.isfinite(got.p))
+
+
+def irregular_model(ocv_uniform: bool = False):
+    """The test model on irregular SOC grids: the RC tables (time constants varying along
+    SOC) on one, the OCV on its own (the runtime's searched grids, the OCV's own segment;
+    ``ocv_uniform``: a uniform one of 26 points)."""
+    from ecmgen.model.model import OcvOverTemperature
+
+    m = load_model(MODEL)
+    rc_soc = np.array([0.0, 0.03, 0.1, 0.18, 0.3, 0.45, 0.5, 0.62, 0.8, 0.9, 0.97, 1.0])
+    ocv_soc = (np.linspace(0.0, 1.0, 26) if ocv_uniform else
+               np.array([0.0, 0.02, 0.05, 0.11, 0.2, 0.33, 0.5, 0.7, 0.85, 0.93, 1.0]))
+
+    def on(grid, old, rows):
+        return np.array([np.interp(grid, old, r) for r in np.atleast_2d(rows)])
+
+    tables = {}
+    for name in ("charge", "discharge"):
+        t = m.table(name)
+        shape = (t.r0_ohm.shape[0], rc_soc.size)
+        tables[name] = replace(t, soc=rc_soc, fit_error=np.zeros(shape),
+                               converged=np.ones(shape, dtype=bool),
+                               **{f: on(rc_soc, t.soc, getattr(t, f)) *
+                                  (1 + 0.3 * rc_soc if f.startswith("tau") else 1)
+                                  for f in ("r0_ohm", "r_fast_ohm", "tau_fast_s", "r_slow_ohm",
+                                            "tau_slow_s")})
+    ocv = OcvOverTemperature(m.ocv.temperature_c, ocv_soc, on(ocv_soc, m.ocv.soc, m.ocv.ocv_v))
+    return replace(m, ocv=ocv, charge=tables["charge"], discharge=tables["discharge"])
+
+
+@pytest.mark.parametrize("folder, name, ocv_uniform", [("25degC", "us06", False),
+                                                      ("n20degC", "hwfet", True)])
+def test_irregular_grids_own_ocv_grid(folder, name, ocv_uniform):
+    m = irregular_model(ocv_uniform)
+    spec = prepare(m, "float", None, "irr")
+    cm = compile_spec(spec, estimator=prepare_estimator(m, spec, EstimatorConfig()))
+    s = _cycle(folder, name)
+    seen = SCENARIO["gain"] * s.current_a + SCENARIO["offset"]
+    sl = slice(0, 1500)
+    _check(m, cm, s.time_s[sl], seen[sl], s.voltage_v[sl], SCENARIO["guess"],
+           s.temperature_c[sl], tol=5e-4)
 
 
 def test_dt_zero_changes_nothing_and_a_long_gap_relaxes(built):

@@ -25,7 +25,7 @@ import numpy as np
 from ..config import EstimatorConfig
 from ..errors import InputError
 from ..estimate.ekf import NoiseModel
-from .spec import CSpec, state_fields
+from .spec import CSpec, state_bytes
 
 ESTIMATORS = ("ekf",)
 RUNTIME_FILE = "ecmrt_est_f32.h"
@@ -153,8 +153,6 @@ def cdef(spec: CSpec, est: EstSpec) -> str:
 
 
 def est_state_bytes(spec: CSpec, est: EstSpec) -> int:
-    """sizeof(<prefix>_est_t) on a 32-bit target."""
-    size = {"int64_t": 8, "int32_t": 4, "uint32_t": 4, "float": 4, "uint8_t": 1}
-    m = sum(size[t] * (2 if name.endswith("[2]") else 1) for t, name, _ in state_fields(spec))
-    m = -(-m // 4) * 4
-    return -(-(m + 4 * est.n * est.n + 1) // 4) * 4
+    """sizeof(<prefix>_est_t) on a 32-bit target: the model's state, the covariance, the
+    flag, padded to 4."""
+    return -(-(state_bytes(spec) + 4 * est.n * est.n + 1) // 4) * 4

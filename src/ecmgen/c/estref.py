@@ -27,7 +27,16 @@ F32 = np.float32
 ZERO, ONE, HALF = F32(0.0), F32(1.0), F32(0.5)
 ITER, ITER_SOC, ITER_TOL = 5, F32("1.0e-3"), F32("1.0e-5")
 V_MAX = F32(1000.0)          # ECMRT_EST_V_MAX: a reading beyond is no measurement
-P_R0, P_RF, P_KF, P_RS, P_KS, P_OCV = 0, 2, 4, 6, 8, 10
+# runtime 3 (c_runtime/ecmrt.h ECMRT_VERSION): segment pairs at the temperature (temperature
+# first), uniform SOC grids, time constants of the temperature only (ECMRT_TAU_T)
+RUNTIME3 = hasattr(CSpec, "tau_t")
+
+
+def _offsets(spec: CSpec) -> dict:
+    """ECMRT_P_*: where each parameter's pair sits in a table row."""
+    if RUNTIME3 and spec.tau_t:
+        return {"r0": 0, "rf": 2, "rs": 4, "ocv": 6}
+    return {"r0": 0, "rf": 2, "tf": 4, "rs": 6, "ts": 8, "ocv": 10}
 
 
 @dataclass(frozen=True)
@@ -45,24 +54,39 @@ class EstRef:
 
 
 class _Grid:
-    def __init__(self, g):
+    def __init__(self, g, uniform: bool = False):
+        self.n = g.n
+        self.uniform = uniform
+        if uniform:
+            self.x0, self.inv_h, self.um = F32(g.x0), F32(g.inv_h), F32(g.n - 1)
+            return
         self.x = [F32(v) for v in g.x]
         self.xf = [float(v) for v in g.x]
         self.inv = [F32(v) for v in g.inv_dx]
-        self.n = g.n
 
     def locate(self, v):
-        """ecmrt_f32_locate: (k, w)."""
+        """ecmrt_f32_locate / ecmrt_f32_ulocate: (k, w)."""
+        last = self.n - 2
+        if self.uniform:
+            u = (v - self.x0) * self.inv_h
+            if not u >= ZERO:
+                return 0, ZERO
+            if not u < self.um:
+                return last, ONE
+            k = int(u)
+            return k, u - F32(k)
         if not v >= self.x[0]:
             return 0, ZERO
-        last = self.n - 2
         if v >= self.x[-1]:
             return last, ONE
         k = min(bisect_right(self.xf, float(v)) - 1, last)
         return k, (v - self.x[k]) * self.inv[k]
 
     def inv_at(self, k, v):
-        """ecmrt_est_f32_inv: 1/spacing of segment k, 0 outside the grid."""
+        """ecmrt_est_f32_inv / _uinv: 1/spacing of segment k, 0 outside the grid."""
+        if self.uniform:
+            u = (v - self.x0) * self.inv_h
+            return self.inv_h if (u >= ZERO and u <= self.um) else ZERO
         return self.inv[k] if (v >= self.x[0] and v <= self.x[-1]) else ZERO
 
 
@@ -83,20 +107,28 @@ class _Tables:
 
     def __init__(self, spec: CSpec):
         self.spec = spec
-        self.grids = [_Grid(d.grid) for d in spec.dirs]
+        self.off = _offsets(spec)
+        rc_u = RUNTIME3 and spec.rc_uniform
+        self.grids = [_Grid(d.grid, rc_u) for d in spec.dirs]
         self.rows = [[[list(map(F32, pt)) for pt in row] for row in table_rows(spec, d)]
                      for d in spec.dirs]
         self.shared = spec.ocv_shared
         if not self.shared:
-            self.ocv_grid = _Grid(spec.ocv_grid)
+            self.ocv_grid = _Grid(spec.ocv_grid, RUNTIME3 and spec.ocv_uniform)
             self.ocv = [[list(map(F32, pt)) for pt in row] for row in ocv_rows(spec)]
 
-    def _vs(self, rows, kt, k, j, w, wt, inv, slope: bool):
+    @staticmethod
+    def _vs(rows, kt, k, j, w, wt, inv, slope: bool):
+        """(value, SOC slope or None) of the pair at offset j of segment k."""
         r1 = rows[kt][k]
-        if wt is None:
-            v = r1[j] + r1[j + 1] * w
-            return v, (r1[j + 1] * inv if slope else None)
-        r2 = rows[kt + 1][k]
+        if wt is None:                           # one row: pairs along SOC
+            return r1[j] + r1[j + 1] * w, (r1[j + 1] * inv if slope else None)
+        if RUNTIME3:                             # ecmrt_f32_segment, then along SOC
+            r2 = rows[kt][k + 1]
+            a = r1[j] + r1[j + 1] * wt
+            dd = (r2[j] + r2[j + 1] * wt) - a
+            return a + dd * w, (dd * inv if slope else None)
+        r2 = rows[kt + 1][k]                     # runtime 2: along SOC, then temperature
         a = r1[j] + r1[j + 1] * w
         b = r2[j] + r2[j + 1] * w
         v = a + (b - a) * wt
@@ -108,17 +140,20 @@ class _Tables:
 
     def values(self, d, soc, kt, wt, fields, slope: bool):
         """{field: (value, slope)} of direction d at soc (the step's lookups; with slope:
-        the accessor ecmrt_est_f32_params)."""
+        the accessor ecmrt_est_f32_params); fields of ("r0", "rf", "tf", "rs", "ts"), and
+        "ocv" always."""
         g = self.grids[d]
         k, w = g.locate(soc)
         inv = g.inv_at(k, soc) if slope else None
-        out = {f: self._vs(self.rows[d], kt, k, f, w, wt, inv, slope) for f in fields}
+        off = self.off
+        out = {f: self._vs(self.rows[d], kt, k, off[f], w, wt, inv, slope)
+               for f in fields if f in off}
         if self.shared:
-            out[P_OCV] = self._vs(self.rows[d], kt, k, P_OCV, w, wt, inv, slope)
+            out["ocv"] = self._vs(self.rows[d], kt, k, off["ocv"], w, wt, inv, slope)
         else:
             k, w = self.ocv_grid.locate(soc)
             inv = self.ocv_grid.inv_at(k, soc) if slope else None
-            out[P_OCV] = self._vs(self.ocv, kt, k, 0, w, wt, inv, slope)
+            out["ocv"] = self._vs(self.ocv, kt, k, 0, w, wt, inv, slope)
         return out
 
 
@@ -148,15 +183,36 @@ def _inputs(spec: CSpec, current_a, temperature_c, dt_s):
                 per_dir.append(y + dy * wt if wt is not None else y)
             branch[name] = np.where(chg == 1, per_dir[1], per_dir[0]).astype(F32)
     ai = np.abs(i).astype(F32)
-    out = {"i": i, "dt": dt, "chg": chg, "kt": kt, "wt": wt,
+    out: dict = {"i": i, "dt": dt, "chg": chg, "kt": kt, "wt": wt,
            "dsoc": ((i * dt) * F32(spec.k_soc)).astype(F32)}
     if "i0" in branch:
         with np.errstate(all="ignore"):
             a, x = cref.asinh_f32(ai / branch["i0"])
             out["g_bv"] = (a / x).astype(F32)
+    tau_t = RUNTIME3 and spec.tau_t
+    if tau_t:                    # ecmrt_f32_coefs: 1/tau at the temperature, in the state
+        from .codegen import tau_rows
+
+        per = []
+        for d in (spec.dirs[:1] * 2 if spec.tau_same else spec.dirs):
+            tk = tau_rows(spec, d)
+            tv = [tk[kt, j] + tk[kt, j + 1] * wt if wt is not None else tk[kt, j]
+                  for j in (0, 2)]
+            per.append([(ONE / v).astype(F32) for v in tv])
+        out["kc_f"], out["kc_s"] = (np.where(chg == 1, per[1][j], per[0][j]).astype(F32)
+                                    for j in (0, 1))
     if "r_diff" in branch:
         out["r_diff"] = branch["r_diff"]
-        with np.errstate(all="ignore"):
+        if tau_t:
+            kd = branch["k_diff"]
+            if spec.tau_same:    # kc[0]: the discharge direction's
+                b = branch_rows(spec, spec.dirs[0])
+                j = names.index("k_diff")
+                kd = (b[kt, 2 * j] + b[kt, 2 * j + 1] * wt if wt is not None
+                      else b[kt, 2 * j]).astype(F32)
+            out["kc_d"] = (ONE / kd).astype(F32)
+            out["c_diff"] = cref.one_minus_exp_neg_f32(dt * out["kc_d"])
+        else:
             out["c_diff"] = cref.one_minus_exp_neg_f32(dt / branch["k_diff"])
     return out
 
@@ -195,7 +251,8 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c) -> Est
     p_out = np.empty((n, N, N), dtype=F32)
     slo, shi = F32(-SOC_LIM), F32(SOC_LIM)
     i_a, dt_a, chg, kt_a, wt_a = inp["i"], inp["dt"], inp["chg"], inp["kt"], inp["wt"]
-    fields_all = (P_R0, P_RF, P_KF, P_RS, P_KS)
+    fields_all = ("r0", "rf", "tf", "rs", "ts")
+    tau_t = RUNTIME3 and spec.tau_t
     for t in range(n):
         i, dt, d, kt = i_a[t], dt_a[t], int(chg[t]), int(kt_a[t])
         wt = None if wt_a is None else wt_a[t]
@@ -210,13 +267,17 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c) -> Est
             sn = shi
         soc = sn
         pv = tab.values(d, soc, kt, wt, fields_all, False)
-        r0, rf, tf, rs, ts, ocv = (pv[f][0] for f in (*fields_all, P_OCV))
+        r0, rf, rs, ocv = pv["r0"][0], pv["rf"][0], pv["rs"][0], pv["ocv"][0]
         if bv:
             rf = rf * inp["g_bv"][t]
         # the accessor (ecmrt_est_f32_params) at the same SOC
         pa = tab.values(d, soc, kt, wt, fields_all, True)
-        c4 = (omexp(dt / tf), omexp(dt / ts), omexp(dt / pa[P_KF][0]), omexp(dt / pa[P_KS][0]))
-        cf, cs = c4[0], c4[1]
+        if tau_t:            # the state's coefficients kc = 1/tau(T), for step and filter
+            cf, cs = omexp(dt * inp["kc_f"][t]), omexp(dt * inp["kc_s"][t])
+            ja = (cf, cs)
+        else:
+            cf, cs = omexp(dt / pv["tf"][0]), omexp(dt / pv["ts"][0])
+            ja = (omexp(dt / pa["tf"][0]), omexp(dt / pa["ts"][0]))
         uf = u[1] + cf * (rf * i - u[1])
         us = u[2] + cs * (rs * i - u[2])
         vp = ((ocv + r0 * i) + uf) + us
@@ -230,18 +291,23 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c) -> Est
         x0 = [soc] + u[1:]
         gf = inp["g_bv"][t] if bv else ONE
         a, f, q = [ONE] + [ZERO] * (N - 1), [ZERO] * N, [ZERO] * N
-        (rf_, drf), (tf_, dtf) = pa[P_RF], pa[P_KF]
-        (rs_, drs), (ts_, dts) = pa[P_RS], pa[P_KS]
-        one_a = c4[2]
+        (rf_, drf), (rs_, drs) = pa["rf"], pa["rs"]
+        one_a = ja[0]
         a[1] = ONE - one_a
-        da = ((a[1] * dt) / (tf_ * tf_)) * dtf
+        if tau_t:
+            da = ZERO
+        else:
+            (tf_, dtf) = pa["tf"]
+            da = ((a[1] * dt) / (tf_ * tf_)) * dtf
         f[1] = da * u_prev[1] + ((drf * one_a - rf_ * da) * gf) * i
         rg = rf_ * gf
         e = (nz["pol"] * rg) * i
         q[1] = (e * e) * (ONE - a[1] * a[1])
-        one_a = c4[3]
+        one_a = ja[1]
         a[2] = ONE - one_a
-        da = ((a[2] * dt) / (ts_ * ts_)) * dts
+        if not tau_t:
+            (ts_, dts) = pa["ts"]
+            da = ((a[2] * dt) / (ts_ * ts_)) * dts
         f[2] = da * u_prev[2] + (drs * one_a - rs_ * da) * i
         e = (nz["pol"] * rs_) * i
         q[2] = (e * e) * (ONE - a[2] * a[2])
@@ -265,8 +331,8 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c) -> Est
                 if r == c:
                     val = val + q[r]
                 P[r][c] = P[c][r] = val
-        h = [pa[P_OCV][1] + pa[P_R0][1] * i] + [ONE] * (N - 1)
-        e = nz["model_error"] * (vp - pa[P_OCV][0])
+        h = [pa["ocv"][1] + pa["r0"][1] * i] + [ONE] * (N - 1)
+        e = nz["model_error"] * (vp - pa["ocv"][0])
         R = nz["vn2"] + e * e
         if not first and dt < nz["corr_s"]:
             R = R * (nz["corr_s"] / dt) if dt > ZERO else ZERO
@@ -285,11 +351,11 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c) -> Est
                 xu[0] = _clamp(xu[0])
                 if _abs(xu[0] - x0[0]) < ITER_SOC:
                     break
-                pi = tab.values(d, xu[0], kt, wt, (P_R0,), True)
-                vi = ((pi[P_OCV][0] + pi[P_R0][0] * i) + xu[1]) + xu[2]
+                pi = tab.values(d, xu[0], kt, wt, ("r0",), True)
+                vi = ((pi["ocv"][0] + pi["r0"][0] * i) + xu[1]) + xu[2]
                 if diff:
                     vi = vi + xu[3]
-                h[0] = pi[P_OCV][1] + pi[P_R0][1] * i
+                h[0] = pi["ocv"][1] + pi["r0"][1] * i
                 e = vm - vi
                 for j in range(N):
                     e = e - h[j] * (x0[j] - xu[j])
@@ -336,12 +402,22 @@ _SERIES_X, _XMAX, _HALF_LN2 = cref.F_SERIES_X, cref.F_XMAX, cref.F_HALF_LN2
 _INVLN2, _LN2_HI, _LN2_LO, _TAYLOR = cref.F_INVLN2, cref.F_LN2_HI, cref.F_LN2_LO, cref.F_TAYLOR
 
 
+_SMALL = getattr(cref, "F_SMALL", None)       # runtime 3: the minimax polynomial below 1/4
+
+
 def omexp(x):
     """cref.one_minus_exp_neg_f32 (ecmrt_f32_one_minus_exp_neg) for one float32 scalar, 30x
     faster than the array version (tests/test_codegen_estimator.py checks they agree)."""
     if not x > ZERO:
         return ZERO
     if x < _SERIES_X:
+        if _SMALL is not None:
+            b4, b3, b2, b1 = _SMALL
+            q = x * b4 - b3
+            q = x * q + b2
+            q = x * q - b1
+            q = x * q + ONE
+            return x * q
         return -(x * (x * (HALF + x * (x * _TAYLOR[3] - _TAYLOR[4])) - ONE))
     if not x < _XMAX:
         return ONE
