@@ -42,6 +42,19 @@ kept, as long discharges (drive cycles) need it (the 27 s fit: -10 degC US06 50 
 at 25 degC 44 mV, the 13 s fit: 55 / 117 mV; bench/loto_temperature.py). Resistance nodes outside the SOC levels with a complete pulse are held
 at the outermost such level's value afterwards (the data there are pulses cut by the voltage
 limit and the end of the steps).
+
+r0 against the fast branch: with tau_fast a few samples long (0.35-0.5 s at 0.1 s sampling in
+the cold) r0 and r_fast differ only in the first samples of each edge and in their current
+dependence (r0 linear, the Butler-Volmer branch sublinear). At the low-SOC levels of a cold
+test the voltage limit cuts the 1-6C pulses short, the level keeps one or two C-rates, and the
+shared tau_fast cannot follow its slower response there: the least squares then trade r0 for
+r_fast down to r0 = 0 (0.6 degC Panasonic: 0 mOhm at SOC 0.1-0.15, 47 at 0.3), which no
+ohmic resistance does. So r0 is free only over the levels whose complete pulses span at
+least ``R0_MIN_RATES`` C-rates (two unknowns per level from the current dependence, and a
+check; every level if no level has that many), and held outside at the value the nearest
+such level's node has in the free fit, the other resistances refitted with it (after the
+time-constant search, which keeps the free fit: bench/loto_temperature.py measured the hold
+inside the search moving the -10 degC test to its fast local minimum, worse on its cycles).
 """
 
 from __future__ import annotations
@@ -66,6 +79,7 @@ TIE = 1e-2                 # local minima within this (relative objective) are e
 SLOW_START = 0.02          # grid start favouring slow dynamics: objective tilt per ln(tau)
 NODE_SUPPORT = 0.25        # a node is free where a loaded sample puts this much hat weight
 NM_EVALS = 60              # exact evaluations per local refinement
+R0_MIN_RATES = 3           # a level pins r0 when its complete pulses span this many C-rates
 
 
 @dataclass(frozen=True)
@@ -246,7 +260,8 @@ def _rc_response(rec: _Record, tau: float, u: np.ndarray) -> np.ndarray:
 class _Problem:
     """The rows' weighted design blocks for any time constants, and the solve."""
 
-    def __init__(self, rec: _Record, nodes: np.ndarray, i0_a: float | None):
+    def __init__(self, rec: _Record, nodes: np.ndarray, i0_a: float | None,
+                 r0_spans: dict | None = None):
         self.rec = rec
         self.nodes = nodes
         self.ndir = len(rec.dir_mask)
@@ -261,6 +276,9 @@ class _Problem:
             k = min(int(np.argmax(weight)), nodes.size - 2)
             self.basis = nodes[k:k + 2]
         self.J = self.basis.size
+        # r0 nodes held (fixed at their source node's value, see the module docstring)
+        self.r0_held, self.r0_source = _r0_holds(nodes, self.basis, list(rec.dir_mask),
+                                                 r0_spans or {})
         h = _hats(rec.soc, self.basis)
         hd = np.hstack([h * m[:, None] for m in rec.dir_mask.values()])     # (n, J*ndir)
         drive = rec.i if i0_a is None else i0_a * np.arcsinh(rec.i / i0_a)
@@ -311,9 +329,12 @@ class _Problem:
                   for d in range(self.ndir)]
         return dict(start=start, free=np.concatenate(free), smooth=smooth)
 
-    def solve(self, gram: np.ndarray, g: np.ndarray, lay: dict) -> tuple[np.ndarray, float]:
+    def solve(self, gram: np.ndarray, g: np.ndarray, lay: dict, hold_r0: bool = False
+              ) -> tuple[np.ndarray, float]:
         """Penalised least squares, resistances >= 0, restart states free; returns the
-        solution and the objective (weighted SSE + second-difference penalty)."""
+        solution and the objective (weighted SSE + second-difference penalty). With
+        ``hold_r0`` the held r0 nodes and their sources are then fixed at the sources'
+        values and the rest solved again."""
         m = gram.copy()
         scale = np.sqrt(np.maximum(np.diag(gram), 0.0))
         for a in lay["smooth"]:
@@ -322,6 +343,13 @@ class _Problem:
         # a tiny ridge: columns that no row sees (short relax_s) would make m singular
         m[np.diag_indices_from(m)] += 1e-12 * float(np.mean(np.diag(gram))) + 1e-300
         x = solve_bounded(m, g, lay["free"])
+        if hold_r0 and self.r0_held.size:
+            fixed = np.zeros(x.size, bool)
+            fixed[self.r0_held] = fixed[self.r0_source] = True
+            x[self.r0_held] = x[self.r0_source]
+            ix = np.ix_(~fixed, ~fixed)
+            x[~fixed] = solve_bounded(m[ix], g[~fixed] - m[np.ix_(~fixed, fixed)] @ x[fixed],
+                                      lay["free"][~fixed])
         return x, self.yy - 2.0 * float(g @ x) + float(x @ m @ x)
 
 
@@ -402,6 +430,9 @@ def _search(prob: _Problem, ranges: dict, progress=None):
                      f"(objective {'+' if d >= 0 else ''}{d:.2f} % for the second): "
                      f"{'the slower one is kept (within ' + f'{100 * TIE:g} %)' if key != found[0] else 'the better one is kept'}")
     x, cost = evals[key]
+    if prob.r0_held.size:      # the chosen time constants' fit with r0 held
+        zz = _columns([prob.r0w] + [prob.block(k, t) for k, t in zip(kinds, np.exp(key))])
+        x, cost = prob.solve(zz.T @ zz, zz.T @ prob.yw, lay, hold_r0=True)
     return dict(zip(kinds, np.exp(np.array(key)))), x, cost, len(evals), notes
 
 
@@ -453,7 +484,8 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
     deadband = 0.01 * capacity_ah if direction_deadband_a is None else direction_deadband_a
     rec = _record(record, soc0, ocv, capacity_ah, directions=directions, deadband_a=deadband,
                   relax_s=relax_s, rows_per_decade=rows_per_decade, min_weight_s=min_weight_s)
-    prob = _Problem(rec, nodes, i0_a)
+    spans = _r0_spans(complete, directions)
+    prob = _Problem(rec, nodes, i0_a, spans)
     if prob.rows.size < 4 * prob.J:
         raise InputError(series.source, f"only {prob.rows.size} samples to fit the curve "
                                         "method on")
@@ -479,6 +511,13 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
             notes.append(f"curve: {d} r0/r_fast/r_slow held flat at SOC "
                          f"{', '.join(f'{s:g}' for s in held)} (outside the SOC levels "
                          f"with a complete pulse, {low:.3f} .. {high:.3f})")
+        held = prob.basis[prob.r0_held[(prob.r0_held >= j0) & (prob.r0_held < j0 + prob.J)]
+                          - j0]
+        if held.size:
+            lo, hi, _, _, need = spans[d]
+            notes.append(f"curve: {d} r0 held at SOC {', '.join(f'{s:g}' for s in held)} "
+                         f"(r0 is pinned by the levels with complete pulses at {need} "
+                         f"or more C-rates, {lo:.3f} .. {hi:.3f})")
         r0, rf, rs = (_hold(v, ident) for v in (r0, rf, rs))
         err = _node_error(rec, prob, fitted, nodes, rec.dir_mask[d], rms)
         fits[d] = DirectionFit(r0, rf, rs, rd, err, ident)
@@ -506,6 +545,48 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
                     int(prob.rows.size), tuple(notes),
                     _windows(series, complete, rec, fitted), dict(ranges),
                     float(rec.rest_used_s))
+
+
+def _r0_spans(complete, directions) -> dict:
+    """Per direction: (lo, hi), the SOC range of the pulses of the levels whose complete
+    pulses span at least ``need`` C-rates (R0_MIN_RATES, or as many as the best level has
+    if fewer), (low, high), that of all complete pulses, and ``need``."""
+    from .points import soc_levels
+
+    socs = np.array([p.soc for p in complete])
+    dirs = np.array([p.direction for p in complete])
+    rates = np.array([p.c_rate for p in complete])
+    out = {}
+    for d in directions:
+        levels = [g for g in soc_levels(socs, dirs) if dirs[g[0]] == d]
+        n = [np.unique(rates[g]).size for g in levels]
+        need = min(R0_MIN_RATES, max(n))
+        pinned = np.concatenate([g for g, k in zip(levels, n) if k >= need])
+        every = np.concatenate(levels)
+        out[d] = (float(socs[pinned].min()), float(socs[pinned].max()),
+                  float(socs[every].min()), float(socs[every].max()), need)
+    return out
+
+
+def _r0_holds(nodes, basis, directions, spans) -> tuple[np.ndarray, np.ndarray]:
+    """The r0 columns held and, for each, its source column: per direction, the basis
+    nodes the complete pulses identify (:func:`_identified`) beyond the nodes nearest to
+    the ends of the levels that pin r0 (the source: that nearest node). Nodes beyond the
+    complete pulses stay free here and are held flat with the other resistances."""
+    held, source = [], []
+    for n_d, d in enumerate(directions):
+        if d not in spans:
+            continue
+        lo, hi, low, high, _ = spans[d]
+        ident = _identified(nodes, low, high)[np.searchsorted(nodes, basis)]
+        k_lo = int(np.argmin(np.abs(basis - lo))) if lo > low else 0
+        k_hi = int(np.argmin(np.abs(basis - hi))) if hi < high else basis.size - 1
+        k_hi = max(k_hi, k_lo)
+        for k in np.flatnonzero(ident):
+            if k < k_lo or k > k_hi:
+                held.append(n_d * basis.size + k)
+                source.append(n_d * basis.size + (k_lo if k < k_lo else k_hi))
+    return np.array(held, dtype=int), np.array(source, dtype=int)
 
 
 def _identified(nodes, low, high):
