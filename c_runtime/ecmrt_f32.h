@@ -11,6 +11,15 @@
  *                            of them (state k_t); 0: one row, the temperature is not looked up
  *     ECMRT_OCV_SHARED    1: the OCV is on the SOC grid of both directions' tables and takes
  *                            their segment and weight (no search of its own, no state k_ocv)
+ *     ECMRT_RC_UNIFORM    1: both directions' SOC grids are uniform: O(1) lookup, no search
+ *                            and no state k_dir
+ *     ECMRT_OCV_UNIFORM   1: the OCV's own SOC grid is uniform (likewise, no state k_ocv)
+ *     ECMRT_TAU_T         1: every time constant depends on the temperature only (constant
+ *                            along SOC): one value per temperature row (table tk), and the
+ *                            step's coefficients (1/tau, or 1/D at fixed dt) kept in the state
+ *                            (kc) with the temperature they belong to
+ *     ECMRT_TAU_SAME      1 (with ECMRT_TAU_T): both directions have the same time constants:
+ *                            one set of coefficients (kc[0])
  *     ECMRT_DIFF          diffusion RC pair (state u_diff), r_diff and tau_diff per temperature
  *     ECMRT_BV            Butler-Volmer fast branch: r_fast times asinh(x)/x, x = |i| / i0(T)
  *     ECMRT_FX_HYST       effect hysteresis (state h)
@@ -33,11 +42,12 @@
 #include <float.h>
 #include "ecmrt.h"
 
-#if ECMRT_VERSION != 2
+#if ECMRT_VERSION != 3
 #error "ecmrt_f32.h does not match ecmrt.h"
 #endif
 #if !defined(ECMRT_STATE) || !defined(ECMRT_VARIABLE_DT) || !defined(ECMRT_TEMP) || \
-    !defined(ECMRT_OCV_SHARED) || \
+    !defined(ECMRT_OCV_SHARED) || !defined(ECMRT_TAU_T) || !defined(ECMRT_TAU_SAME) || \
+    !defined(ECMRT_RC_UNIFORM) || !defined(ECMRT_OCV_UNIFORM) || \
     !defined(ECMRT_DIFF) || !defined(ECMRT_BV) || !defined(ECMRT_FX_HYST) || \
     !defined(ECMRT_FX_XRC) || !defined(ECMRT_FX_CDR) || !defined(ECMRT_FX_ARR)
 #error "ecmrt_f32.h needs the ECMRT_* configuration macros of a generated <prefix>_ecm.c"
@@ -70,27 +80,62 @@ typedef struct {
     uint8_t n;
 } ecmrt_f32_grid_t;
 
+/* A uniform grid: n breakpoints x0 + k / inv_h; um = n - 1. */
+typedef struct {
+    float x0;
+    float inv_h;
+    float um;
+    uint8_t n;
+} ecmrt_f32_ugrid_t;
+#if ECMRT_RC_UNIFORM
+#define ECMRT_F32_RC_GRID ecmrt_f32_ugrid_t
+#define ECMRT_F32_RC_LOCATE ecmrt_f32_ulocate
+#else
+#define ECMRT_F32_RC_GRID ecmrt_f32_grid_t
+#define ECMRT_F32_RC_LOCATE ecmrt_f32_locate
+#endif
+#if ECMRT_OCV_UNIFORM
+#define ECMRT_F32_OCV_GRID ecmrt_f32_ugrid_t
+#define ECMRT_F32_OCV_LOCATE ecmrt_f32_ulocate
+#else
+#define ECMRT_F32_OCV_GRID ecmrt_f32_grid_t
+#define ECMRT_F32_OCV_LOCATE ecmrt_f32_locate
+#endif
+
 /* Parameters of one current direction: ECMRT_NPAR values per SOC breakpoint, breakpoint after
  * breakpoint, then (ECMRT_TEMP) temperature row after temperature row:
  * rows[ECMRT_NPAR * (n * row + k) + ECMRT_P_*], so that one base pointer serves every
  * interpolation. Each parameter is a pair (y[k], y[k+1] - y[k]): the value and the float32
  * difference to the next SOC breakpoint (the subtraction done once by the generator, in
  * float32, so the interpolation gives the same bits as subtracting at run time; 0 at the
- * last breakpoint). ECMRT_P_KF / ECMRT_P_KS hold the time constants tau in s
- * (ECMRT_VARIABLE_DT = 1) or D = 1/(1 - exp(-dt/tau)) (ECMRT_VARIABLE_DT = 0). With
- * ECMRT_OCV_SHARED the OCV (on the same SOC grid) is a sixth parameter of every row, and
- * the model has no OCV table of its own. */
+ * last breakpoint): r0, r_fast, k_fast, r_slow, k_slow, where k is the time constant tau in
+ * s (ECMRT_VARIABLE_DT = 1) or D = 1/(1 - exp(-dt/tau)) (ECMRT_VARIABLE_DT = 0). With
+ * ECMRT_TAU_T the time constants are not in the rows but in the table tk (per temperature
+ * row the pairs (k_fast, next row - k_fast), (k_slow, ...)). With ECMRT_OCV_SHARED the OCV
+ * (on the same SOC grid) is the last parameter of every row, and the model has no OCV
+ * table of its own. */
+#if ECMRT_TAU_T
+#define ECMRT_NPAR (6u + 2u * (unsigned)ECMRT_OCV_SHARED)
+#define ECMRT_P_R0 0u
+#define ECMRT_P_RF 2u
+#define ECMRT_P_RS 4u
+#define ECMRT_P_OCV 6u
+#else
 #define ECMRT_NPAR (10u + 2u * (unsigned)ECMRT_OCV_SHARED)
 #define ECMRT_P_R0 0u
 #define ECMRT_P_RF 2u
 #define ECMRT_P_KF 4u
 #define ECMRT_P_RS 6u
 #define ECMRT_P_KS 8u
-#define ECMRT_P_OCV 10u               /* ECMRT_OCV_SHARED: the OCV as a sixth parameter */
+#define ECMRT_P_OCV 10u
+#endif
 
 typedef struct {
-    ecmrt_f32_grid_t g;       /* SOC breakpoints of this direction */
+    ECMRT_F32_RC_GRID g;      /* SOC breakpoints of this direction */
     const float *rows;
+#if ECMRT_TAU_T
+    const float *tk;          /* [temperature row][k_fast pair, k_slow pair] */
+#endif
 #if ECMRT_BRANCHES
     const float *branch;      /* [temperature row][ECMRT_NB pairs] */
 #endif
@@ -101,7 +146,7 @@ typedef struct {
     ecmrt_f32_grid_t t;       /* temperature breakpoints, degC, of every table */
 #endif
 #if !ECMRT_OCV_SHARED
-    ecmrt_f32_grid_t ocv_g;
+    ECMRT_F32_OCV_GRID ocv_g;
     const float *ocv;         /* pairs (ocv[k], ocv[k+1] - ocv[k]), temperature row after row */
 #endif
     ecmrt_f32_dir_t dir[2];   /* [ECMRT_DISCHARGE], [ECMRT_CHARGE] */
@@ -165,22 +210,58 @@ static inline float ecmrt_f32_locate(const ecmrt_f32_grid_t *g, float v, unsigne
     return (v - x[k]) * g->inv_dx[k];
 }
 
+#if ECMRT_RC_UNIFORM || ECMRT_OCV_UNIFORM
+/* As ecmrt_f32_locate on a uniform grid, in O(1): u = (v - x0) inv_h, k = floor(u), w = u - k
+ * (exact); below the grid (or NaN) k = 0, w = 0, at or above its end k = n - 2, w = 1. */
+static inline float ecmrt_f32_ulocate(const ecmrt_f32_ugrid_t *g, float v, unsigned *kp)
+{
+    const float u = (v - g->x0) * g->inv_h;
+    int32_t k;
+    if (!(u >= 0.0f)) {
+        *kp = 0u;
+        return 0.0f;
+    }
+    if (!(u < g->um)) {
+        *kp = (unsigned)g->n - 2u;
+        return 1.0f;
+    }
+    k = (int32_t)u;
+    *kp = (unsigned)k;
+    return u - (float)k;
+}
+#endif
+
 /* y[k] + (y[k+1] - y[k]) w from a pair (y[k], y[k+1] - y[k]) of a table */
 static inline float ecmrt_f32_lerp(const float *yd, float w)
 {
     return yd[0] + yd[1] * w;
 }
 
+#if defined(__GNUC__)
+#define ECMRT_F32_COLD static __attribute__((noinline))     /* out of the step's hot path */
+#else
+#define ECMRT_F32_COLD static
+#endif
+
 #if ECMRT_TEMP
-/* bilinear: the pair of the row and the pair one temperature row (stride) further, each
- * linear in SOC, then linear in temperature */
-static inline float ecmrt_f32_lerp2(const float *yd, unsigned stride, float w, float wt)
+/* Bilinear, temperature first: the pairs of a segment at the temperature. yd points at SOC
+ * point k of temperature row kt of a table whose values are pairs along temperature
+ * (y[kt][k], y[kt+1][k] - y[kt][k]), npar floats per SOC point; for each of the np / 2
+ * parameters, pc gets (a, b - a) with a, b the values at points k, k+1 at weight wt between
+ * the rows. The step then takes a + (b - a) w: pc is kept in the state with the segment,
+ * direction and temperature it belongs to (the SOC moves little between steps). */
+ECMRT_F32_COLD void ecmrt_f32_segment(const float *yd, unsigned npar, unsigned np, float wt,
+                                      float *pc)
 {
-    const float a = yd[0] + yd[1] * w;
-    const float b = yd[stride] + yd[stride + 1u] * w;
-    return a + (b - a) * wt;
+    unsigned j;
+    for (j = 0u; j < np; j += 2u) {
+        const float a = yd[j] + yd[j + 1u] * wt;
+        const float b = yd[npar + j] + yd[npar + j + 1u] * wt;
+        pc[j] = a;
+        pc[j + 1u] = b - a;
+    }
 }
-#define ECMRT_F32_AT(p, off) ecmrt_f32_lerp2((p) + (off), st, w, wt)
+#define ECMRT_F32_AT(p, off) (s->pc[off] + s->pc[(off) + 1u] * w)
 #define ECMRT_F32_TV(b, j) ((b)[j] + (b)[(j) + 1u] * wt)
 #else
 #define ECMRT_F32_AT(p, off) ecmrt_f32_lerp((p) + (off), w)
@@ -216,7 +297,7 @@ static inline float ecmrt_f32_exp_neg_parts(float x, float *sp)
     return t * q;
 }
 
-/* c = 1 - exp(-x) for x = dt/tau >= 0, to ~1 ulp, from + - * and exact powers of two.
+/* c = 1 - exp(-x) for x = dt/tau >= 0, to < 2 ulp, from + - * and exact powers of two.
  * x <= 0 or NaN gives 0; x >= 87 gives 1. (Also the effects' exp, in both dt modes.) */
 static inline float ecmrt_f32_one_minus_exp_neg(float x)
 {
@@ -226,14 +307,15 @@ static inline float ecmrt_f32_one_minus_exp_neg(float x)
         float f;
     } bits;
     bits.f = x;
-    if (bits.u < 0x3D000000u) {             /* +0 <= x < 2^-5 (one unsigned compare) */
-        /* c = x (1 - x (1/2 - x (1/6 - x/24))): relative truncation error < x^4/120 <
-         * 2^-26.9; evaluated with alternating signs (q = -(1/6 - x/24), ...; negation is
-         * exact) so that each step is one multiply and one add; x = +0 gives +0 */
-        q = x * 4.16666679e-02f - 1.66666672e-01f;
-        q = 0.5f + x * q;
-        q = x * q - 1.0f;
-        return -(x * q);
+    if (bits.u < 0x3E800000u) {             /* +0 <= x < 1/4 (one unsigned compare) */
+        /* the dt/tau of a 10 Hz task (tau > 0.4 s): c = x P(x), P(x) = 1 - b1 x + b2 x^2 -
+         * b3 x^3 + b4 x^4 the minimax polynomial of (1 - exp(-x))/x on [0, 1/4] with P(0) = 1
+         * (relative error < 2^-28.4; evaluated < 1.6 ulp); x = +0 gives +0 */
+        q = x * 7.53017003e-03f - 4.15001325e-02f;
+        q = x * q + 1.66652888e-01f;
+        q = x * q - 4.99999642e-01f;
+        q = x * q + 1.0f;
+        return x * q;
     }
     if (!(x > 0.0f)) {
         return 0.0f;                        /* x <= 0 (-0, negative) */
@@ -338,6 +420,29 @@ static inline float ecmrt_f32_asinh(float *xp)
 }
 #endif
 
+#if ECMRT_TAU_T
+/* The coefficients of the time constants at the temperature of row kt, weight wt, for both
+ * directions, into the state: 1/tau (variable dt: x = dt/tau is then dt * kc) or 1/D = c
+ * (fixed dt). A function of the temperature alone: the step recomputes them when the
+ * temperature changes, init at the first row. */
+ECMRT_F32_COLD void ecmrt_f32_coefs(const ecmrt_f32_model_t *m, ECMRT_STATE *s, unsigned kt, float wt)
+{
+    unsigned d;
+    for (d = 0u; d < ECMRT_KC_DIRS; d++) {
+        const float *tk = m->dir[d].tk + 4u * kt;
+#if ECMRT_DIFF
+        const float *br = m->dir[d].branch + 2u * ECMRT_NB * kt;
+#endif
+        s->kc[d][ECMRT_K_F] = 1.0f / ECMRT_F32_TV(tk, 0u);
+        s->kc[d][ECMRT_K_S] = 1.0f / ECMRT_F32_TV(tk, 2u);
+#if ECMRT_DIFF
+        s->kc[d][ECMRT_K_D] = 1.0f / ECMRT_F32_TV(br, ECMRT_B_KD);
+#endif
+    }
+    (void)wt;
+}
+#endif
+
 static inline void ecmrt_f32_init(const ecmrt_f32_model_t *m, ECMRT_STATE *s, float soc0)
 {
     if (soc0 != soc0) {
@@ -357,6 +462,9 @@ static inline void ecmrt_f32_init(const ecmrt_f32_model_t *m, ECMRT_STATE *s, fl
     s->t_in = 0x7FC00000u;                  /* a NaN: its row and weight are k_t = 0, w_t = 0 */
     s->w_t = 0.0f;
 #endif
+#if ECMRT_TAU_T
+    ecmrt_f32_coefs(m, s, 0u, 0.0f);         /* those of k_t = 0, w_t = 0 */
+#endif
     (void)m;
 }
 
@@ -372,21 +480,23 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
 #endif
 {
     const ecmrt_f32_dir_t *d;
+#if !ECMRT_TEMP
     const float *row;
+#endif
     unsigned dir = s->charging, kd, ko = ECMRT_HINT_OCV(s), kt = ECMRT_HINT_T(s);
     float soc, y, w, r0, rf, rs, uf, us, ocv, v;
     union {
         uint32_t u;
         float f;
     } bits;
-#if ECMRT_VARIABLE_DT
+#if ECMRT_VARIABLE_DT || ECMRT_TAU_T
     float cf, cs;
 #else
     float df, ds;
 #endif
 #if ECMRT_TEMP
     float wt;
-    unsigned st;
+    unsigned key;
 #endif
 #if ECMRT_BRANCHES
     const float *br;
@@ -457,31 +567,37 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
     /* 3. parameters of that direction, linear in SOC (and in temperature), clamped at the
      *    table ends; below the first temperature breakpoint or NaN: the first row */
     d = &m->dir[dir];
-    kd = s->k_dir[dir];
+    kd = ECMRT_HINT_DIR(s, dir);
 #if ECMRT_TEMP
     /* the temperature's row and weight: kept with the temperature they belong to, so that
      * a temperature read less often than the step runs is searched once (exact: both are a
      * function of the temperature; a corrupted k_t is clamped as a hint is) */
     bits.f = temp;
     if (bits.u == s->t_in) {
-        wt = s->w_t;
-        if (kt > (unsigned)m->t.n - 2u) {
-            kt = (unsigned)m->t.n - 2u;
-        }
+        wt = s->w_t;                        /* a corrupted k_t is clamped where it is used */
     } else {
         wt = ecmrt_f32_locate(&m->t, temp, &kt);
         s->t_in = bits.u;
         s->w_t = wt;
+        ECMRT_CACHE_CLEAR(s);
+#if ECMRT_TAU_T
+        ecmrt_f32_coefs(m, s, kt, wt);
+#endif
     }
-    st = ECMRT_NPAR * (unsigned)d->g.n;
-    w = ecmrt_f32_locate(&d->g, soc, &kd);
-    row = d->rows + st * kt + ECMRT_NPAR * kd;
+    w = ECMRT_F32_RC_LOCATE(&d->g, soc, &kd);
+    key = (kd << 1) | dir;
+    if (key != s->pc_key) {
+        ecmrt_f32_segment(d->rows + ECMRT_NPAR * ((unsigned)d->g.n * ECMRT_KT(kt) + kd), ECMRT_NPAR,
+                          ECMRT_NPAR, wt, s->pc);
+        s->pc_key = (uint16_t)key;
+    }
 #else
-    w = ecmrt_f32_locate(&d->g, soc, &kd);
+    w = ECMRT_F32_RC_LOCATE(&d->g, soc, &kd);
     row = d->rows + ECMRT_NPAR * kd;
 #endif
 #if ECMRT_BRANCHES
 #if ECMRT_TEMP
+    kt = ECMRT_KT(kt);
     br = d->branch + 2u * ECMRT_NB * kt;
 #else
     br = d->branch;
@@ -490,7 +606,13 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
     r0 = ECMRT_F32_AT(row, ECMRT_P_R0);
     rf = ECMRT_F32_AT(row, ECMRT_P_RF);
     rs = ECMRT_F32_AT(row, ECMRT_P_RS);
-#if ECMRT_VARIABLE_DT
+#if ECMRT_TAU_T && ECMRT_VARIABLE_DT
+    cf = ecmrt_f32_one_minus_exp_neg(dt * ECMRT_KC(s, dir, ECMRT_K_F));
+    cs = ecmrt_f32_one_minus_exp_neg(dt * ECMRT_KC(s, dir, ECMRT_K_S));
+#elif ECMRT_TAU_T
+    cf = ECMRT_KC(s, dir, ECMRT_K_F);
+    cs = ECMRT_KC(s, dir, ECMRT_K_S);
+#elif ECMRT_VARIABLE_DT
     cf = ecmrt_f32_one_minus_exp_neg(dt / ECMRT_F32_AT(row, ECMRT_P_KF));
     cs = ecmrt_f32_one_minus_exp_neg(dt / ECMRT_F32_AT(row, ECMRT_P_KS));
 #else
@@ -519,10 +641,13 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
 #if ECMRT_OCV_SHARED
     ocv = ECMRT_F32_AT(row, ECMRT_P_OCV);
 #else
-    w = ecmrt_f32_locate(&m->ocv_g, soc, &ko);
+    w = ECMRT_F32_OCV_LOCATE(&m->ocv_g, soc, &ko);
 #if ECMRT_TEMP
-    ocv = ecmrt_f32_lerp2(m->ocv + 2u * ((unsigned)m->ocv_g.n * kt + ko), 2u * (unsigned)m->ocv_g.n,
-                          w, wt);
+    if (ko != s->oc_key) {
+        ecmrt_f32_segment(m->ocv + 2u * ((unsigned)m->ocv_g.n * ECMRT_KT(kt) + ko), 2u, 2u, wt, s->oc);
+        s->oc_key = (uint8_t)ko;
+    }
+    ocv = s->oc[0] + s->oc[1] * w;
 #else
     ocv = ecmrt_f32_lerp(m->ocv + 2u * ko, w);
 #endif
@@ -530,7 +655,7 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
     /* 4. exact ZOH: u = a u + r (1 - a) i, written u + c (r i - u) with c = 1 - a = 1/D */
     uf = s->u_fast;
     us = s->u_slow;
-#if ECMRT_VARIABLE_DT
+#if ECMRT_VARIABLE_DT || ECMRT_TAU_T
     uf = uf + cf * (rf * i - uf);
     us = us + cs * (rs * i - us);
 #else
@@ -544,7 +669,11 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
 #if ECMRT_DIFF
     rd = ECMRT_F32_TV(br, ECMRT_B_RD);      /* the diffusion pair: as the others */
     ud = s->u_diff;
-#if ECMRT_VARIABLE_DT
+#if ECMRT_TAU_T && ECMRT_VARIABLE_DT
+    ud = ud + ecmrt_f32_one_minus_exp_neg(dt * ECMRT_KC(s, dir, ECMRT_K_D)) * (rd * i - ud);
+#elif ECMRT_TAU_T
+    ud = ud + ECMRT_KC(s, dir, ECMRT_K_D) * (rd * i - ud);
+#elif ECMRT_VARIABLE_DT
     ud = ud + ecmrt_f32_one_minus_exp_neg(dt / ECMRT_F32_TV(br, ECMRT_B_KD)) * (rd * i - ud);
 #else
     ud = ud + (rd * i - ud) / ECMRT_F32_TV(br, ECMRT_B_KD);

@@ -4,7 +4,8 @@
  * compile-time switches for what the model has.
  *
  * Included once by a generated <prefix>_ecm.c after it defines (value = raw / 2^Q)
- *     ECMRT_STATE, ECMRT_VARIABLE_DT, ECMRT_TEMP, ECMRT_OCV_SHARED, ECMRT_DIFF, ECMRT_BV, ECMRT_FX_HYST,
+ *     ECMRT_STATE, ECMRT_VARIABLE_DT, ECMRT_TEMP, ECMRT_OCV_SHARED, ECMRT_RC_UNIFORM,
+ *     ECMRT_OCV_UNIFORM, ECMRT_TAU_T, ECMRT_TAU_SAME, ECMRT_DIFF, ECMRT_BV, ECMRT_FX_HYST,
  *     ECMRT_FX_XRC, ECMRT_FX_CDR, ECMRT_FX_ARR   as for ecmrt_f32.h, and
  *     ECMRT_Q_I           current, A
  *     ECMRT_Q_V           voltages: OCV table, RC voltages, output
@@ -16,6 +17,9 @@
  *     ECMRT_Q_DF, ECMRT_Q_DS   D = 1/(1 - exp(-dt/tau)) tables             (fixed dt)
  *     ECMRT_Q_CF, ECMRT_Q_CS   c = 1/D formed at run time                  (fixed dt)
  *   with ECMRT_TEMP:  ECMRT_Q_GT   inverse temperature breakpoint spacings (per Q8 degC)
+ *   with ECMRT_RC_UNIFORM / ECMRT_OCV_UNIFORM: ECMRT_Q_GU / ECMRT_Q_GUO, the shift of
+ *                     (soc - x0) inv_h to Q30 steps (0 when 1/spacing is an integer)
+ *   with ECMRT_TAU_T at variable dt: ECMRT_Q_KR   1/tau kept in the state (kc), 1/s
  *   with ECMRT_DIFF:  ECMRT_Q_RD   r_diff; fixed dt: ECMRT_Q_DD, ECMRT_Q_CD (D and c of the pair)
  *   with ECMRT_BV:    ECMRT_Q_I0 (i0), ECMRT_BV_QX (x = |i|/i0), ECMRT_BV_K = Q_I0 - Q_I + BV_QX
  *   hysteresis:       ECMRT_FX_SH_HR (variable dt), ECMRT_FX_SH_HX, ECMRT_FX_SH_HM
@@ -38,11 +42,12 @@
 
 #include "ecmrt.h"
 
-#if ECMRT_VERSION != 2
+#if ECMRT_VERSION != 3
 #error "ecmrt_q.h does not match ecmrt.h"
 #endif
 #if !defined(ECMRT_STATE) || !defined(ECMRT_VARIABLE_DT) || !defined(ECMRT_TEMP) || \
-    !defined(ECMRT_OCV_SHARED) || \
+    !defined(ECMRT_OCV_SHARED) || !defined(ECMRT_TAU_T) || !defined(ECMRT_TAU_SAME) || \
+    !defined(ECMRT_RC_UNIFORM) || !defined(ECMRT_OCV_UNIFORM) || \
     !defined(ECMRT_DIFF) || !defined(ECMRT_BV) || !defined(ECMRT_FX_HYST) || \
     !defined(ECMRT_FX_XRC) || !defined(ECMRT_FX_CDR) || !defined(ECMRT_FX_ARR) || \
     !defined(ECMRT_Q_I) || !defined(ECMRT_Q_V) || !defined(ECMRT_Q_G) || !defined(ECMRT_Q_R0) || \
@@ -77,21 +82,57 @@ typedef struct {
     uint8_t n;
 } ecmrt_q_grid_t;
 
+/* A uniform SOC grid: n breakpoints x0 + k h (Q30), inv_h = 2^shift / h (ECMRT_Q_GU or
+ * ECMRT_Q_GUO; h = 1/inv_h exactly when the shift is 0), um = (n - 1) 2^30. */
+typedef struct {
+    int64_t um;
+    int32_t x0;
+    int32_t inv_h;
+    uint8_t n;
+} ecmrt_q_ugrid_t;
+#if ECMRT_RC_UNIFORM
+#define ECMRT_Q_RC_GRID ecmrt_q_ugrid_t
+#define ECMRT_Q_RC_LOCATE(g, v, kp) ecmrt_q_ulocate((g), (v), (kp), ECMRT_Q_GU)
+#else
+#define ECMRT_Q_RC_GRID ecmrt_q_grid_t
+#define ECMRT_Q_RC_LOCATE(g, v, kp) ecmrt_q_locate((g), (v), (kp), ECMRT_Q_G)
+#endif
+#if ECMRT_OCV_UNIFORM
+#define ECMRT_Q_OCV_GRID ecmrt_q_ugrid_t
+#define ECMRT_Q_OCV_LOCATE(g, v, kp) ecmrt_q_ulocate((g), (v), (kp), ECMRT_Q_GUO)
+#else
+#define ECMRT_Q_OCV_GRID ecmrt_q_grid_t
+#define ECMRT_Q_OCV_LOCATE(g, v, kp) ecmrt_q_locate((g), (v), (kp), ECMRT_Q_G)
+#endif
+
 /* Parameters of one direction, ECMRT_NPAR values per SOC breakpoint, breakpoint after
  * breakpoint, then temperature row after row (as in ecmrt_f32.h, plain values): r0 (Q_R0),
  * r_fast (Q_RF), k_fast, r_slow (Q_RS), k_slow, where k is tau in Q_T s (variable dt) or
- * D = 1/(1 - exp(-dt/tau)) in Q_DF / Q_DS (fixed dt); with ECMRT_OCV_SHARED the OCV too. */
+ * D = 1/(1 - exp(-dt/tau)) in Q_DF / Q_DS (fixed dt); with ECMRT_TAU_T the k are not in the
+ * rows but in the table tk (per temperature row k_fast, k_slow); with ECMRT_OCV_SHARED the
+ * OCV (Q_V) is the last parameter. */
+#if ECMRT_TAU_T
+#define ECMRT_NPAR (3u + (unsigned)ECMRT_OCV_SHARED)
+#define ECMRT_P_R0 0u
+#define ECMRT_P_RF 1u
+#define ECMRT_P_RS 2u
+#define ECMRT_P_OCV 3u
+#else
 #define ECMRT_NPAR (5u + (unsigned)ECMRT_OCV_SHARED)
 #define ECMRT_P_R0 0u
 #define ECMRT_P_RF 1u
 #define ECMRT_P_KF 2u
 #define ECMRT_P_RS 3u
 #define ECMRT_P_KS 4u
-#define ECMRT_P_OCV 5u                /* ECMRT_OCV_SHARED: the OCV (Q_V) as a sixth parameter */
+#define ECMRT_P_OCV 5u
+#endif
 
 typedef struct {
-    ecmrt_q_grid_t g;
+    ECMRT_Q_RC_GRID g;
     const int32_t *rows;
+#if ECMRT_TAU_T
+    const int32_t *tk;       /* [temperature row][k_fast, k_slow] */
+#endif
 #if ECMRT_BRANCHES
     const int32_t *branch;   /* [temperature row][ECMRT_NB] */
 #endif
@@ -102,7 +143,7 @@ typedef struct {
     ecmrt_q_grid_t t;        /* temperature breakpoints (Q8 degC) of every table */
 #endif
 #if !ECMRT_OCV_SHARED
-    ecmrt_q_grid_t ocv_g;
+    ECMRT_Q_OCV_GRID ocv_g;
     const int32_t *ocv;      /* Q_V, temperature row after row */
 #endif
     ecmrt_q_dir_t dir[2];    /* [ECMRT_DISCHARGE], [ECMRT_CHARGE] */
@@ -188,6 +229,26 @@ static inline int32_t ecmrt_q_locate(const ecmrt_q_grid_t *g, int32_t v, unsigne
     return w > (int64_t)ECMRT_ONE30 ? ECMRT_ONE30 : (int32_t)w;
 }
 
+#if ECMRT_RC_UNIFORM || ECMRT_OCV_UNIFORM
+/* As ecmrt_q_locate on a uniform grid, in O(1) and exact: u = (v - x0) / h in Q30 (the
+ * product < 2^63: |v - x0| < 2^32, inv_h < 2^31), k = floor(u), w = the bits below; below
+ * the grid k = 0, w = 0, at or above its end k = n - 2, w = 2^30. */
+static inline int32_t ecmrt_q_ulocate(const ecmrt_q_ugrid_t *g, int32_t v, unsigned *kp, int gs)
+{
+    const int64_t u = (((int64_t)v - g->x0) * g->inv_h) >> gs;
+    if ((uint64_t)u >= (uint64_t)g->um) {  /* outside [x0, x[n-1]): one compare on the way */
+        if (u < 0) {
+            *kp = 0u;
+            return 0;
+        }
+        *kp = (unsigned)g->n - 2u;
+        return ECMRT_ONE30;
+    }
+    *kp = (unsigned)(u >> ECMRT_Q30);
+    return (int32_t)(u & (ECMRT_ONE30 - 1));
+}
+#endif
+
 /* y[0] + (y[stride] - y[0]) w (y = &table[k]); table values are >= 0, so the difference
  * fits int32 */
 ECMRT_Q_SHARED int32_t ecmrt_q_lerp(const int32_t *y, unsigned stride, int32_t w)
@@ -199,28 +260,23 @@ ECMRT_Q_SHARED int32_t ecmrt_q_lerp(const int32_t *y, unsigned stride, int32_t w
 #ifndef ECMRT_Q_GT
 #error "a model over temperature needs ECMRT_Q_GT"
 #endif
-/* Bilinear interpolation with the four corner weights of the cell (Q30, >= 0, summing to
- * exactly 2^30): c[0] (SOC k, row t), c[1] (k+1, t), c[2] (k, t+1), c[3] (k+1, t+1), from
- * the SOC weight w and the temperature weight wt. */
-static inline void ecmrt_q_corners(int32_t *c, int32_t w, int32_t wt)
+/* Bilinear, temperature first: the pairs of a segment at the temperature. y points at SOC
+ * point k of temperature row kt of a table with npar values per SOC point and st per row;
+ * for each of the np parameters, pc gets (a, b - a) with a, b the values at points k, k+1
+ * linear in temperature at weight wt between the rows (values >= 0 and < 2^31: b - a fits).
+ * The step then takes a + (b - a) w: pc is kept in the state with the segment, direction
+ * and temperature it belongs to (the SOC moves little between steps). */
+ECMRT_Q_SHARED void ecmrt_q_segment(const int32_t *y, unsigned npar, unsigned np, unsigned st, int32_t wt,
+                            int32_t *pc)
 {
-    const int32_t wt1 = ECMRT_ONE30 - wt;
-    c[1] = (int32_t)ECMRT_RSHR((int64_t)w * wt1, ECMRT_Q30);
-    c[3] = (int32_t)ECMRT_RSHR((int64_t)w * wt, ECMRT_Q30);
-    c[0] = wt1 - c[1];
-    c[2] = wt - c[3];
+    unsigned j;
+    for (j = 0u; j < np; j++) {
+        const int32_t a = ecmrt_q_lerp(y + j, st, wt);
+        pc[2u * j] = a;
+        pc[2u * j + 1u] = ecmrt_q_lerp(y + npar + j, st, wt) - a;
+    }
 }
-
-/* sum of the corners y[0], y[stride_s], y[stride_t], y[stride_t + stride_s] times their
- * weights (table values >= 0 and < 2^31: the sum is below 2^61) */
-static inline int32_t ecmrt_q_bilerp(const int32_t *y, unsigned stride_s, unsigned stride_t,
-                                     const int32_t *c)
-{
-    return (int32_t)ECMRT_RSHR((int64_t)y[0] * c[0] + (int64_t)y[stride_s] * c[1] +
-                               (int64_t)y[stride_t] * c[2] + (int64_t)y[stride_t + stride_s] * c[3],
-                               ECMRT_Q30);
-}
-#define ECMRT_Q_AT(p, off) ecmrt_q_bilerp((p) + (off), ECMRT_NPAR, st, cw)
+#define ECMRT_Q_AT(p, j) (s->pc[2u * (j)] + (int32_t)ECMRT_RSHR((int64_t)s->pc[2u * (j) + 1u] * w, ECMRT_Q30))
 #define ECMRT_Q_TV(b, j) ecmrt_q_lerp((b) + (j), ECMRT_NB, wt)
 #else
 #define ECMRT_Q_AT(p, off) ecmrt_q_lerp((p) + (off), ECMRT_NPAR, w)
@@ -276,20 +332,43 @@ ECMRT_Q_HOT uint32_t ecmrt_q_recip(uint32_t d, unsigned *sh)
 #define ECMRT_XMAX_Q26 ((int64_t)1442840576)       /* 21.5 * 2^26 */
 #define ECMRT_LOG2E_Q30 ((int64_t)1549082005)      /* log2(e) * 2^30 */
 #define ECMRT_LN2_Q30 ((int64_t)744261118)         /* ln(2) * 2^30 */
-#define ECMRT_XSMALL_Q26 ((int64_t)1 << 21)        /* 2^-5 */
+#define ECMRT_XSMALL_Q26 ((int64_t)1 << 24)        /* 1/4 */
+#define ECMRT_XSMALL_Q30 ((int64_t)1 << 28)
 
-/* c = 1 - exp(-x) in Q30 for 0 <= x < 2^-5 given in Q30 (the usual dt/tau): the series
- * x (1 - x (1/2 - x (1/6 - x/24))) (truncation < 2^-26.9 relative) */
-ECMRT_Q_HOT int32_t ecmrt_q_one_minus_exp_neg_small(int64_t x30)
+/* c[0] + x (c[1] + x (... + x c[n-1])) by Horner from c[n-1], each product rounded to Q30
+ * (|x p| < 2^63 for the callers' x and coefficients) */
+ECMRT_Q_SHARED int64_t ecmrt_q_horner(const int32_t *c, int n, int64_t x)
 {
-    int32_t q;
-    q = 178956971 - (int32_t)ECMRT_RSHR(x30 * 44739243, ECMRT_Q30);   /* 1/6 - x/24 */
-    q = 536870912 - (int32_t)ECMRT_RSHR(x30 * q, ECMRT_Q30);          /* 1/2 - x q */
-    q = ECMRT_ONE30 - (int32_t)ECMRT_RSHR(x30 * q, ECMRT_Q30);        /* 1 - x q */
-    return (int32_t)ECMRT_RSHR(x30 * q, ECMRT_Q30);
+    int64_t p = c[n - 1];
+    int k;
+    for (k = n - 2; k >= 0; k--) {
+        p = c[k] + ECMRT_RSHR(x * p, ECMRT_Q30);
+    }
+    return p;
 }
 
-/* c = 1 - exp(-x) in Q30 for 2^-5 <= x given in Q26 (x >= 21.5 gives 1): exp(-x) = 2^-y,
+/* c = 1 - exp(-x) in Q30 for 0 <= x < 1/4 given in Q30 (the dt/tau of a 10 Hz task, tau >
+ * 0.4 s): c = x P(x), P(x) = 1 + a1 x + a2 x^2 + a3 x^3 + a4 x^4 the minimax polynomial of
+ * (1 - exp(-x))/x on [0, 1/4] with P(0) = 1 (relative error < 2^-28.4), coefficients in Q30;
+ * c within 1.3 LSB of Q30. Horner on (0, 1, a1 .. a4): the last step x (1 + x q) rounds as
+ * x + x q, since x 2^30 is a multiple of 2^30. Unrolled unless optimising for size. */
+ECMRT_Q_HOT int32_t ecmrt_q_one_minus_exp_neg_small(int64_t x30)
+{
+#if defined(__OPTIMIZE_SIZE__)
+    static const int32_t c[6] = {0, ECMRT_ONE30, -536870529, 178942183, -44560426, 8085459};
+    return (int32_t)ecmrt_q_horner(c, 6, x30);
+#else
+    int64_t q;
+    q = 8085459;
+    q = -44560426 + ECMRT_RSHR(x30 * q, ECMRT_Q30);
+    q = 178942183 + ECMRT_RSHR(x30 * q, ECMRT_Q30);
+    q = -536870529 + ECMRT_RSHR(x30 * q, ECMRT_Q30);
+    q = ECMRT_RSHR(x30 * q, ECMRT_Q30);
+    return (int32_t)(x30 + ECMRT_RSHR(x30 * q, ECMRT_Q30));
+#endif
+}
+
+/* c = 1 - exp(-x) in Q30 for 1/4 <= x given in Q26 (x >= 21.5 gives 1): exp(-x) = 2^-y,
  * y = x log2(e) = n + j/8 + f: 2^-(j/8) from a table, 2^-f by its Taylor series to r^6
  * (r = f ln2, error < 1e-11) */
 static inline int32_t ecmrt_q_one_minus_exp_neg_big(int64_t x)
@@ -306,7 +385,6 @@ static inline int32_t ecmrt_q_one_minus_exp_neg_big(int64_t x)
     int64_t p;
     int32_t y, f, r, e;
     unsigned n, j;
-    int idx;
     if (x >= ECMRT_XMAX_Q26) {
         return ECMRT_ONE30;
     }
@@ -315,10 +393,7 @@ static inline int32_t ecmrt_q_one_minus_exp_neg_big(int64_t x)
     j = ((unsigned)y >> 23) & 7u;
     f = y & 0x7FFFFF;
     r = (int32_t)ECMRT_RSHR((int64_t)f * ECMRT_LN2_Q30, 26);  /* f ln2 in Q30, < 0.0867 */
-    p = poly[6];
-    for (idx = 5; idx >= 0; idx--) {
-        p = poly[idx] + ECMRT_RSHR((int64_t)r * p, ECMRT_Q30);
-    }
+    p = ecmrt_q_horner(poly, 7, r);
     e = (int32_t)ECMRT_RSHR((int64_t)exp2_tab[j] * p, ECMRT_Q30);   /* Q30, in (0.5, 1] */
     if (n > 0u) {
         e = (int32_t)(((uint32_t)e + (1u << (n - 1u))) >> n);
@@ -342,15 +417,38 @@ static inline int32_t ecmrt_q_one_minus_exp_neg_q26(int64_t x)
 #if !defined(ECMRT_Q_T) || !defined(ECMRT_SH_RATE)
 #error "variable-dt fixed point needs ECMRT_Q_T and ECMRT_SH_RATE"
 #endif
+/* c = 1 - exp(-x) in Q30 for x = dt r 2^-sh (in Q30), dt >= 0 in Q16 s, r = ecmrt_q_recip
+ * of tau (in Q_T s) and sh >= 1 its shift minus Q_T + 14: the polynomial below x = 1/4, the
+ * range-reduced exp above; dt = 0 gives 0 */
+ECMRT_Q_HOT int32_t ecmrt_q_c_rate(int32_t dt, uint32_t r, unsigned sh)
+{
+    const int64_t x = ECMRT_RSHRV((int64_t)dt * (int64_t)r, sh);     /* Q30 */
+    if (x < ECMRT_XSMALL_Q30) {
+        return ecmrt_q_one_minus_exp_neg_small(x);
+    }
+    return ecmrt_q_one_minus_exp_neg_big(ECMRT_RSHR(x, 4));
+}
+
+#if ECMRT_TAU_T
+/* c = 1 - exp(-x) in Q30 for x = dt kc, dt >= 0 in Q16 s, kc = 1/tau in Q_KR (the state's
+ * coefficient): x in Q30 by one multiply and a constant shift (16 + Q_KR - 30 >= 1) */
+ECMRT_Q_HOT int32_t ecmrt_q_c_kr(int32_t dt, int32_t kc)
+{
+    const int64_t x = ECMRT_RSHR((int64_t)dt * kc, ECMRT_Q_KR - 14);
+    if (x < ECMRT_XSMALL_Q30) {
+        return ecmrt_q_one_minus_exp_neg_small(x);
+    }
+    return ecmrt_q_one_minus_exp_neg_big(ECMRT_RSHR(x, 4));
+}
+#endif
+
 /* c = 1 - exp(-dt/tau) in Q30, dt in Q16 s, tau > 0 in Q_T s (Q_T <= 21): x = dt (1/tau)
- * = dt r 2^-k in Q26, k = sh - Q_T - 10, and in Q30 (shift k - 4) for the series below
- * x = 2^-5; k < 5 means tau < 2^-16 s, so x >= 1 for any dt > 0, and k < 1 x >= 32 (c = 1) */
+ * = dt r 2^-k in Q26, k = sh - Q_T - 10, and in Q30 (shift k - 4); k < 5 means tau <
+ * 2^-16 s, so x >= 1 for any dt > 0, and k < 1 x >= 32 (c = 1) */
 ECMRT_Q_HOT int32_t ecmrt_q_c_dt_tau(int32_t dt, int32_t tau)
 {
     unsigned sh;
     const uint32_t r = ecmrt_q_recip((uint32_t)tau, &sh);
-    const int64_t p = (int64_t)dt * (int64_t)r;
-    int64_t x;
     if (dt <= 0) {
         return 0;
     }
@@ -359,13 +457,9 @@ ECMRT_Q_HOT int32_t ecmrt_q_c_dt_tau(int32_t dt, int32_t tau)
     }
     sh -= (unsigned)(ECMRT_Q_T + 10);
     if (sh >= 5u) {
-        x = ECMRT_RSHRV(p, sh - 4u);                        /* Q30 */
-        if (x < ((int64_t)1 << 25)) {
-            return ecmrt_q_one_minus_exp_neg_small(x);
-        }
-        return ecmrt_q_one_minus_exp_neg_big(ECMRT_RSHR(x, 4));
+        return ecmrt_q_c_rate(dt, r, sh - 4u);
     }
-    return ecmrt_q_one_minus_exp_neg_big(ECMRT_RSHRV(p, sh));
+    return ecmrt_q_one_minus_exp_neg_big(ECMRT_RSHRV((int64_t)dt * (int64_t)r, sh));
 }
 #else
 #if !defined(ECMRT_Q_DF) || !defined(ECMRT_Q_DS) || !defined(ECMRT_Q_CF) || !defined(ECMRT_Q_CS)
@@ -378,6 +472,68 @@ static inline int32_t ecmrt_q_inv_d(int32_t dd, unsigned qcd)
     unsigned sh;
     const uint32_t r = ecmrt_q_recip((uint32_t)dd, &sh);
     return (int32_t)ECMRT_RSHRV((int64_t)r, sh - qcd);
+}
+#endif
+
+#if ECMRT_TAU_T
+/* the value at the temperature of a per-row value b[0] (next row b[stride]) */
+static inline int32_t ecmrt_q_tval(const int32_t *b, unsigned stride, int32_t wt)
+{
+#if ECMRT_TEMP
+    return ecmrt_q_lerp(b, stride, wt);
+#else
+    (void)stride;
+    (void)wt;
+    return b[0];
+#endif
+}
+
+#if ECMRT_VARIABLE_DT
+#ifndef ECMRT_Q_KR
+#error "ECMRT_TAU_T at variable dt needs ECMRT_Q_KR"
+#endif
+/* 1/tau in Q_KR (< 2^31: the generator picks Q_KR for the smallest tau of the tables) from
+ * tau in Q_T: r 2^-sh = 1/tau_raw, so 1/tau 2^Q_KR = r 2^(Q_T + Q_KR - sh), rounded (the
+ * shift of 2 r is >= 1) */
+static inline int32_t ecmrt_q_rate(int32_t tau)
+{
+    unsigned sh;
+    const uint32_t r = ecmrt_q_recip((uint32_t)tau, &sh);
+    return (int32_t)ECMRT_RSHRV((int64_t)r << 1, sh + 1u - (unsigned)(ECMRT_Q_T + ECMRT_Q_KR));
+}
+#endif
+
+/* The coefficients of the time constants at the temperature of row kt, weight wt, for both
+ * directions (one set with ECMRT_TAU_SAME), into the state: 1/tau in Q_KR (variable dt: x =
+ * dt/tau is then dt kc, one multiply) or c = 1/D in Q_C* (fixed dt). A function of the
+ * temperature alone: the step recomputes them when the temperature changes, init at the
+ * first row. */
+#if defined(__GNUC__)
+__attribute__((noinline))                   /* out of the step's hot path */
+#endif
+static void ecmrt_q_coefs(const ecmrt_q_model_t *m, ECMRT_STATE *s, unsigned kt, int32_t wt)
+{
+    unsigned d;
+    for (d = 0u; d < ECMRT_KC_DIRS; d++) {
+        const int32_t *tk = m->dir[d].tk + 2u * kt;
+#if ECMRT_DIFF
+        const int32_t *br = m->dir[d].branch + ECMRT_NB * kt;
+#endif
+#if ECMRT_VARIABLE_DT
+        s->kc[d][ECMRT_K_F] = ecmrt_q_rate(ecmrt_q_tval(tk, 2u, wt));
+        s->kc[d][ECMRT_K_S] = ecmrt_q_rate(ecmrt_q_tval(tk + 1u, 2u, wt));
+#if ECMRT_DIFF
+        s->kc[d][ECMRT_K_D] = ecmrt_q_rate(ecmrt_q_tval(br + ECMRT_B_KD, ECMRT_NB, wt));
+#endif
+#else
+        s->kc[d][ECMRT_K_F] = ecmrt_q_inv_d(ecmrt_q_tval(tk, 2u, wt), ECMRT_Q_CF + ECMRT_Q_DF);
+        s->kc[d][ECMRT_K_S] = ecmrt_q_inv_d(ecmrt_q_tval(tk + 1u, 2u, wt), ECMRT_Q_CS + ECMRT_Q_DS);
+#if ECMRT_DIFF
+        s->kc[d][ECMRT_K_D] = ecmrt_q_inv_d(ecmrt_q_tval(br + ECMRT_B_KD, ECMRT_NB, wt),
+                                            ECMRT_Q_CD + ECMRT_Q_DD);
+#endif
+#endif
+    }
 }
 #endif
 
@@ -441,13 +597,19 @@ static inline void ecmrt_q_init(const ecmrt_q_model_t *m, ECMRT_STATE *s, int32_
     s->t_in = INT32_MIN;                    /* below every table: k_t = 0, w_t = 0 */
     s->w_t = 0;
 #endif
+#if ECMRT_TAU_T
+    ecmrt_q_coefs(m, s, 0u, 0);              /* those of k_t = 0, w_t = 0 */
+#endif
     (void)m;
 }
 
-/* u + c (t - u) with c in Q(qc), saturated */
+/* u + c (t - u) with c in [0, 2^qc] in Q(qc): the rounded step lies between 0 and t - u, so
+ * the result lies between u and t, and t (r i, in Q_V) is within the int32 range by the
+ * choice of Q_V (it holds i_max times every resistance with its largest factor): no
+ * saturation is needed */
 ECMRT_Q_SHARED int32_t ecmrt_q_rc(int32_t u, int32_t c, int64_t t, unsigned qc)
 {
-    return ecmrt_q_sat32((int64_t)u + ECMRT_RSHRV((t - (int64_t)u) * c, qc));
+    return (int32_t)((int64_t)u + ECMRT_RSHRV((t - (int64_t)u) * c, qc));
 }
 #define ECMRT_Q_RC(u, c, t, qc) ecmrt_q_rc((u), (c), (t), (unsigned)(qc))
 
@@ -461,13 +623,15 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
 #endif
 {
     const ecmrt_q_dir_t *d;
+#if !ECMRT_TEMP
     const int32_t *row;
+#endif
     unsigned dir = s->charging, kd, ko = ECMRT_HINT_OCV(s), kt = ECMRT_HINT_T(s);
     int32_t soc, w, cf, cs, uf, us, ocv;
     int64_t acc, dsoc, v, t0, tf, ts;
 #if ECMRT_TEMP
-    int32_t wt, cw[4];
-    unsigned st;
+    int32_t wt;
+    unsigned key;
 #endif
 #if ECMRT_BRANCHES
     const int32_t *br;
@@ -512,7 +676,8 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
      *    an LSB) and the part below 1 LSB is carried in soc_rem: no rounding drift. */
 #if ECMRT_VARIABLE_DT
     {
-        const int32_t rate = ecmrt_q_sat32(ECMRT_RSHR((int64_t)i * m->k_soc, ECMRT_SH_RATE));
+        /* |i k_soc| < 2^31 after the shift: Q_RATE holds i_max k_soc */
+        const int32_t rate = (int32_t)ECMRT_RSHR((int64_t)i * m->k_soc, ECMRT_SH_RATE);
         acc = s->soc_rem + (int64_t)rate * dt;
     }
 #else
@@ -524,39 +689,50 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
     s->soc = soc;
     /* 3. parameters at the new SOC (and temperature) */
     d = &m->dir[dir];
-    kd = s->k_dir[dir];
-    w = ecmrt_q_locate(&d->g, soc, &kd, ECMRT_Q_G);
+    kd = ECMRT_HINT_DIR(s, dir);
+    w = ECMRT_Q_RC_LOCATE(&d->g, soc, &kd);
 #if ECMRT_TEMP
-    /* the temperature's row and weight, kept with the temperature (see ecmrt_f32_step;
-     * -Os builds search every step: the same result, less code) */
-#if defined(__OPTIMIZE_SIZE__)
-    wt = ecmrt_q_locate(&m->t, temp, &kt, ECMRT_Q_GT);
-#else
+    /* the temperature's row and weight, kept with the temperature (see ecmrt_f32_step; a
+     * corrupted k_t is clamped where it is used) */
     if (temp == s->t_in) {
         wt = s->w_t;
-        if (kt > (unsigned)m->t.n - 2u) {
-            kt = (unsigned)m->t.n - 2u;
-        }
     } else {
         wt = ecmrt_q_locate(&m->t, temp, &kt, ECMRT_Q_GT);
         s->t_in = temp;
         s->w_t = wt;
-    }
+        ECMRT_CACHE_CLEAR(s);
+#if ECMRT_TAU_T
+        ecmrt_q_coefs(m, s, kt, wt);
 #endif
-    ecmrt_q_corners(cw, w, wt);
-    st = ECMRT_NPAR * (unsigned)d->g.n;
-    row = d->rows + st * kt + ECMRT_NPAR * kd;
+    }
+    key = (kd << 1) | dir;
+    if (key != s->pc_key) {
+        ecmrt_q_segment(d->rows + ECMRT_NPAR * ((unsigned)d->g.n * ECMRT_KT(kt) + kd), ECMRT_NPAR,
+                        ECMRT_NPAR, ECMRT_NPAR * (unsigned)d->g.n, wt, s->pc);
+        s->pc_key = (uint16_t)key;
+    }
 #else
     row = d->rows + ECMRT_NPAR * kd;
 #endif
 #if ECMRT_BRANCHES
 #if ECMRT_TEMP
+    kt = ECMRT_KT(kt);
     br = d->branch + ECMRT_NB * kt;
 #else
     br = d->branch;
 #endif
 #endif
-#if ECMRT_VARIABLE_DT
+#if ECMRT_TAU_T && ECMRT_VARIABLE_DT
+    cf = ecmrt_q_c_kr(dt, ECMRT_KC(s, dir, ECMRT_K_F));
+    cs = ecmrt_q_c_kr(dt, ECMRT_KC(s, dir, ECMRT_K_S));
+#define ECMRT_QC_F ECMRT_Q30
+#define ECMRT_QC_S ECMRT_Q30
+#elif ECMRT_TAU_T
+    cf = ECMRT_KC(s, dir, ECMRT_K_F);
+    cs = ECMRT_KC(s, dir, ECMRT_K_S);
+#define ECMRT_QC_F ECMRT_Q_CF
+#define ECMRT_QC_S ECMRT_Q_CS
+#elif ECMRT_VARIABLE_DT
     cf = ecmrt_q_c_dt_tau(dt, ECMRT_Q_AT(row, ECMRT_P_KF));
     cs = ecmrt_q_c_dt_tau(dt, ECMRT_Q_AT(row, ECMRT_P_KS));
 #define ECMRT_QC_F ECMRT_Q30
@@ -601,10 +777,14 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
 #if ECMRT_OCV_SHARED
     ocv = ECMRT_Q_AT(row, ECMRT_P_OCV);
 #else
-    w = ecmrt_q_locate(&m->ocv_g, soc, &ko, ECMRT_Q_G);
+    w = ECMRT_Q_OCV_LOCATE(&m->ocv_g, soc, &ko);
 #if ECMRT_TEMP
-    ecmrt_q_corners(cw, w, wt);
-    ocv = ecmrt_q_bilerp(m->ocv + (unsigned)m->ocv_g.n * kt + ko, 1u, (unsigned)m->ocv_g.n, cw);
+    if (ko != s->oc_key) {
+        ecmrt_q_segment(m->ocv + (unsigned)m->ocv_g.n * ECMRT_KT(kt) + ko, 1u, 1u, (unsigned)m->ocv_g.n, wt,
+                        s->oc);
+        s->oc_key = (uint8_t)ko;
+    }
+    ocv = s->oc[0] + (int32_t)ECMRT_RSHR((int64_t)s->oc[1] * w, ECMRT_Q30);
 #else
     ocv = ecmrt_q_lerp(m->ocv + ko, 1u, w);
 #endif
@@ -612,11 +792,19 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
     v = (((int64_t)ocv + t0) + uf) + us;
 #if ECMRT_DIFF
 #if ECMRT_VARIABLE_DT
+#if ECMRT_TAU_T
+    cd = ecmrt_q_c_kr(dt, ECMRT_KC(s, dir, ECMRT_K_D));
+#else
     cd = ecmrt_q_c_dt_tau(dt, ECMRT_Q_TV(br, ECMRT_B_KD));
+#endif
     ud = ECMRT_Q_RC(s->u_diff, cd, ECMRT_RSHR((int64_t)ECMRT_Q_TV(br, ECMRT_B_RD) * i,
                                              ECMRT_Q_RD + ECMRT_Q_I - ECMRT_Q_V), ECMRT_Q30);
 #else
+#if ECMRT_TAU_T
+    cd = ECMRT_KC(s, dir, ECMRT_K_D);
+#else
     cd = ecmrt_q_inv_d(ECMRT_Q_TV(br, ECMRT_B_KD), ECMRT_Q_CD + ECMRT_Q_DD);
+#endif
     ud = ECMRT_Q_RC(s->u_diff, cd, ECMRT_RSHR((int64_t)ECMRT_Q_TV(br, ECMRT_B_RD) * i,
                                              ECMRT_Q_RD + ECMRT_Q_I - ECMRT_Q_V), ECMRT_Q_CD);
 #endif

@@ -18,6 +18,7 @@ from ecmgen.c import cref
 from ecmgen.c.cbuild import STRICT_CFLAGS, host_cc
 from ecmgen.c.codegen import c_float, describe, generate_c, prepare, render, runtime_dir
 from ecmgen.errors import InputError
+from test_codegen_helpers import realistic_model
 
 VARIANTS = [("float", None), ("float", 0.1), ("fixed", None), ("fixed", 0.1)]
 VARIANT_IDS = ["float-vdt", "float-dt0.1", "fixed-vdt", "fixed-dt0.1"]
@@ -81,7 +82,17 @@ def test_float_literals_round_trip(synthetic_model):
     lits = re.findall(r"(?<![\w.])(-?\d+\.\d*(?:e[-+]?\d+)?|-?\d+e[-+]?\d+)f\b", text)
     values = {np.float32(float(s)).view(np.uint32).item() for s in lits}
     d = spec.dirs[0]
-    for arr in (spec.ocv, spec.ocv_grid.x, spec.ocv_grid.inv_dx, d.r0, d.k_fast, d.k_slow):
+    assert spec.tau_t and spec.rc_uniform     # the synthetic model: taus constant, uniform grid
+    for arr in (spec.ocv, d.r0, d.k_fast, d.k_slow, [d.grid.x0, d.grid.inv_h, d.grid.n - 1]):
+        assert set(np.asarray(arr, np.float32).ravel().view(np.uint32).tolist()) <= values
+    # and a model with searched grids and time constants over SOC
+    spec = prepare(realistic_model(), numeric="float")
+    text = render(spec)["ecm_ecm.c"]
+    lits = re.findall(r"(?<![\w.])(-?\d+\.\d*(?:e[-+]?\d+)?|-?\d+e[-+]?\d+)f\b", text)
+    values = {np.float32(float(s)).view(np.uint32).item() for s in lits}
+    d = spec.dirs[0]
+    assert not spec.tau_t and not spec.rc_uniform
+    for arr in (spec.ocv, d.grid.x, d.grid.inv_dx, d.r0, d.k_fast, d.k_slow):
         assert set(np.asarray(arr, np.float32).ravel().view(np.uint32).tolist()) <= values
 
 
@@ -212,10 +223,19 @@ def test_runtime_constants_match_python_reference():
     f = _strip_comments((runtime_dir() / "ecmrt_f32.h").read_text())
     lits = {np.float32(float(x)) for x in re.findall(r"(\d+\.\d*(?:e[-+]?\d+)?)f\b", f)}
     for c in (cref.F_INVLN2, cref.F_LN2_HI, cref.F_LN2_LO, cref.F_HALF_LN2, cref.F_XMAX,
-              *cref.F_TAYLOR):
+              *cref.F_TAYLOR, *cref.F_SMALL):
         assert c in lits, c
     assert "(x - fn * 0.693145752f) - fn * 1.42860677e-06f" in f
-    assert int(cref.F_SERIES_X.view(np.uint32)) == 0x3D000000 and "bits.u < 0x3D000000u" in f
+    assert int(cref.F_SERIES_X.view(np.uint32)) == 0x3E800000 and "bits.u < 0x3E800000u" in f
+    # the fixed-point polynomial below x = 1/4: the float one's coefficients in Q30
+    small = re.search(r"one_minus_exp_neg_small\(int64_t x30\)\n\{(.*?)\n\}", q, re.S).group(1)
+    size, fast = small.split("#else")       # -Os: Horner on a table; else unrolled, the same
+    assert [int(v) for v in re.findall(r"(-?\d{6,})", fast)] == list(cref.Q_SMALL)
+    assert [int(v) for v in re.findall(r"(-?\d{6,})", size)] == list(cref.Q_SMALL[::-1])
+    assert "{0, ECMRT_ONE30, -" in size
+    b = [float(v) for v in cref.F_SMALL]
+    assert [abs(v) / 2**30 for v in cref.Q_SMALL] == pytest.approx(b, rel=1e-6)
+    assert f"ECMRT_XSMALL_Q30 ((int64_t)1 << 28)" in q and cref.Q_XSMALL30 == 2**28
 
 
 def test_make_file_list(tmp_path, synthetic_model):

@@ -160,6 +160,45 @@ def temperature_fitted_model():
     return load_model(TEMPERATURE_MODEL)
 
 
+# the shared pulse tests' cell temperatures: the OCV rows of a model built from them
+PULSE_TEST_T_C = (-19.9, -9.9, 0.6, 25.8)
+
+
+def fitter_layout_model(rows: slice | None = None, ocv_t_c=PULSE_TEST_T_C, branches: bool = False,
+                        same_tau: bool = True):
+    """The test model over temperature (temperature_fitted_model, 14 x 21) in the layout the
+    current fitter gives (``ecmgen build`` with several pulse tests, method "curve"): RC
+    tables on the uniform 21-point SOC grid and the 5 K temperature grid, each time constant
+    constant along SOC (the curve fit's; here the row's value at 50 % SOC) and the same in
+    both directions, the OCV on its own uniform 101-point SOC grid with one row per pulse test
+    at its cell temperature (``ocv_t_c``). ``rows`` selects temperature rows of the RC tables
+    (e.g. slice(4, 8): 0 .. 15 degC); without ``branches`` no diffusion / Butler-Volmer;
+    without ``same_tau`` the charge direction's time constants 1.25 times the discharge's
+    (ECMRT_TAU_T without ECMRT_TAU_SAME)."""
+    from dataclasses import replace
+
+    from ecmgen.model.model import BRANCH_FIELDS, RC_FIELDS, OcvOverTemperature
+
+    m = temperature_fitted_model()
+    rows = rows if rows is not None else slice(None)
+
+    def table(t, ref, tau_scale=1.0):
+        kw = {k: getattr(t, k)[rows] for k in (*RC_FIELDS, "fit_error", "converged")}
+        for k in ("tau_fast_s", "tau_slow_s"):
+            mid = tau_scale * getattr(ref, k)[rows][:, ref.soc.size // 2]
+            kw[k] = np.repeat(mid[:, None], t.soc.size, axis=1)
+        for k in BRANCH_FIELDS:
+            v = getattr(t, k)
+            kw[k] = v[rows] if branches and v is not None else None
+        return replace(t, temperature_c=t.temperature_c[rows], **kw)
+
+    soc = np.round(np.linspace(0.0, 1.0, 101), 9)
+    temps = np.asarray(ocv_t_c, dtype=np.float64)
+    ocv = OcvOverTemperature(temps, soc, np.vstack([m.ocv.ocv_at(soc, float(t)) for t in temps]))
+    return replace(m, ocv=ocv, charge=table(m.charge, m.discharge, 1.0 if same_tau else 1.25),
+                   discharge=table(m.discharge, m.discharge))
+
+
 def load_cycle_t(folder: str, name: str):
     """A shared drive cycle with its cell temperature (Battery_Temp_degC)."""
     import scipy.io

@@ -145,12 +145,25 @@ def _pairs(a: np.ndarray, axis: int) -> np.ndarray:
 
 def table_rows(spec: CSpec, d: CDir) -> np.ndarray:
     """A direction's parameter table as the runtime reads it: [temperature row][SOC point]
-    [r0, r_fast, k_fast, r_slow, k_slow (, ocv when the OCV shares the grid)], float: each
-    a pair along SOC."""
-    cols = [d.r0, d.r_fast, d.k_fast, d.r_slow, d.k_slow] + ([spec.ocv] if spec.ocv_shared else [])
+    [r0, r_fast, k_fast, r_slow, k_slow (, ocv when the OCV shares the grid)], without the
+    k columns when the time constants depend on temperature only (ECMRT_TAU_T: they are in
+    :func:`tau_rows`); float: each a pair along SOC (one row) or along temperature (the
+    runtime interpolates in temperature first)."""
+    cols = ([d.r0, d.r_fast, d.r_slow] if spec.tau_t else
+            [d.r0, d.r_fast, d.k_fast, d.r_slow, d.k_slow]) + ([spec.ocv] if spec.ocv_shared else [])
     if spec.fixed:
         return np.stack(cols, axis=-1)
-    return np.concatenate([_pairs(c, 1) for c in cols], axis=-1)
+    return np.concatenate([_pairs(c, 0 if spec.temp else 1) for c in cols], axis=-1)
+
+
+def tau_rows(spec: CSpec, d: CDir) -> np.ndarray | None:
+    """ECMRT_TAU_T: [temperature row][k_fast, k_slow], float: pairs along temperature."""
+    if not spec.tau_t:
+        return None
+    cols = [d.k_fast[:, 0], d.k_slow[:, 0]]
+    if spec.fixed:
+        return np.stack(cols, axis=-1)
+    return np.concatenate([_pairs(c, 0) for c in cols], axis=-1)
 
 
 def branch_rows(spec: CSpec, d: CDir) -> np.ndarray | None:
@@ -164,7 +177,7 @@ def branch_rows(spec: CSpec, d: CDir) -> np.ndarray | None:
 
 
 def ocv_rows(spec: CSpec) -> np.ndarray:
-    return spec.ocv if spec.fixed else _pairs(spec.ocv, 1)
+    return spec.ocv if spec.fixed else _pairs(spec.ocv, 0 if spec.temp else 1)
 
 
 def _ranges(spec: CSpec) -> list[dict]:
@@ -243,30 +256,42 @@ def _context(spec: CSpec) -> dict:
     arrays = _Arrays("int32_t" if fixed else "float", fmt, 5)
     kname = ("tau_fast_s", "tau_slow_s") if spec.variable_dt else ("inv_c_fast", "inv_c_slow")
 
-    def grid(g: CGrid, tag: str, what: str, xname: str = "soc") -> dict:
-        return {"x": arrays.add(f"{tag}_{xname}", g.x, f"{tag}: {what} breakpoints"),
-                "inv_dx": arrays.add(f"{tag}_inv_dx", g.inv_dx, f"{tag}: 1 / breakpoint spacing"),
-                "n": g.n}
+    def grid(g: CGrid, tag: str, what: str, xname: str = "soc", uniform: bool = False) -> dict:
+        if uniform:             # ecmrt_*_ugrid_t: located in O(1), no arrays
+            if fixed:
+                return {"init": f"{{ {(g.n - 1) << 30}, {int(g.x0)}, {int(g.inv_h)}, {g.n}u }}",
+                        "n": g.n}
+            return {"init": f"{{ {c_float(g.x0)}, {c_float(g.inv_h)}, {c_float(g.n - 1)}, {g.n}u }}",
+                    "n": g.n}
+        x = arrays.add(f"{tag}_{xname}", g.x, f"{tag}: {what} breakpoints")
+        inv = arrays.add(f"{tag}_inv_dx", g.inv_dx, f"{tag}: 1 / breakpoint spacing")
+        return {"init": f"{{ {x}, {inv}, {g.n}u }}", "n": g.n}
 
     n_t = spec.ocv.shape[0]
     rows_note = f", {n_t} temperature rows" if spec.temp else ""
-    pair = "" if fixed else " (each with the difference to the next SOC breakpoint)"
+    pair = "" if fixed else (" (each with the difference to the next temperature row)" if spec.temp
+                             else " (each with the difference to the next SOC breakpoint)")
     temp = grid(spec.temp_grid, "temp", "temperature (degC" + (" Q8)" if fixed else ")"),
                 "c") if spec.temp else None
     shared = spec.ocv_shared
-    ocv_grid = None if shared else grid(spec.ocv_grid, "ocv", "SOC")
+    ocv_grid = None if shared else grid(spec.ocv_grid, "ocv", "SOC", uniform=spec.ocv_uniform)
     ocv = None if shared else arrays.add("ocv_v", ocv_rows(spec), "open-circuit voltage" + pair +
                                          rows_note)
     dirs = []
     for d, tag in zip(spec.dirs, ("dis", "chg")):
         br = branch_rows(spec, d)
+        tk = tau_rows(spec, d)
         names = [k for k, v in (("r_diff", d.r_diff), ("tau_diff_s" if spec.variable_dt else
                                 "inv_c_diff", d.k_diff), ("i0_a", d.i0)) if v is not None]
+        params = "r0, r_fast, r_slow" if spec.tau_t else f"r0, r_fast, {kname[0]}, r_slow, {kname[1]}"
         dirs.append({
-            "g": grid(d.grid, tag, "SOC"),
+            "g": grid(d.grid, tag, "SOC", uniform=spec.rc_uniform),
             "rows": arrays.add(f"{tag}_rows", table_rows(spec, d),
-                               f"{tag}: per SOC breakpoint r0, r_fast, {kname[0]}, r_slow, "
-                               f"{kname[1]}" + (", ocv" if shared else "") + pair + rows_note),
+                               f"{tag}: per SOC breakpoint {params}" + (", ocv" if shared else "")
+                               + pair + rows_note),
+            "tk": None if tk is None else arrays.add(
+                f"{tag}_tau", tk, f"{tag}: per temperature row {kname[0]}, {kname[1]} (constant "
+                "along SOC)" + ("" if fixed else " (each with the difference to the next row)")),
             "branch": None if br is None else arrays.add(
                 f"{tag}_branch", br, f"{tag}: per temperature row {', '.join(names)}" +
                 ("" if fixed else " (each with the difference to the next row)")),
@@ -288,6 +313,9 @@ def _context(spec: CSpec) -> dict:
         names = ["Q_I", "Q_V", "Q_G", "Q_R0", "Q_RF", "Q_RS", "SH_DSOC"]
         names += ["Q_T", "SH_RATE"] if spec.variable_dt else ["Q_DF", "Q_DS", "Q_CF", "Q_CS"]
         names += ["Q_GT"] if spec.temp else []
+        names += ["Q_KR"] if spec.tau_t and spec.variable_dt else []
+        names += ["Q_GU"] if spec.rc_uniform else []
+        names += ["Q_GUO"] if spec.ocv_uniform else []
         names += (["Q_RD"] + ([] if spec.variable_dt else ["Q_DD", "Q_CD"])) if spec.diff else []
         names += ["Q_I0"] if spec.has_bv else []
         fmts = {n: f"{p.upper()}_ECM_{n}" for n in names}

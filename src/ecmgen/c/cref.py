@@ -18,11 +18,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .qformat import DT_MAX_S, Q30, Q_D, Q_TEMP, SOC_LIM, quantize, recip_q  # noqa: F401
+from .qformat import DT_MAX_S, Q30, Q_D, Q_TEMP, SOC_LIM, quantize, rate_q, recip_q  # noqa: F401
 from .spec import CSpec
 
 F32 = np.float32
 PARAMS = ("r0", "r_fast", "r_slow", "k_fast", "k_slow")
+RESISTANCES = ("r0", "r_fast", "r_slow")
 
 # --- constants of ecmrt_f32.h (same decimal text, hence the same float32) -------------
 F_INVLN2 = F32("1.44269502")
@@ -32,7 +33,10 @@ F_TAYLOR = tuple(F32(s) for s in ("1.98412701e-04", "1.38888892e-03", "8.3333337
                                   "4.16666679e-02", "1.66666672e-01", "0.5", "1.0"))
 F_XMAX = F32(87.0)
 F_HALF_LN2 = F32("0.346573591")
-F_SERIES_X = F32("0.03125")        # 2^-5 (bits 0x3D000000): below, a short series
+F_SERIES_X = F32("0.25")           # bits 0x3E800000: below, the polynomial F_SMALL
+# 1 - exp(-x) = x (1 - b1 x + b2 x^2 - b3 x^3 + b4 x^4) on [0, 1/4]: (b4, b3, b2, b1)
+F_SMALL = tuple(F32(s) for s in ("7.53017003e-03", "4.15001325e-02", "1.66652888e-01",
+                                 "4.99999642e-01"))
 F_KELVIN = F32("273.149994")
 F_ARR_T = (F32(-40.0), F32(85.0))
 
@@ -42,7 +46,9 @@ INT32_MIN, INT32_MAX = -2**31, 2**31 - 1
 Q_LOG2E = 1549082005
 Q_LN2 = 744261118
 Q_XMAX26 = 1442840576
-Q_XSMALL26 = 1 << 21
+Q_XSMALL26 = 1 << 24                        # 1/4 in Q26
+Q_XSMALL30 = 1 << 28
+Q_SMALL = (8085459, -44560426, 178942183, -536870529)   # the same polynomial, Q30 (a4 .. a1)
 Q_EXP2_TAB = (1073741824, 984625594, 902905651, 827968132, 759250125, 696235434, 638450708,
               585461881)
 Q_POLY = (1073741824, -1073741824, 536870912, -178956971, 44739243, -8947849, 1491308)
@@ -121,8 +127,13 @@ def one_minus_exp_neg_f32(x) -> np.ndarray:
     q, s = _exp_neg_parts_f32(x)
     with np.errstate(all="ignore"):
         out = (F32(1.0) - s) - s * q
-        # +0 <= x < 2^-5: x (1 - x (1/2 - x (1/6 - x/24))), alternating signs as in C
-        small = -(x * (x * (F32(0.5) + x * (x * F_TAYLOR[3] - F_TAYLOR[4])) - F32(1.0)))
+        # +0 <= x < 1/4: the minimax polynomial, as in C
+        b4, b3, b2, b1 = F_SMALL
+        q = x * b4 - b3
+        q = x * q + b2
+        q = x * q - b1
+        q = x * q + F32(1.0)
+        small = x * q
     out = np.where((x < F_SERIES_X) & (x >= 0), small, out)    # -0 and x < 0 give 0 below
     out = np.where(x >= F_XMAX, F32(1.0), out)
     return np.where(x > 0, out, F32(0.0)).astype(F32)
@@ -200,7 +211,16 @@ def cdr_factor_f32(ai, g_scale, g_inv_i0) -> np.ndarray:
     return ((F32(g_scale) * a) / x).astype(F32)
 
 
-def _weight_f32(grid, v):
+def _weight_f32(grid, v, uniform: bool = False):
+    if uniform:          # ecmrt_f32_ulocate
+        with np.errstate(all="ignore"):
+            u = ((v - grid.x0) * grid.inv_h).astype(F32)
+            below, above = ~(u >= 0), ~(u < F32(grid.n - 1))
+            k = np.where(below | above, 0, u).astype(np.int64)
+            w = (u - k.astype(F32)).astype(F32)
+        k = np.where(above & ~below, grid.n - 2, k)
+        w = np.where(below, F32(0.0), np.where(above, F32(1.0), w))
+        return k, w.astype(F32)
     k = _segments(grid.x, v)
     with np.errstate(all="ignore"):
         w = (v - grid.x[k]) * grid.inv_dx[k]
@@ -209,13 +229,14 @@ def _weight_f32(grid, v):
 
 
 def _lerp_f32(y, k, w, kt=None, wt=None):
-    """ecmrt_f32_lerp (y 1-D, or a row y[0] of a table) or ecmrt_f32_lerp2 (y[kt], y[kt + 1])."""
+    """ecmrt_f32_lerp (y 1-D, or a row y[0] of a table), or over temperature the segment
+    pairs of ecmrt_f32_segment (a, b at points k, k + 1, linear in temperature) then SOC."""
     if kt is None:
         y = y[0] if y.ndim == 2 else y
         return y[k] + (y[k + 1] - y[k]) * w
-    a = y[kt, k] + (y[kt, k + 1] - y[kt, k]) * w
-    b = y[kt + 1, k] + (y[kt + 1, k + 1] - y[kt + 1, k]) * w
-    return a + (b - a) * wt
+    a = y[kt, k] + (y[kt + 1, k] - y[kt, k]) * wt
+    b = y[kt, k + 1] + (y[kt + 1, k + 1] - y[kt, k + 1]) * wt
+    return a + (b - a) * w
 
 
 def _tv_f32(b, kt, wt):
@@ -297,11 +318,18 @@ def simulate_f32(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0,
 
     per_dir = []
     for d in spec.dirs:
-        k, w = _weight_f32(d.grid, soc)
-        p = {name: _lerp_f32(getattr(d, name), k, w, kt, wt) for name in PARAMS}
+        k, w = _weight_f32(d.grid, soc, spec.rc_uniform)
+        p = {name: _lerp_f32(getattr(d, name), k, w, kt, wt)
+             for name in (RESISTANCES if spec.tau_t else PARAMS)}
         for name in ("r_diff", "k_diff", "i0"):
             if getattr(d, name) is not None:
                 p[name] = _tv_f32(getattr(d, name), kt, wt)
+        if spec.tau_t:       # ecmrt_f32_coefs: 1/tau or 1/D at the temperature
+            with np.errstate(all="ignore"):
+                for name in ("k_fast", "k_slow"):
+                    p[name] = F32(1.0) / _tv_f32(getattr(d, name)[:, 0], kt, wt)
+                if spec.diff:
+                    p["k_diff"] = F32(1.0) / p["k_diff"]
         per_dir.append(p)
     p = {name: _pick(chg, per_dir, name).astype(F32) for name in per_dir[0]}
     fx = spec.fx
@@ -317,7 +345,16 @@ def simulate_f32(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0,
         with np.errstate(all="ignore"):
             a, x = asinh_f32(ai / p["i0"])
             p["r_fast"] = (p["r_fast"] * (a / x)).astype(F32)
-    if spec.variable_dt:
+    if spec.tau_t:
+        if spec.variable_dt:
+            with np.errstate(all="ignore"):
+                cf = one_minus_exp_neg_f32(dt * p["k_fast"])
+                cs = one_minus_exp_neg_f32(dt * p["k_slow"])
+        else:
+            cf, cs = p["k_fast"], p["k_slow"]
+        uf = _rc_f32(cf, p["r_fast"] * i)
+        us = _rc_f32(cs, p["r_slow"] * i)
+    elif spec.variable_dt:
         with np.errstate(all="ignore"):
             cf = one_minus_exp_neg_f32(dt / p["k_fast"])
             cs = one_minus_exp_neg_f32(dt / p["k_slow"])
@@ -326,13 +363,18 @@ def simulate_f32(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0,
     else:
         uf = _rc_f32(p["k_fast"], p["r_fast"] * i, divide=True)
         us = _rc_f32(p["k_slow"], p["r_slow"] * i, divide=True)
-    k, w = _weight_f32(spec.ocv_grid, soc)
+    k, w = (_weight_f32(spec.dirs[0].grid, soc, spec.rc_uniform) if spec.ocv_shared else
+            _weight_f32(spec.ocv_grid, soc, spec.ocv_uniform))
     ocv = _lerp_f32(spec.ocv, k, w, kt, wt)
     v = ((ocv + p["r0"] * i) + uf) + us
     out = {}
     if spec.diff:
         t = (p["r_diff"] * i).astype(F32)
-        if spec.variable_dt:
+        if spec.tau_t:
+            with np.errstate(all="ignore"):
+                cd = one_minus_exp_neg_f32(dt * p["k_diff"]) if spec.variable_dt else p["k_diff"]
+            ud = _rc_f32(cd, t)
+        elif spec.variable_dt:
             with np.errstate(all="ignore"):
                 ud = _rc_f32(one_minus_exp_neg_f32(dt / p["k_diff"]), t)
         else:
@@ -377,11 +419,13 @@ def _sat32(x):
 
 
 def _omexp_small_q(x30):
-    """ecmrt_q_one_minus_exp_neg_small: the series, x in Q30 (< 2^25)."""
-    q = 178956971 - _rshr(x30 * 44739243, 30)
-    q = 536870912 - _rshr(x30 * q, 30)
-    q = ONE30 - _rshr(x30 * q, 30)
-    return _rshr(x30 * q, 30)
+    """ecmrt_q_one_minus_exp_neg_small: the polynomial, x in Q30 (< 2^28)."""
+    x30 = np.asarray(x30, dtype=np.int64)
+    q = np.full_like(x30, Q_SMALL[0])
+    for c in Q_SMALL[1:]:
+        q = c + _rshr(x30 * q, 30)
+    q = _rshr(x30 * q, 30)
+    return x30 + _rshr(x30 * q, 30)
 
 
 def _omexp_big_q(x):
@@ -409,6 +453,22 @@ def one_minus_exp_neg_q26(x_raw) -> np.ndarray:
     return np.where(x <= 0, 0, c).astype(np.int64)
 
 
+def c_kr_q(dt_raw, kc, q_kr: int) -> np.ndarray:
+    """ecmrt_q_c_kr: 1 - exp(-x) in Q30, x = dt kc (dt >= 0 in Q16, kc = 1/tau in Q_KR)."""
+    x30 = _rshr(np.asarray(dt_raw, dtype=np.int64) * np.asarray(kc, dtype=np.int64), q_kr - 14)
+    small = x30 < Q_XSMALL30
+    return np.where(small, _omexp_small_q(np.where(small, x30, 0)),
+                    _omexp_big_q(np.where(small, Q_XSMALL26, _rshr(x30, 4)))).astype(np.int64)
+
+
+def c_rate_q(dt_raw, r, sh) -> np.ndarray:
+    """ecmrt_q_c_rate: 1 - exp(-x) in Q30, x = dt r 2^-sh in Q30 (dt >= 0 in Q16)."""
+    x30 = _rshr(np.asarray(dt_raw, dtype=np.int64) * np.asarray(r, dtype=np.int64), sh)
+    small = x30 < Q_XSMALL30
+    return np.where(small, _omexp_small_q(np.where(small, x30, 0)),
+                    _omexp_big_q(np.where(small, Q_XSMALL26, _rshr(x30, 4)))).astype(np.int64)
+
+
 def c_dt_tau_q(dt_raw, tau_raw, q_t: int) -> np.ndarray:
     """ecmrt_q_c_dt_tau: 1 - exp(-dt/tau) in Q30; dt in Q16, tau in Q_T (> 0)."""
     dt, tau = np.broadcast_arrays(np.asarray(dt_raw, dtype=np.int64),
@@ -417,7 +477,7 @@ def c_dt_tau_q(dt_raw, tau_raw, q_t: int) -> np.ndarray:
     p = np.maximum(dt, 0) * r
     k = sh - (q_t + 10)
     x30 = _rshr(p, np.maximum(k - 4, 1))
-    small = (k >= 5) & (x30 < (1 << 25))
+    small = (k >= 5) & (x30 < Q_XSMALL30)
     x26 = np.where(k >= 5, _rshr(x30, 4), _rshr(p, np.maximum(k, 1)))
     c = np.where(small, _omexp_small_q(np.where(small, x30, 0)),
                  _omexp_big_q(np.where(small, Q_XSMALL26, x26)))
@@ -468,12 +528,18 @@ def _rc_q(c: np.ndarray, t: np.ndarray, qc: int, u0: int = 0) -> np.ndarray:
     u = int(u0)
     half = 1 << (qc - 1)
     for k, (ck, tk) in enumerate(zip(c.tolist(), np.asarray(t).tolist())):
-        u = min(INT32_MAX, max(INT32_MIN, u + (((tk - u) * ck + half) >> qc)))
+        u = u + (((tk - u) * ck + half) >> qc)      # between u and t: no saturation (ecmrt_q_rc)
         out[k] = u
     return out
 
 
-def _weight_q(grid, v, g: int):
+def _weight_q(grid, v, g: int, uniform: bool = False):
+    if uniform:          # ecmrt_q_ulocate
+        u = ((np.asarray(v, dtype=np.int64) - grid.x0) * grid.inv_h) >> grid.shift
+        below, above = u < 0, u >= (grid.n - 1) << 30
+        k = np.where(below, 0, np.where(above, grid.n - 2, u >> 30))
+        w = np.where(below, 0, np.where(above, ONE30, u & (ONE30 - 1)))
+        return k.astype(np.int64), w.astype(np.int64)
     k = _segments(grid.x, v)
     w = _rshr((v - grid.x[k]) * grid.inv_dx[k], g)
     w = np.minimum(w, ONE30)
@@ -485,20 +551,14 @@ def _lerp_q(y, k, w):
     return y[k] + _rshr((y[k + 1] - y[k]) * w, 30)
 
 
-def corners_q(w, wt):
-    """ecmrt_q_corners: the four Q30 corner weights (k, t), (k+1, t), (k, t+1), (k+1, t+1)."""
-    wt1 = ONE30 - wt
-    c1, c3 = _rshr(w * wt1, 30), _rshr(w * wt, 30)
-    return wt1 - c1, c1, wt - c3, c3
-
-
 def _lerp2_q(y, k, w, kt=None, wt=None):
-    """ecmrt_q_lerp (one row) or ecmrt_q_bilerp (the corners of rows kt, kt + 1)."""
+    """ecmrt_q_lerp (one row), or over temperature the segment pairs of ecmrt_q_segment (a, b
+    at points k, k + 1, linear in temperature) then a + (b - a) w."""
     if kt is None:
         return _lerp_q(y[0] if y.ndim == 2 else y, k, w)
-    c = corners_q(w, wt)
-    return _rshr(y[kt, k] * c[0] + y[kt, k + 1] * c[1] + y[kt + 1, k] * c[2]
-                 + y[kt + 1, k + 1] * c[3], 30)
+    a = y[kt, k] + _rshr((y[kt + 1, k] - y[kt, k]) * wt, 30)
+    b = y[kt, k + 1] + _rshr((y[kt + 1, k + 1] - y[kt, k + 1]) * wt, 30)
+    return a + _rshr((b - a) * w, 30)
 
 
 def _tv_q(b, kt, wt):
@@ -540,7 +600,7 @@ def simulate_fixed_raw(spec: CSpec, i_raw, dt_raw=None, soc0_raw: int = ONE30,
         dt = np.maximum(_sat32(np.asarray(dt_raw, dtype=np.int64)), 0)
         if dt.shape != i.shape:
             raise ValueError("current and dt differ in length")
-        inc = _sat32(_rshr(i * spec.k_soc, q["SH_RATE"])) * dt
+        inc = _rshr(i * spec.k_soc, q["SH_RATE"]) * dt    # < 2^31 before * dt (Q_RATE)
     else:
         dt = None
         inc = i * spec.k_soc
@@ -552,14 +612,25 @@ def simulate_fixed_raw(spec: CSpec, i_raw, dt_raw=None, soc0_raw: int = ONE30,
 
     per_dir = []
     for d in spec.dirs:
-        k, w = _weight_q(d.grid, soc, q["Q_G"])
-        p = {name: _lerp2_q(getattr(d, name), k, w, kt, wt) for name in PARAMS}
+        k, w = _weight_q(d.grid, soc, q["Q_G"], spec.rc_uniform)
+        p = {name: _lerp2_q(getattr(d, name), k, w, kt, wt)
+             for name in (RESISTANCES if spec.tau_t else PARAMS)}
         for name in ("r_diff", "k_diff", "i0"):
             if getattr(d, name) is not None:
                 p[name] = _tv_q(getattr(d, name), kt, wt)
+        if spec.tau_t:
+            for name in ("k_fast", "k_slow"):
+                p[name] = _tv_q(getattr(d, name)[:, 0], kt, wt)
+            if spec.variable_dt:      # ecmrt_q_coefs: 1/tau in Q_KR
+                for name in ("k_fast", "k_slow") + (("k_diff",) if spec.diff else ()):
+                    p[name] = rate_q(p[name], q["Q_T"], q["Q_KR"])
         per_dir.append(p)
     p = {name: _pick(chg, per_dir, name) for name in per_dir[0]}
-    if spec.variable_dt:
+    if spec.tau_t and spec.variable_dt:
+        cf = c_kr_q(dt, p["k_fast"], q["Q_KR"])
+        cs = c_kr_q(dt, p["k_slow"], q["Q_KR"])
+        qcf = qcs = Q30
+    elif spec.variable_dt:
         cf, cs = c_dt_tau_q(dt, p["k_fast"], q["Q_T"]), c_dt_tau_q(dt, p["k_slow"], q["Q_T"])
         qcf = qcs = Q30
     else:
@@ -583,12 +654,15 @@ def simulate_fixed_raw(spec: CSpec, i_raw, dt_raw=None, soc0_raw: int = ONE30,
         tf = _rshr(tf * gtab_q(spec.bv["tab"], x, spec.bv["QX"]), 30)
     uf = _rc_q(cf, tf, qcf)
     us = _rc_q(cs, ts, qcs)
-    k, w = _weight_q(spec.ocv_grid, soc, q["Q_G"])
+    k, w = (_weight_q(spec.dirs[0].grid, soc, q["Q_G"], spec.rc_uniform) if spec.ocv_shared else
+            _weight_q(spec.ocv_grid, soc, q["Q_G"], spec.ocv_uniform))
     ocv = _lerp2_q(spec.ocv, k, w, kt, wt)
     v = ((ocv + t0) + uf) + us
     out = {}
     if spec.diff:
-        if spec.variable_dt:
+        if spec.tau_t and spec.variable_dt:
+            cd, qcd = c_kr_q(dt, p["k_diff"], q["Q_KR"]), Q30
+        elif spec.variable_dt:
             cd, qcd = c_dt_tau_q(dt, p["k_diff"], q["Q_T"]), Q30
         else:
             qcd = q["Q_CD"]

@@ -88,3 +88,11 @@ def recip_q(d):
     r = RECIP_TAB[j] - (((RECIP_TAB[j] - RECIP_TAB[j + 1]) * (m & 0xFFFFFF)) >> 24)
     e = (np.int64(1) << np.int64(62)) - m * r
     return (r * (e >> 30)) >> 31, 62 - s
+
+
+def rate_q(tau_raw, q_t: int, q_kr: int) -> np.ndarray:
+    """ecmrt_q_rate: 1/tau in Q_KR from tau in Q_T (> 0): with r 2^-sh = 1/tau_raw,
+    round(2 r 2^-(sh + 1 - Q_T - Q_KR)) (int64 arrays)."""
+    r, sh = recip_q(np.asarray(tau_raw, dtype=np.int64))
+    k = sh + 1 - (q_t + q_kr)
+    return ((r << 1) + (np.int64(1) << (k - 1))) >> k

@@ -17,8 +17,10 @@ from types import SimpleNamespace
 import numpy as np
 
 from ..errors import InputError
-from .qformat import CDR_E_MAX, INT32_MAX, Q30, Q_D, Q_TEMP, _q_fit, cdr_table, quantize, recip_q
-from .spec import ARR_T_RANGE_C, KELVIN, CDir, CGrid, CSpec, _coef, _inv_coef, arrhenius_range
+from .qformat import (CDR_E_MAX, INT32_MAX, Q30, Q_D, Q_TEMP, _q_fit, cdr_table, quantize, rate_q,
+                      recip_q)
+from .spec import (ARR_T_RANGE_C, KELVIN, CDir, CGrid, CSpec, _coef, _inv_coef, arrhenius_range,
+                   uniform_inverse)
 
 
 def _one(v: float, qf: int) -> int:
@@ -36,9 +38,27 @@ def _grid_shift(xs: list[np.ndarray], what: str) -> int:
     return g
 
 
-def _qgrid(xq: np.ndarray, g: int) -> CGrid:
+def _qgrid(xq: np.ndarray, g: int, uniform: tuple[float, int] | None = None) -> CGrid:
+    """``uniform`` (inv, shift): located in O(1), u = ((v - x0) inv_h) >> shift in Q30 with
+    inv_h = round(inv 2^shift) (exact when inv = 1/h is an integer: shift 0)."""
     dx = np.diff(xq).astype(np.float64)
-    return CGrid(xq, np.floor(np.ldexp(1.0, 30 + g) / dx + 0.5).astype(np.int64))
+    grid = CGrid(xq, np.floor(np.ldexp(1.0, 30 + g) / dx + 0.5).astype(np.int64))
+    if uniform is None:
+        return grid
+    inv, shift = uniform
+    return CGrid(grid.x, grid.inv_dx, x0=int(xq[0]), inv_h=int(round(math.ldexp(inv, shift))),
+                 shift=shift)
+
+
+def _uniform_shift(socs: list[np.ndarray]) -> tuple[list[float], int] | None:
+    """1/h of each SOC grid and one shift for all of them (0 when every 1/h is an integer),
+    or None unless every grid is uniform to Q30 resolution."""
+    invs = [uniform_inverse(x, 2.0**-29) for x in socs]
+    if any(v is None for v in invs):
+        return None
+    if all(v == round(v) for v in invs):
+        return invs, 0
+    return invs, min(math.floor(math.log2(INT32_MAX / v)) for v in invs)
 
 
 def _g_table_bins(i_lim: float, i0_min: float, x_raw) -> int:
@@ -168,6 +188,13 @@ def prepare_fixed(ctx: SimpleNamespace) -> CSpec:
 
     xs = [quantize(src.ocv_soc, Q30)] + [quantize(soc, Q30) for soc, _, _ in dirs_raw]
     q["Q_G"] = _grid_shift(xs, "SOC")
+    u_rc = _uniform_shift([soc for soc, _, _ in dirs_raw])
+    shared = all(np.array_equal(x, xs[0]) for x in xs[1:])     # CSpec.ocv_shared
+    u_ocv = None if shared else _uniform_shift([src.ocv_soc])
+    if u_rc is not None:
+        q["Q_GU"] = u_rc[1]
+    if u_ocv is not None:
+        q["Q_GUO"] = u_ocv[1]
     temp_grid = None
     if src.temps is not None:
         tq = quantize(src.temps, Q_TEMP)
@@ -190,6 +217,7 @@ def prepare_fixed(ctx: SimpleNamespace) -> CSpec:
             raise InputError(None, "time constants too small for the fixed-point format")
         if math.ldexp(tau_min, q["Q_T"]) < 1024:
             notes.append(f"the smallest time constant {tau_min:.3g} s has under 10 bits in Q{q['Q_T']}")
+
         q["Q_K"] = _q_fit(k_soc64)
         q["Q_RATE"] = _q_fit(i_lim * k_soc64 * 1.001)
         q["SH_RATE"] = q_i + q["Q_K"] - q["Q_RATE"]
@@ -212,6 +240,9 @@ def prepare_fixed(ctx: SimpleNamespace) -> CSpec:
             raise InputError(None, f"capacity {ctx.common['capacity_ah']} Ah with current range "
                                    f"{i_lim} A does not fit the fixed-point SOC update "
                                    f"({name} = {q[name]})")
+    # the C takes the SOC rate i k_soc (shifted) as int32 without saturation
+    if "SH_RATE" in q:
+        assert (2**31 * k_soc + (1 << (q["SH_RATE"] - 1))) >> q["SH_RATE"] <= INT32_MAX
 
     bv_spec: dict = {}
     if bv:
@@ -249,12 +280,24 @@ def prepare_fixed(ctx: SimpleNamespace) -> CSpec:
                                quantize(_inv_coef(dt_s, br["tau_diff_s"]), q["Q_DD"]))
         if bv:
             extra["i0"] = quantize(br["i0_a"], q["Q_I0"])
-        dirs.append(CDir(_qgrid(quantize(soc, Q30), q["Q_G"]),
+        dirs.append(CDir(_qgrid(quantize(soc, Q30), q["Q_G"],
+                               None if u_rc is None else (u_rc[0][len(dirs)], u_rc[1])),
                          quantize(cols["r0_ohm"], q["Q_R0"]),
                          quantize(cols["r_fast_ohm"], q["Q_RF"]), kf,
                          quantize(cols["r_slow_ohm"], q["Q_RS"]), ks, **extra))
+    if variable_dt and all(np.all(k == k[:, :1]) for d in dirs for k in (d.k_fast, d.k_slow)):
+        # CSpec.tau_t: the state holds 1/tau in Q_KR, the largest Q with 1/tau of the smallest
+        # quantised tau below 2^31 (interpolated taus are not smaller)
+        ks = [k for d in dirs for k in (d.k_fast, d.k_slow) + ((d.k_diff,) if diff else ())]
+        tau_raw_min = min(int(np.min(k)) for k in ks)
+        q["Q_KR"] = min(62, math.floor(math.log2(INT32_MAX * tau_raw_min)) - q["Q_T"])
+        while int(rate_q(tau_raw_min, q["Q_T"], q["Q_KR"])) > INT32_MAX:
+            q["Q_KR"] -= 1
+        if q["Q_KR"] < 15:
+            raise InputError(None, "time constants too small for the fixed-point format")
     db = int(quantize([ctx.model.direction_deadband_a], q_i)[0])
     fx = _fx_fixed(by_name, q, dt_s, i_lim)
-    return CSpec(ocv_grid=_qgrid(xs[0], q["Q_G"]), ocv=quantize(src.ocv_v, q["Q_V"]),
+    return CSpec(ocv_grid=_qgrid(xs[0], q["Q_G"], None if u_ocv is None else (u_ocv[0][0], u_ocv[1])),
+                 ocv=quantize(src.ocv_v, q["Q_V"]),
                  dirs=tuple(dirs), deadband=db, k_soc=k_soc, temp_grid=temp_grid, q=q,
                  notes=tuple(notes), fx=fx, bv=bv_spec, **ctx.common)

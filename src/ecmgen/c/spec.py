@@ -50,14 +50,42 @@ _RESERVED = {"ecmrt", "int", "float", "double", "char", "void", "static", "const
 
 @dataclass(frozen=True)
 class CGrid:
-    """Breakpoints and 1/spacing, as emitted (float32 values or int64 raw integers)."""
+    """Breakpoints and 1/spacing, as emitted (float32 values or int64 raw integers). A
+    uniform SOC grid (``inv_h`` set) is located in O(1) by the C: u = (v - x0) inv_h (fixed
+    point: times inv_h, then shifted right by ``shift``), segment floor(u), weight u - k;
+    its ``x`` and ``inv_dx`` are not emitted."""
 
     x: np.ndarray
     inv_dx: np.ndarray
+    x0: object = None        # uniform: first breakpoint (float32, or Q30 raw)
+    inv_h: object = None     # uniform: 1 / spacing (float32, or raw = round(2^shift / h))
+    shift: int = 0
 
     @property
     def n(self) -> int:
         return int(self.x.size)
+
+    @property
+    def uniform(self) -> bool:
+        return self.inv_h is not None
+
+
+def uniform_inverse(x, tol: float) -> float | None:
+    """1/h of breakpoints x[0] + k h, where |x[k] - (x[0] + k h)| <= tol, else None; an
+    integer when 1/h is one to 1e-9 relative (the fitter's grids: 1/0.05, 1/0.01), so that
+    the uniform lookup is exact in fixed point."""
+    x = np.asarray(x, dtype=np.float64)
+    if x.size < 2:
+        return None
+    h = (x[-1] - x[0]) / (x.size - 1)
+    if not h > 0:
+        return None
+    inv = 1.0 / h
+    if abs(inv - round(inv)) <= 1e-9 * inv:
+        inv = float(round(inv))
+    if np.max(np.abs(x - (x[0] + np.arange(x.size) / inv))) > tol:
+        return None
+    return inv
 
 
 @dataclass(frozen=True)
@@ -122,6 +150,35 @@ class CSpec:
         return all(d.grid.x.shape == x.shape and np.array_equal(d.grid.x, x) for d in self.dirs)
 
     @property
+    def tau_t(self) -> bool:
+        """Every time constant (tau, or D at fixed dt) depends on the temperature only: each
+        table row is constant along SOC, in both directions (the curve fit's tables).
+        ECMRT_TAU_T: one value per temperature row, and the step's coefficients kept in the
+        state per temperature. Exact: a bilinear interpolation of such a table is the linear
+        one in temperature, bit for bit in both numerics."""
+        return all(np.all(k == k[:, :1]) for d in self.dirs for k in (d.k_fast, d.k_slow))
+
+    @property
+    def tau_same(self) -> bool:
+        """ECMRT_TAU_SAME: with tau_t, both directions have the same time constants (the
+        curve fit's): one set of coefficients in the state."""
+        d0, d1 = self.dirs
+        return self.tau_t and all(
+            np.array_equal(a[:, 0] if a.ndim == 2 else a, b[:, 0] if b.ndim == 2 else b)
+            for a, b in ((d0.k_fast, d1.k_fast), (d0.k_slow, d1.k_slow))
+            + (((d0.k_diff, d1.k_diff),) if self.diff else ()))
+
+    @property
+    def rc_uniform(self) -> bool:
+        """ECMRT_RC_UNIFORM: both directions' SOC grids are uniform (O(1) lookup)."""
+        return all(d.grid.uniform for d in self.dirs)
+
+    @property
+    def ocv_uniform(self) -> bool:
+        """ECMRT_OCV_UNIFORM: the OCV has its own SOC grid, uniform (O(1) lookup)."""
+        return not self.ocv_shared and self.ocv_grid.uniform
+
+    @property
     def diff(self) -> bool:
         return self.dirs[0].r_diff is not None
 
@@ -143,7 +200,10 @@ class CSpec:
     def switches(self) -> dict[str, int]:
         """The runtime's compile-time switches (ECMRT_<name>)."""
         fx = self.fx
-        return {"TEMP": int(self.temp), "OCV_SHARED": int(self.ocv_shared), "DIFF": int(self.diff), "BV": int(self.has_bv),
+        return {"TEMP": int(self.temp), "OCV_SHARED": int(self.ocv_shared),
+                "RC_UNIFORM": int(self.rc_uniform), "OCV_UNIFORM": int(self.ocv_uniform),
+                "TAU_T": int(self.tau_t), "TAU_SAME": int(self.tau_same),
+                "DIFF": int(self.diff), "BV": int(self.has_bv),
                 "FX_HYST": int(bool(fx.get("hyst"))), "FX_XRC": int(bool(fx.get("xrc"))),
                 "FX_CDR": int(bool(fx.get("cdr"))), "FX_ARR": int(bool(fx.get("arr")))}
 
@@ -169,20 +229,46 @@ def state_fields(spec: CSpec) -> list[tuple[str, str, str]]:
         out += [("int32_t" if spec.fixed else "uint32_t", "t_in",
                  "temperature of the last step" + ("" if spec.fixed else " (its bits)")),
                 (t, "w_t", "its weight between rows k_t and k_t + 1" +
-                 (", Q30" if spec.fixed else ""))]
-    out += [("uint8_t", "charging", "direction of the last step: 1 charge, 0 discharge"),
-            ("uint8_t", "k_dir[2]", "table segment hints: speed only, never change a result")]
-    if not spec.ocv_shared:
+                 (", Q30" if spec.fixed else "")),
+                (t, f"pc[{2 * n_rc_params(spec)}]", "the segment's parameter pairs at the "
+                 "temperature (a cache)")]
+        if not spec.ocv_shared:
+            out.append((t, "oc[2]", "the OCV segment's pair at the temperature (a cache)"))
+    if spec.tau_t:
+        dims = f"[{1 if spec.tau_same else 2}][{3 if spec.diff else 2}]"
+        which = ("per direction " if not spec.tau_same else "") + "(fast, slow" + \
+                (", diff" if spec.diff else "") + ") at the temperature"
+        if not spec.fixed:
+            out.append(("float", "kc" + dims, ("1/tau " if spec.variable_dt else "c = 1/D ") + which))
+        elif spec.variable_dt:
+            out.append(("int32_t", "kc" + dims, "1/tau in Q_KR " + which))
+        else:
+            out.append(("int32_t", "kc" + dims, "c = 1/D " + which))
+    if spec.temp:
+        out.append(("uint16_t", "pc_key", "pc's segment * 2 + direction (0xFFFF: none)"))
+    out.append(("uint8_t", "charging", "direction of the last step: 1 charge, 0 discharge"))
+    if not spec.rc_uniform:
+        out.append(("uint8_t", "k_dir[2]", "table segment hints: speed only, never change a result"))
+    if spec.temp and not spec.ocv_shared:
+        out.append(("uint8_t", "oc_key", "oc's segment (0xFF: none)"))
+    if not spec.ocv_shared and not spec.ocv_uniform:
         out.append(("uint8_t", "k_ocv", "segment hint of the OCV's own SOC grid"))
     if spec.temp:
         out.append(("uint8_t", "k_t", "temperature row of the last step"))
     return out
 
 
+def n_rc_params(spec: CSpec) -> int:
+    """Parameters per SOC point of a direction's table: r0, r_fast, r_slow (and tau_fast,
+    tau_slow unless tau_t; the OCV when it shares the grid)."""
+    return (3 if spec.tau_t else 5) + int(spec.ocv_shared)
+
+
 def state_bytes(spec: CSpec) -> int:
     """sizeof(<prefix>_state_t) on a 32-bit target (int64 aligned to 8, as AAPCS)."""
-    size = {"int64_t": 8, "int32_t": 4, "uint32_t": 4, "float": 4, "uint8_t": 1}
-    n = sum(size[t] * (2 if name.endswith("[2]") else 1) for t, name, _ in state_fields(spec))
+    size = {"int64_t": 8, "int32_t": 4, "uint32_t": 4, "float": 4, "uint16_t": 2, "uint8_t": 1}
+    n = sum(size[t] * math.prod(int(k) for k in re.findall(r"\[(\d+)\]", name))
+            for t, name, _ in state_fields(spec))
     align = 8 if spec.fixed else 4
     return -(-n // align) * align
 
@@ -411,12 +497,17 @@ def _fx_float(by_name: dict, dt_s: float | None) -> dict:
     return fx if any(fx.values()) else {}
 
 
-def _float_grid(x, name: str) -> CGrid:
+def _float_grid(x, name: str, uniform: bool = False) -> CGrid:
+    """``uniform``: an SOC grid, located in O(1) by the C when its breakpoints are uniform
+    to float32 resolution (the C's grid is then x0 + k / inv_h)."""
     x32 = _f32(x, name)
     dx = np.diff(x32.astype(np.float64))
     if np.any(dx <= 0):
         raise InputError(None, f"{name} breakpoints collapse in float32")
-    return CGrid(x32, _f32(1.0 / dx, name + " spacing"))
+    inv = uniform_inverse(x, 2.0**-25) if uniform else None
+    if inv is None:
+        return CGrid(x32, _f32(1.0 / dx, name + " spacing"))
+    return CGrid(x32, _f32(1.0 / dx, name + " spacing"), x0=x32[0], inv_h=np.float32(inv))
 
 
 def begin(model, numeric: str, dt_s: float | None, prefix: str, i_max_a: float | None
@@ -475,12 +566,12 @@ def prepare_float(ctx: SimpleNamespace) -> CSpec:
             extra["k_diff"] = k_table(br["tau_diff_s"], f"rc.{name}.tau_diff_s")
         if "i0_a" in br:
             extra["i0"] = _f32(br["i0_a"], name)
-        dirs.append(CDir(_float_grid(soc, f"rc.{name}.soc"), _f32(cols["r0_ohm"], name),
+        dirs.append(CDir(_float_grid(soc, f"rc.{name}.soc", True), _f32(cols["r0_ohm"], name),
                          _f32(cols["r_fast_ohm"], name), k_table(cols["tau_fast_s"], f"rc.{name}"),
                          _f32(cols["r_slow_ohm"], name), k_table(cols["tau_slow_s"], f"rc.{name}"),
                          **extra))
     tg = None if src.temps is None else _float_grid(src.temps, "temperature_c")
-    return CSpec(ocv_grid=_float_grid(src.ocv_soc, "ocv.soc"), ocv=_f32(src.ocv_v, "ocv_v"),
+    return CSpec(ocv_grid=_float_grid(src.ocv_soc, "ocv.soc", True), ocv=_f32(src.ocv_v, "ocv_v"),
                  dirs=tuple(dirs), deadband=np.float32(ctx.model.direction_deadband_a),
                  k_soc=np.float32(ctx.k_soc64), temp_grid=tg, q={}, notes=tuple(ctx.notes),
                  fx=_fx_float(ctx.by_name, dt_s), **ctx.common)
