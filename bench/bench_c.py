@@ -3,18 +3,30 @@
 
 1. instructions per step (valgrind callgrind, host build -O2 with the strict flags, only the
    instructions inside <prefix>_step counted), float and fixed, variable and fixed dt, for
-   tables of 1 x 20 (one temperature), 4 x 20 (temperature x SOC), 4 x 20 with the
-   diffusion pair and the Butler-Volmer branch, and the 14 x 21 test model (a realistic
-   temperature fit, tests/data/panasonic-temperature-model.json) with and without them;
+   the layout the fitter gives (method "curve": RC tables on a uniform 21-point SOC grid and
+   a 5 K temperature grid, time constants constant along SOC and equal in both directions,
+   the OCV on its own uniform 101-point grid; from tests/data/panasonic-temperature-model.json)
+   as 4 x 21 (0 .. 15 degC, the OCV rows at the same temperatures: the target case) and as
+   the whole 14 x 21 model with one OCV row per pulse test, with and without the diffusion
+   pair and the Butler-Volmer branch; and for tables with time constants varying along SOC
+   on non-uniform grids (the GA / LM fits' layout): 1 x 20 (one temperature), 4 x 20 (OCV
+   on its own 41-point grid, or on the RC grid) and 4 x 20 with the branches;
 2. flash and RAM bytes of the step code and of the tables on Cortex-M4F and Cortex-M0
    (arm-none-eabi-gcc -Os, arm-none-eabi-size), the caller's state struct, the step's stack
    frame and the libgcc helpers the object calls (no 64-bit division may appear);
 3. simulation throughput in steps/s: C through cffi (looping in C) against the float64
-   Python model and the float32 / bit-true references (4 x 20).
+   Python model and the float32 / bit-true references (fitted 4 x 21);
+4. Cortex-M4F (QEMU mps2-an386, the step built -O2 as in the target tests): Thumb-2
+   instructions executed per step, counted exactly from QEMU's translation-block trace
+   (-d in_asm,exec,nochain), and an estimate of the cycles from them with the Cortex-M4
+   timings (TRM table 3-1: 1 per ALU / multiply (SMULL too) / VFP add-multiply, 2 per load
+   or store unless it follows one, 1+N per LDM/STM/PUSH/POP, 3 per taken branch, 14 per
+   VDIV, 2-12 (12 counted) per SDIV): an estimate, as QEMU has no cycle model.
 
 Usage: python bench/bench_c.py [--steps N] [--json]
 Targets (issue 8): <= 200 instructions per step for float with variable dt and <= 250 for
-fixed point, 4 x 20 table; < 2 KiB of code on Cortex-M4F and M0.
+fixed point, 4 x 20 table (checked on the fitter's 4 x 21 layout); < 2 KiB of code on
+Cortex-M4F and M0. The x86-64 count is the target's measure; 4. gives Cortex-M4 figures.
 Missing tools (valgrind, arm-none-eabi-gcc) are reported and their part skipped.
 """
 
@@ -43,24 +55,23 @@ from ecmgen.model.simulate import simulate  # noqa: E402
 VARIANTS = [("float", None), ("float", 0.1), ("fixed", None), ("fixed", 0.1)]
 
 
+TARGET_MODEL = "fitted 4 x 21"
+
+
 def models() -> dict:
-    """The benchmarked models by table shape (temperature rows x SOC points)."""
-    from dataclasses import replace
+    """The benchmarked models by layout and table shape (temperature rows x SOC points)."""
+    from test_codegen_helpers import (TEMPERATURE_MODEL, fitter_layout_model, realistic_model,
+                                      temperature_model)
 
-    from test_codegen_helpers import TEMPERATURE_MODEL, realistic_model, temperature_model
-
-    out = {"1 x 20": realistic_model(n_rc=20, seed=3),
-           "4 x 20": temperature_model(4, 20, seed=3),
-           "4 x 20, OCV on the RC grid": temperature_model(4, 20, seed=3, ocv_on_rc_grid=True),
-           "4 x 20 + diffusion + BV": temperature_model(4, 20, seed=3, branches=True)}
+    out = {}
     if TEMPERATURE_MODEL.exists():
-        from ecmgen.model import load_model
-
-        m = load_model(TEMPERATURE_MODEL)
-        plain = {k: None for k in ("r_diff_ohm", "tau_diff_s", "i0_a")}
-        out["14 x 21"] = replace(m, charge=replace(m.charge, **plain),
-                                 discharge=replace(m.discharge, **plain))
-        out["14 x 21 + diffusion + BV"] = m
+        out[TARGET_MODEL] = fitter_layout_model(rows=slice(4, 8), ocv_t_c=(0.0, 5.0, 10.0, 15.0))
+        out["fitted 14 x 21, OCV 4 x 101"] = fitter_layout_model()
+        out["fitted 14 x 21 + diff + BV"] = fitter_layout_model(branches=True)
+    out.update({"SOC-tau 1 x 20": realistic_model(n_rc=20, seed=3),
+                "SOC-tau 4 x 20": temperature_model(4, 20, seed=3),
+                "SOC-tau 4 x 20, OCV on RC grid": temperature_model(4, 20, seed=3, ocv_on_rc_grid=True),
+                "SOC-tau 4 x 20 + diff + BV": temperature_model(4, 20, seed=3, branches=True)})
     return out
 
 
@@ -211,6 +222,94 @@ def throughput(model, cur, dt, t, temp, n_c: int, n_py: int) -> dict:
     return res
 
 
+# --- 4. Cortex-M4: instructions per step in QEMU, and a cycle estimate -------------------
+
+_INSN = re.compile(r"^0x([0-9a-f]{8}):\s+((?:[0-9a-f]{4} ?)+)\s+(\S+)\s*(.*)$")
+_TRACE = re.compile(r"^Trace \d+: \S+ \[[0-9a-f]+/([0-9a-f]+)/[0-9a-f]+/[0-9a-f]+\] (\S+)")
+_BRANCH = re.compile(r"^(b|bl|blx|bx|cbz|cbnz|b[a-z]{2}|tbb|tbh)(\.w|\.n)?$")
+
+
+def _m4_cycles(insns) -> float:
+    """Cortex-M4 cycle estimate of a straight run of (mnemonic, operands); the branch at
+    the end is counted by the caller."""
+    cyc, prev_mem = 0.0, False
+    for mn, ops in insns:
+        m = mn.split(".")[0]
+        mem = m.startswith(("ldr", "str")) and m not in ("ldrd", "strd", "ldrex", "strex")
+        if m in ("push", "pop", "vpush", "vpop") or m.startswith(("ldm", "stm")):
+            c = 1 + ops.count(",") + 1 + (3 if "pc" in ops else 0)
+        elif m in ("ldrd", "strd"):
+            c = 3
+        elif mem or m in ("vldr", "vstr"):
+            c = 1 if prev_mem else 2
+        elif m in ("sdiv", "udiv"):
+            c = 12
+        elif m in ("vdiv", "vsqrt"):
+            c = 14
+        elif m in ("vmla", "vmls", "vnmla", "vnmls"):
+            c = 3
+        elif _BRANCH.match(mn):
+            c = 0
+        else:
+            c = 1
+        prev_mem = mem or m in ("vldr", "vstr")
+        cyc += c
+    return cyc
+
+
+def m4_estimates(model, cur, dt, temp, n: int = 2000) -> dict:
+    """Per step on the Cortex-M4F model in QEMU: instructions executed inside the model's
+    step (and the runtime functions it calls), and a cycle estimate (see the module doc)."""
+    reason = target.skip_reason(qemu=True)
+    if reason:
+        return {"skipped": reason}
+    res = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for numeric, dt_s in VARIANTS:
+            d = Path(tmp) / f"{numeric}_{dt_s}"
+            spec = prepare(model, numeric=numeric, dt_s=dt_s, prefix="m4")
+            cm = cbuild.compile_spec(spec)
+            i_n, dt_n, s0 = cm.native_inputs(cur[:n], dt[:n] if dt_s is None else None, 0.95)
+            run = target.TargetRun(spec, i_n, dt_n, s0, cm.native_temperature(temp[:n], n))
+            elf = target.build_firmware([run], d, cpu="m4f", opt="-O2")
+            log = d / "qemu.log"
+            subprocess.run([target.QEMU, "-M", target.CPUS["m4f"]["machine"], "-nographic",
+                            "-monitor", "none", "-serial", "none", "-semihosting-config",
+                            "enable=on,target=native", "-d", "in_asm,exec,nochain", "-D", str(log),
+                            "-kernel", str(elf)], check=True, capture_output=True, cwd=d, timeout=600)
+            blocks, cur_pc, trace = {}, None, []
+            for line in log.read_text().splitlines():
+                mt = _TRACE.match(line)
+                if mt:
+                    trace.append((int(mt.group(1), 16), mt.group(2)))
+                    cur_pc = None
+                    continue
+                mi = _INSN.match(line)
+                if mi:
+                    pc = int(mi.group(1), 16)
+                    if cur_pc is None:
+                        cur_pc = pc
+                        blocks[pc] = []
+                    blocks[cur_pc].append((pc, len(mi.group(2).replace(" ", "")) // 2,
+                                           mi.group(3), mi.group(4)))
+                elif line.startswith("IN:"):
+                    cur_pc = None
+            insns = cycles = 0.0
+            for k, (pc, sym) in enumerate(trace):
+                if not (sym == "m4_step" or sym.startswith("ecmrt_")):
+                    continue
+                body = blocks[pc]
+                insns += len(body)
+                cycles += _m4_cycles([(mn, ops) for _, _, mn, ops in body])
+                last_pc, size, mn, _ = body[-1]
+                if _BRANCH.match(mn):
+                    nxt = trace[k + 1][0] if k + 1 < len(trace) else None
+                    cycles += 1 if nxt == last_pc + size else 3     # fall through / taken
+            res[label(numeric, dt_s).strip()] = {"instructions": round(insns / n, 1),
+                                                  "cycles_estimate": round(cycles / n, 1)}
+    return res
+
+
 TARGETS = {"float variable dt": 200, "fixed variable dt": 250}
 
 
@@ -230,7 +329,10 @@ def main(argv=None) -> int:
                                   for name, m in mdl.items()},
         "table_bytes": table_bytes,
         "flash_ram_bytes": {name: flash_ram(m) for name, m in mdl.items()},
-        "steps_per_s": throughput(mdl["4 x 20"], cur, dt, t, temp, args.steps, 200_000),
+        "m4": {name: m4_estimates(mdl[name], cur, dt, temp)
+               for name in (TARGET_MODEL, "SOC-tau 4 x 20") if name in mdl},
+        "steps_per_s": throughput(mdl.get(TARGET_MODEL, mdl["SOC-tau 4 x 20"]), cur, dt, t, temp,
+                                  args.steps, 200_000),
     }
     if args.json:
         print(json.dumps(report, indent=1))
@@ -240,15 +342,15 @@ def main(argv=None) -> int:
           "table bytes (variable dt)")
     ips = report["instructions_per_step"]
     cols = [label(n, d).strip() for n, d in VARIANTS]
-    print(f"   {'table (T x SOC)':26s} " + " ".join(f"{c:>18s}" for c in cols) + "  bytes float / fixed")
+    print(f"   {'model (T x SOC)':31s} " + " ".join(f"{c:>18s}" for c in cols) + "  bytes float / fixed")
     for name, row in ips.items():
         if "skipped" in row:
-            print(f"   {name:26s} skipped: {row['skipped']}")
+            print(f"   {name:31s} skipped: {row['skipped']}")
             continue
         tb = table_bytes[name]
-        print(f"   {name:26s} " + " ".join(f"{row[c]:18.1f}" for c in cols) +
+        print(f"   {name:31s} " + " ".join(f"{row[c]:18.1f}" for c in cols) +
               f"  {tb['float']:6d} / {tb['fixed']:6d}")
-    for name in ("4 x 20", "4 x 20, OCV on the RC grid"):
+    for name in (TARGET_MODEL, "SOC-tau 4 x 20"):
         row = ips.get(name, {})
         for c, lim in TARGETS.items():
             if c in row:
@@ -272,7 +374,15 @@ def main(argv=None) -> int:
     div = sorted({s for fr in report["flash_ram_bytes"].values() if "skipped" not in fr
                   for v in fr.values() for s in v["libgcc"] if "div" in s})
     print(f"   division helpers referenced: {', '.join(div) or 'none'}")
-    print("\n3. throughput, steps/s (4 x 20)")
+    print("\n4. Cortex-M4F (QEMU mps2-an386, -O2): instructions executed per step / estimated cycles")
+    print(f"   {'model':31s} " + " ".join(f"{c:>18s}" for c in cols))
+    for name, row in report["m4"].items():
+        if "skipped" in row:
+            print(f"   {name:31s} skipped: {row['skipped']}")
+            continue
+        print(f"   {name:31s} " + " ".join(
+            f"{row[c]['instructions']:8.1f} /{row[c]['cycles_estimate']:7.1f}" for c in cols))
+    print(f"\n3. throughput, steps/s ({TARGET_MODEL})")
     for k, v in report["steps_per_s"].items():
         print(f"   {k:40s} {v:14,.0f}")
     py = report["steps_per_s"]["Python float64 simulate()"]
