@@ -154,15 +154,23 @@ def test_cli_codegen_estimator(tmp_path):
 # -- equivalence ----------------------------------------------------------------------
 
 @pytest.mark.parametrize("diffusion, bv, one_temp", [(True, False, False), (False, True, False),
-                                                     (False, False, True)],
-                         ids=["diffusion", "butler-volmer", "plain-2rc"])
+                                                     (False, False, True), ("curve", True, False),
+                                                     ("curve", False, False)],
+                         ids=["diffusion", "butler-volmer", "plain-2rc", "curve-layout",
+                              "curve-layout-tau-per-direction"])
 def test_switch_combinations_dt_zero_gaps_and_missing_voltages(diffusion, bv, one_temp):
-    """Synthetic models over the runtime's switches (own OCV grid, no temperature axis, ...):
+    """Synthetic models over the runtime's switches (own OCV grid, no temperature axis, the
+    curve fit's layout: uniform SOC grids and time constants over temperature only, ...):
     random currents both ways, repeated time stamps, gaps up to 20000 s (at rest: the truth
     stays within 0.66..0.73), temperatures beyond the table ends, measured voltages with
     noise and a few NaN (no update); and the raw profile, which holds its currents over the
     gaps and drains the truth far below empty (SOC pinned at 0: bit-identical, finite)."""
-    m = synthetic_nca_model() if one_temp else model_over_temperature(diffusion, bv)
+    if diffusion == "curve":
+        from test_codegen_helpers import fitter_layout_model
+
+        m = fitter_layout_model(rows=slice(2, 9), branches=bv, same_tau=bv)
+    else:
+        m = synthetic_nca_model() if one_temp else model_over_temperature(diffusion, bv)
     t, i_raw, temp = drive_profile(1500, seed=1)
     i = i_raw - i_raw.mean()
     i[np.diff(t, prepend=t[0]) > 60.0] = 0.0
