@@ -333,3 +333,11 @@ def test_build_json_reports_the_estimator(tmp_path):
     assert "c/float/ecm_est.h" in c["float"]["files"] and "estimator" not in c["fixed"]
     assert (out / "c" / "float" / "ecmrt_est_f32.h").is_file()
     assert not (out / "c" / "fixed" / "ecm_est.h").exists()
+    # model_error / error_correlation_s not in the config: measured on the validation cycle
+    # and baked in
+    from ecmgen.c.codegen import c_float
+
+    assert est["settings_from"] == "validation cycles" and est["model_error"] != 0.19
+    src = (out / "c" / "float" / "ecm_ecm.c").read_text()
+    assert f".model_error = {c_float(est['model_error'])}" in src
+    assert f".corr_s = {c_float(est['error_correlation_s'])}" in src

@@ -31,6 +31,9 @@ def build_c_outputs(cfg, result, out_dir, progress=lambda msg: None) -> dict:
     vals = (getattr(result, "validations", None) or {}).get(result.best) or {}
     val = next(iter(vals.values()), None)
     est_cfg = cfg.estimator if getattr(cfg, "c_estimator", None) else None
+    est_from = None
+    if est_cfg is not None:
+        est_cfg, est_from = _estimator_settings(cfg, est_cfg, vals)
     est = None
     if est_cfg is not None and "float" in specs:
         from .estc import prepare_estimator
@@ -47,6 +50,7 @@ def build_c_outputs(cfg, result, out_dir, progress=lambda msg: None) -> dict:
             if est is not None:
                 progress("checking the C estimator against its references")
                 est_eq = _estimator_block(model, specs["float"], est, series, val.soc0)
+                est_eq["settings_from"] = est_from
         except CBuildError as exc:
             eq = {n: {"skipped": str(exc).strip().splitlines()[0]} for n in numerics}
             est_eq = None if est is None else {"skipped": eq["float"]["skipped"]}
@@ -78,5 +82,23 @@ def _estimator_block(model, spec, est, series, soc0: float) -> dict:
     cm = compile_spec(spec, estimator=est)
     out = estimator_equivalence(model, cm, series.time_s, series.current_a, series.voltage_v,
                                 soc0, series.temperature_c)
-    out.update({"kind": est.kind, "states": list(est.names), "soc0": float(soc0)})
+    out.update({"kind": est.kind, "states": list(est.names), "soc0": float(soc0),
+                "model_error": est.settings.model_error,
+                "error_correlation_s": est.settings.error_correlation_s})
     return out
+
+
+def _estimator_settings(cfg, est_cfg, vals: dict):
+    """The [estimator] settings baked into the C: model_error and error_correlation_s as
+    the config gives them, else measured on the best model's validation cycles (as
+    ``ecmgen estimate --config`` does); returns (settings, where the two came from)."""
+    from dataclasses import replace
+
+    from ..estimate.residual import pooled, residual_figures
+
+    given = (getattr(cfg, "raw", None) or {}).get("estimator", {})
+    if ("model_error" in given and "error_correlation_s" in given) or not vals:
+        return est_cfg, "config" if "model_error" in given else "defaults"
+    figs = pooled([residual_figures(v, est_cfg.voltage_noise_v) for v in vals.values()])
+    return replace(est_cfg, **{k: v for k, v in figs.as_dict().items() if k not in given}), \
+        "validation cycles"
