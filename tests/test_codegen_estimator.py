@@ -24,6 +24,7 @@ from ecmgen.model.simulate import simulate
 
 from conftest import REPO, SHARED_DATA, need, synthetic_nca_model
 from test_estimate import ALL_EFFECTS, drive_profile, model_over_temperature
+from test_pipeline import synthetic_project  # noqa: F401 (fixture)
 
 MODEL = REPO / "tests" / "data" / "panasonic-temperature-model.json"
 CYCLES = [("25degC", "us06"), ("25degC", "hwfet-a"), ("0degC", "us06"), ("0degC", "hwfet"),
@@ -294,34 +295,21 @@ def test_config_c_estimator(tmp_path):
     assert load_config(cfg).c_estimator is None
 
 
-def test_build_json_reports_the_estimator(tmp_path):
+def test_build_json_reports_the_estimator(synthetic_project):
     """`ecmgen build --json` with [c] estimator = "ekf": the float C gets the filter and its
     block in "c" carries the estimator's figures beside the step's."""
+    import contextlib
+    import io
     import json
 
-    from conftest import make_pulse_test
     from ecmgen.cli import main
-    from ecmgen.data.measure import TimeSeries, write_timeseries_csv
 
-    truth = synthetic_nca_model(tau_fast_s=2.0, tau_slow_s=60.0)
-    series, _ = make_pulse_test(truth, soc_levels=(0.9, 0.6, 0.3), c_rates=(1.0, 3.0),
-                                noise_v=0.0005, rest_s=900.0)
-    write_timeseries_csv(series, tmp_path / "pulses.csv")
-    np.savetxt(tmp_path / "ocv.csv", np.column_stack([truth.ocv.soc, truth.ocv.ocv_v[0]]),
-               delimiter=",", header="soc,ocv_v", comments="")
-    t = np.arange(0, 1800.0, 1.0)
-    i = np.repeat(np.random.default_rng(0).uniform(-8, 0, t.size // 20), 20)
-    i[:60] = 0.0
-    write_timeseries_csv(TimeSeries(t, i, simulate(truth, t, i, 0.8).voltage_v),
-                         tmp_path / "cycle.csv")
-    cfg = tmp_path / "cell.toml"
+    tmp_path, cfg, _ = synthetic_project
+    t = np.arange(0, 1800.0, 1.0)                     # the fixture's cycle
     cfg.write_text('[cell]\ncapacity_ah = 2.9\n[data]\npulses = "pulses.csv"\nocv = "ocv.csv"\n'
                    'cycle = "cycle.csv"\n[fit]\nrelax_s = 900\nmethods = ["lm"]\n'
                    '[c]\nnumeric = ["float", "fixed"]\nestimator = "ekf"\n')
     out = tmp_path / "out"
-    import contextlib
-    import io
-
     buf = io.StringIO()
     with contextlib.redirect_stdout(buf):
         assert main(["build", str(cfg), "--out", str(out), "--json", "--no-plots", "--quiet"]) == 0
