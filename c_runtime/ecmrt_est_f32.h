@@ -28,6 +28,9 @@
 #ifndef ECMRT_EST_F32_H
 #define ECMRT_EST_F32_H
 
+#if ECMRT_VERSION != 3
+#error "ecmrt_est_f32.h does not match ecmrt.h"
+#endif
 #if !defined(ECMRT_F32_H) || !defined(ECMRT_EST_T)
 #error "ecmrt_est_f32.h is included by a generated <prefix>_ecm.c after ecmrt_f32.h"
 #endif
@@ -36,11 +39,7 @@
 #endif
 
 #define ECMRT_EST_N (3u + (unsigned)ECMRT_DIFF)       /* soc, u_fast, u_slow (, u_diff) */
-#if ECMRT_VERSION >= 3 && ECMRT_TAU_T
-#define ECMRT_EST_TAU_T 1          /* time constants of the temperature only: the state's kc */
-#else
-#define ECMRT_EST_TAU_T 0
-#endif
+
 #define ECMRT_EST_ITER 5                              /* relinearisations at most */
 #define ECMRT_EST_ITER_SOC 1.0e-3f                    /* ... when the update moves the SOC more */
 #define ECMRT_EST_ITER_TOL 1.0e-5f                    /* ... until an iteration moves it less */
@@ -67,10 +66,12 @@ typedef struct {
 
 /* The table accessor: the values and SOC slopes (d/dsoc) the Jacobians need, of direction
  * dir at SOC soc, at the temperature of the model state's last step (its row k_t and weight
- * w_t), by the runtime's own search and interpolation (ecmrt_f32_locate, the tables' pairs).
- * A slope is that of the segment the SOC is in (the segment on the right at a breakpoint) and
- * 0 outside the table (clamped), as ecmgen.estimate.process. The segment hints of the state
- * are read, never written. all = 0: only r0 and the OCV. */
+ * w_t), by the runtime's own lookup and interpolation (the step's locate, its segment pairs
+ * at the temperature from ecmrt_f32_segment or the state's cache of them). A slope is that
+ * of the segment the SOC is in (the segment on the right at a breakpoint) and 0 outside the
+ * table (clamped), as ecmgen.estimate.process; time constants of the temperature only
+ * (ECMRT_TAU_T) have none: the filter takes the state's coefficients kc. The state is read,
+ * never written. all = 0: only r0 and the OCV. */
 typedef struct {
     float r0, dr0, rf, drf, tf, dtf, rs, drs, ts, dts, ocv, docv;
 } ecmrt_est_f32_par_t;
@@ -82,11 +83,10 @@ typedef struct {
 #define ECMRT_EST_TV(b, j) ((b)[j])
 #endif
 
-#if ECMRT_VERSION >= 3
-/* Runtime 3 (segment pairs at the temperature, uniform grids, ECMRT_TAU_T): a row of pairs
- * (y at the segment's start, difference to its end) along SOC, at the temperature: a
- * table row without ECMRT_TEMP, else ecmrt_f32_segment's (the state's cache pc when it is
- * that segment's: the same numbers). value y + dy w, slope dy / spacing. */
+/* value y + dy w and slope dy / spacing of parameter j from a segment's pairs (y at its
+ * start, difference to its end) along SOC at the temperature: a table row without
+ * ECMRT_TEMP, else ecmrt_f32_segment's (the state's cache pc when it is that segment's:
+ * the same numbers) */
 #define ECMRT_EST_VS(row, j, v, sl)                                                         \
     do {                                                                                    \
         (v) = (row)[j] + (row)[(j) + 1u] * w;                                               \
@@ -181,79 +181,6 @@ static inline void ecmrt_est_f32_params(const ecmrt_f32_model_t *m, const ECMRT_
 #endif
 }
 
-#else /* runtime 2: tables interpolated in SOC, then temperature */
-#if ECMRT_TEMP
-#define ECMRT_EST_VS(row, j, v, sl)                                                         \
-    do {                                                                                    \
-        const float a_ = (row)[j] + (row)[(j) + 1u] * w;                                    \
-        const float b_ = (row)[st + (j)] + (row)[st + (j) + 1u] * w;                        \
-        const float sa_ = (row)[(j) + 1u] * inv;                                            \
-        const float sb_ = (row)[st + (j) + 1u] * inv;                                       \
-        (v) = a_ + (b_ - a_) * wt;                                                          \
-        (sl) = sa_ + (sb_ - sa_) * wt;                                                      \
-    } while (0)
-#else
-#define ECMRT_EST_VS(row, j, v, sl)                                                         \
-    do {                                                                                    \
-        (v) = (row)[j] + (row)[(j) + 1u] * w;                                               \
-        (sl) = (row)[(j) + 1u] * inv;                                                       \
-    } while (0)
-#endif
-
-/* 1 / spacing of segment k of grid g, or 0 when v is outside [x[0], x[n-1]] (or NaN) */
-static inline float ecmrt_est_f32_inv(const ecmrt_f32_grid_t *g, unsigned k, float v)
-{
-    return (v >= g->x[0] && v <= g->x[(unsigned)g->n - 1u]) ? g->inv_dx[k] : 0.0f;
-}
-
-static inline void ecmrt_est_f32_params(const ecmrt_f32_model_t *m, const ECMRT_STATE *s,
-                                        unsigned dir, float soc, ecmrt_est_f32_par_t *p,
-                                        int all)
-{
-    const ecmrt_f32_dir_t *d = &m->dir[dir];
-    const float *row;
-    unsigned kd = s->k_dir[dir];
-    float w, inv;
-#if ECMRT_TEMP
-    unsigned kt = s->k_t, st;
-    const float wt = s->w_t;
-    if (kt > (unsigned)m->t.n - 2u) {
-        kt = (unsigned)m->t.n - 2u;
-    }
-    st = ECMRT_NPAR * (unsigned)d->g.n;
-    w = ecmrt_f32_locate(&d->g, soc, &kd);
-    row = d->rows + st * kt + ECMRT_NPAR * kd;
-#else
-    w = ecmrt_f32_locate(&d->g, soc, &kd);
-    row = d->rows + ECMRT_NPAR * kd;
-#endif
-    inv = ecmrt_est_f32_inv(&d->g, kd, soc);
-    ECMRT_EST_VS(row, ECMRT_P_R0, p->r0, p->dr0);
-    if (all) {
-        ECMRT_EST_VS(row, ECMRT_P_RF, p->rf, p->drf);
-        ECMRT_EST_VS(row, ECMRT_P_KF, p->tf, p->dtf);
-        ECMRT_EST_VS(row, ECMRT_P_RS, p->rs, p->drs);
-        ECMRT_EST_VS(row, ECMRT_P_KS, p->ts, p->dts);
-    }
-#if ECMRT_OCV_SHARED
-    ECMRT_EST_VS(row, ECMRT_P_OCV, p->ocv, p->docv);
-#else
-    {
-        unsigned ko = s->k_ocv;
-        w = ecmrt_f32_locate(&m->ocv_g, soc, &ko);
-        inv = ecmrt_est_f32_inv(&m->ocv_g, ko, soc);
-#if ECMRT_TEMP
-        st = 2u * (unsigned)m->ocv_g.n;
-        row = m->ocv + 2u * ((unsigned)m->ocv_g.n * kt + ko);
-#else
-        row = m->ocv + 2u * ko;
-#endif
-        ECMRT_EST_VS(row, 0u, p->ocv, p->docv);
-    }
-#endif
-}
-
-#endif /* ECMRT_VERSION */
 
 /* Before the model's step: i and dt sanitised exactly as the step does (so that the filter
  * uses the step's own inputs; the step's sanitising is then a no-op), the RC voltages kept. */
@@ -383,7 +310,7 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     f[0] = 0.0f;
     q[0] = 0.0f;
     /* fast and slow pairs: u' = a u + r g (1 - a) i, a = exp(-dt / tau(soc)); da/dsoc */
-#if ECMRT_EST_TAU_T
+#if ECMRT_TAU_T
     one_a = ecmrt_f32_one_minus_exp_neg(dt * ECMRT_KC(s, dir, ECMRT_K_F));
     a[1] = 1.0f - one_a;
     da = 0.0f;                                        /* tau of the temperature only */
@@ -396,7 +323,7 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     rg = p.rf * gf;
     e = (nz->pol * rg) * i;
     q[1] = (e * e) * (1.0f - a[1] * a[1]);
-#if ECMRT_EST_TAU_T
+#if ECMRT_TAU_T
     one_a = ecmrt_f32_one_minus_exp_neg(dt * ECMRT_KC(s, dir, ECMRT_K_S));
     a[2] = 1.0f - one_a;
 #else
@@ -409,7 +336,7 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     q[2] = (e * e) * (1.0f - a[2] * a[2]);
 #if ECMRT_DIFF
     rd = ECMRT_EST_TV(br, ECMRT_B_RD);                /* r_diff, tau_diff: no SOC slope */
-#if ECMRT_EST_TAU_T
+#if ECMRT_TAU_T
     ad = 1.0f - ecmrt_f32_one_minus_exp_neg(dt * ECMRT_KC(s, dir, ECMRT_K_D));
 #else
     ad = 1.0f - ecmrt_f32_one_minus_exp_neg(dt / ECMRT_EST_TV(br, ECMRT_B_KD));

@@ -27,14 +27,11 @@ F32 = np.float32
 ZERO, ONE, HALF = F32(0.0), F32(1.0), F32(0.5)
 ITER, ITER_SOC, ITER_TOL = 5, F32("1.0e-3"), F32("1.0e-5")
 V_MAX = F32(1000.0)          # ECMRT_EST_V_MAX: a reading beyond is no measurement
-# runtime 3 (c_runtime/ecmrt.h ECMRT_VERSION): segment pairs at the temperature (temperature
-# first), uniform SOC grids, time constants of the temperature only (ECMRT_TAU_T)
-RUNTIME3 = hasattr(CSpec, "tau_t")
 
 
 def _offsets(spec: CSpec) -> dict:
     """ECMRT_P_*: where each parameter's pair sits in a table row."""
-    if RUNTIME3 and spec.tau_t:
+    if spec.tau_t:
         return {"r0": 0, "rf": 2, "rs": 4, "ocv": 6}
     return {"r0": 0, "rf": 2, "tf": 4, "rs": 6, "ts": 8, "ocv": 10}
 
@@ -108,13 +105,13 @@ class _Tables:
     def __init__(self, spec: CSpec):
         self.spec = spec
         self.off = _offsets(spec)
-        rc_u = RUNTIME3 and spec.rc_uniform
+        rc_u = spec.rc_uniform
         self.grids = [_Grid(d.grid, rc_u) for d in spec.dirs]
         self.rows = [[[list(map(F32, pt)) for pt in row] for row in table_rows(spec, d)]
                      for d in spec.dirs]
         self.shared = spec.ocv_shared
         if not self.shared:
-            self.ocv_grid = _Grid(spec.ocv_grid, RUNTIME3 and spec.ocv_uniform)
+            self.ocv_grid = _Grid(spec.ocv_grid, spec.ocv_uniform)
             self.ocv = [[list(map(F32, pt)) for pt in row] for row in ocv_rows(spec)]
 
     @staticmethod
@@ -123,20 +120,10 @@ class _Tables:
         r1 = rows[kt][k]
         if wt is None:                           # one row: pairs along SOC
             return r1[j] + r1[j + 1] * w, (r1[j + 1] * inv if slope else None)
-        if RUNTIME3:                             # ecmrt_f32_segment, then along SOC
-            r2 = rows[kt][k + 1]
-            a = r1[j] + r1[j + 1] * wt
-            dd = (r2[j] + r2[j + 1] * wt) - a
-            return a + dd * w, (dd * inv if slope else None)
-        r2 = rows[kt + 1][k]                     # runtime 2: along SOC, then temperature
-        a = r1[j] + r1[j + 1] * w
-        b = r2[j] + r2[j + 1] * w
-        v = a + (b - a) * wt
-        if not slope:
-            return v, None
-        sa = r1[j + 1] * inv
-        sb = r2[j + 1] * inv
-        return v, sa + (sb - sa) * wt
+        r2 = rows[kt][k + 1]                     # ecmrt_f32_segment, then along SOC
+        a = r1[j] + r1[j + 1] * wt
+        dd = (r2[j] + r2[j + 1] * wt) - a
+        return a + dd * w, (dd * inv if slope else None)
 
     def values(self, d, soc, kt, wt, fields, slope: bool):
         """{field: (value, slope)} of direction d at soc (the step's lookups; with slope:
@@ -189,7 +176,7 @@ def _inputs(spec: CSpec, current_a, temperature_c, dt_s):
         with np.errstate(all="ignore"):
             a, x = cref.asinh_f32(ai / branch["i0"])
             out["g_bv"] = (a / x).astype(F32)
-    tau_t = RUNTIME3 and spec.tau_t
+    tau_t = spec.tau_t
     if tau_t:                    # ecmrt_f32_coefs: 1/tau at the temperature, in the state
         from .codegen import tau_rows
 
@@ -252,7 +239,7 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c) -> Est
     slo, shi = F32(-SOC_LIM), F32(SOC_LIM)
     i_a, dt_a, chg, kt_a, wt_a = inp["i"], inp["dt"], inp["chg"], inp["kt"], inp["wt"]
     fields_all = ("r0", "rf", "tf", "rs", "ts")
-    tau_t = RUNTIME3 and spec.tau_t
+    tau_t = spec.tau_t
     for t in range(n):
         i, dt, d, kt = i_a[t], dt_a[t], int(chg[t]), int(kt_a[t])
         wt = None if wt_a is None else wt_a[t]
@@ -402,7 +389,7 @@ _SERIES_X, _XMAX, _HALF_LN2 = cref.F_SERIES_X, cref.F_XMAX, cref.F_HALF_LN2
 _INVLN2, _LN2_HI, _LN2_LO, _TAYLOR = cref.F_INVLN2, cref.F_LN2_HI, cref.F_LN2_LO, cref.F_TAYLOR
 
 
-_SMALL = getattr(cref, "F_SMALL", None)       # runtime 3: the minimax polynomial below 1/4
+_SMALL = cref.F_SMALL                # the minimax polynomial below 1/4 (b4, b3, b2, b1)
 
 
 def omexp(x):
@@ -411,14 +398,12 @@ def omexp(x):
     if not x > ZERO:
         return ZERO
     if x < _SERIES_X:
-        if _SMALL is not None:
-            b4, b3, b2, b1 = _SMALL
-            q = x * b4 - b3
-            q = x * q + b2
-            q = x * q - b1
-            q = x * q + ONE
-            return x * q
-        return -(x * (x * (HALF + x * (x * _TAYLOR[3] - _TAYLOR[4])) - ONE))
+        b4, b3, b2, b1 = _SMALL
+        q = x * b4 - b3
+        q = x * q + b2
+        q = x * q - b1
+        q = x * q + ONE
+        return x * q
     if not x < _XMAX:
         return ONE
     n = 0 if x < _HALF_LN2 else int(x * _INVLN2 + HALF)
