@@ -447,5 +447,5 @@ def test_a123_build_quiet_json_has_empty_stderr(tmp_path):
     r = run_cli("build", cfg, "--out", tmp_path / "out2", "-q", "--json")
     assert r.returncode == 2 and r.stdout == ""
     assert r.stderr.count("\n") == 1
-    assert r.stderr.startswith(f"ecmgen: error: {d / 'dynamics-dst-us06-fuds.csv'}: ")
+    assert r.stderr.startswith(f"ecmgen: error: {(d / 'dynamics-dst-us06-fuds.csv').resolve()}: ")
     assert not (tmp_path / "out2").exists()
