@@ -35,8 +35,8 @@ def test_files_banner_and_byte_identical(tmp_path, synthetic_model, numeric, dt_
     a = generate_c(synthetic_model, tmp_path / "a", prefix="cell", numeric=numeric, dt_s=dt_s)
     b = generate_c(synthetic_model, tmp_path / "b", prefix="cell", numeric=numeric, dt_s=dt_s)
     names = sorted(p.name for p in a)
-    rt = "ecmrt_f32.h" if numeric == "float" else "ecmrt_q.h"
-    assert names == sorted(["cell_ecm.h", "cell_ecm.c", "ecmrt.h", rt, "cell_ecm_files.mk",
+    rt = ["ecmrt_f32.h"] if numeric == "float" else ["ecmrt_q_exp.h", "ecmrt_q.h"]
+    assert names == sorted(["cell_ecm.h", "cell_ecm.c", "ecmrt.h", *rt, "cell_ecm_files.mk",
                             "cell_ecm_report.md"])
     for pa, pb in zip(a, b):
         assert pa.read_bytes() == pb.read_bytes(), pa.name
@@ -55,7 +55,8 @@ def test_files_banner_and_byte_identical(tmp_path, synthetic_model, numeric, dt_
         assert f"ecmgen {__version__}" in text and sha in text
         assert text.isascii()
     # the runtime is copied verbatim
-    assert (tmp_path / "a" / rt).read_text() == (runtime_dir() / rt).read_text()
+    for r in rt:
+        assert (tmp_path / "a" / r).read_text() == (runtime_dir() / r).read_text()
 
 
 def test_different_model_different_bytes(tmp_path, synthetic_model):
@@ -211,7 +212,7 @@ def test_fixed_header_documents_q_formats(synthetic_model):
 
 
 def test_runtime_constants_match_python_reference():
-    q = (runtime_dir() / "ecmrt_q.h").read_text()
+    q = (runtime_dir() / "ecmrt_q_exp.h").read_text() + (runtime_dir() / "ecmrt_q.h").read_text()
     tab = re.search(r"exp2_tab\[8\] = \{([^}]*)\}", q).group(1)
     assert tuple(int(v) for v in tab.replace("\n", " ").split(",")) == cref.Q_EXP2_TAB
     poly = re.search(r"poly\[7\] = \{([^}]*)\}", q).group(1)
@@ -248,7 +249,7 @@ def test_make_file_list(tmp_path, synthetic_model):
     out = subprocess.run(["make", "-s", "show"], cwd=tmp_path, capture_output=True, text=True,
                          check=True).stdout.split("\n")
     assert out[0] == "gen/bms_ecm.c"
-    assert out[1].split() == ["gen/bms_ecm.h", "gen/ecmrt.h", "gen/ecmrt_q.h"]
+    assert out[1].split() == ["gen/bms_ecm.h", "gen/ecmrt.h", "gen/ecmrt_q_exp.h", "gen/ecmrt_q.h"]
     assert out[2] == "gen"
     for p in [*out[0].split(), *out[1].split()]:
         assert (tmp_path / p).exists()

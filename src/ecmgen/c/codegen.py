@@ -50,7 +50,9 @@ __all__ = ["C_EFFECTS", "NUMERICS", "CDir", "CGrid", "CSpec", "c_float", "descri
            "generate_c", "prepare", "render", "runtime_dir", "state_fields", "templates_dir",
            "_as_model"]
 
-RUNTIME_FILES = {"float": ("ecmrt.h", "ecmrt_f32.h"), "fixed": ("ecmrt.h", "ecmrt_q.h")}
+# the runtime headers a model's .c needs, the one it includes last
+RUNTIME_FILES = {"float": ("ecmrt.h", "ecmrt_f32.h"),
+                 "fixed": ("ecmrt.h", "ecmrt_q_exp.h", "ecmrt_q.h")}
 
 
 def _find_dir(name: str) -> Path:
