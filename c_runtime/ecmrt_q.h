@@ -486,7 +486,12 @@ ECMRT_Q_SHARED int32_t ecmrt_q_rc(int32_t u, int32_t c, int64_t t, unsigned qc)
 {
     return (int32_t)((int64_t)u + ECMRT_RSHRV((t - (int64_t)u) * c, qc));
 }
+#if defined(__OPTIMIZE_SIZE__)
 #define ECMRT_Q_RC(u, c, t, qc) ecmrt_q_rc((u), (c), (t), (unsigned)(qc))
+#else
+/* inline, the same bits with the constant shift's rounding (one operation less) */
+#define ECMRT_Q_RC(u, c, t, qc) ((int32_t)((int64_t)(u) + ECMRT_RSHR(((t) - (int64_t)(u)) * (c), (qc))))
+#endif
 
 /* One step: i in Q_I A, temp in Q8 degC, dt in Q16 s; returns the voltage in Q_V. */
 #if ECMRT_VARIABLE_DT
