@@ -427,13 +427,15 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
                 }
                 d[u] = ecmrt_est_f32_dot(fp + N * u, h);
             }
+            e = 0.0f;                  /* x * 0 is 0 for a finite x, NaN for inf or NaN */
             for (u = 0u; u < N; u++) {
                 for (v = 0u; v < N; v++) {
                     fp[N * u + v] = (fp[N * u + v] - d[u] * k[v]) + r * (k[u] * k[v]);
-                    ok = ok && ecmrt_est_f32_abs(fp[N * u + v]) <= FLT_MAX;
+                    e = e + fp[N * u + v] * 0.0f;
                 }
-                ok = ok && ecmrt_est_f32_abs(xu[u]) <= FLT_MAX;
+                e = e + xu[u] * 0.0f;
             }
+            ok = e == 0.0f;
         }
         if (ok) {                      /* applied only when all of it is finite */
             for (u = 0u; u < N; u++) {
