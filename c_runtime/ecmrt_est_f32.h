@@ -20,6 +20,8 @@
  *   K = P H^T / (H P H^T + R), iterated (relinearised at the updated SOC, at most 5 times)
  *       while the update moves the SOC by more than 1e-3; Joseph form
  *       P = (I - K H) P (I - K H)^T + R K K^T, then exactly symmetric; SOC to [0, 1].
+ * A reading that is NaN, inf or beyond +-1 kV, and an update that would leave the state or
+ * the covariance not finite, are not applied: the sample only predicts.
  *
  * Noise constants (ecmrt_est_f32_noise_t) come from the [estimator] settings, baked into
  * the generated .c. No effects (diagnose), no fixed dt, no offset state: the generator
