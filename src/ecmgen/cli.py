@@ -157,6 +157,7 @@ def cmd_validate(args) -> int:
         print(json.dumps(dict(val.overall.as_dict(), soc0=val.soc0, soc0_how=val.soc0_how,
                               soc_above_10=val.soc_above_10.as_dict(),
                               warnings=list(val.warnings),
+                              voltage_lag_samples=val.voltage_lag_samples,
                               temperature_c=None if t_range is None else
                               {"min": t_range[0], "max": t_range[1]})))
     else:

@@ -81,7 +81,8 @@ def build_json(result) -> dict:
             tr = _t_range(v)
             entry["cycles"][name] = dict(
                 v.overall.as_dict(), soc0=v.soc0, soc0_how=v.soc0_how,
-                warnings=list(v.warnings), **usage.get(name, {}),
+                warnings=list(v.warnings), voltage_lag_samples=v.voltage_lag_samples,
+                **usage.get(name, {}),
                 temperature_c=None if tr is None else {"min": tr[0], "max": tr[1]})
         validation[method] = entry
     doc = {
@@ -142,7 +143,14 @@ def write_build_report(cfg, result, out_dir: Path) -> Path:
     if result.tests:
         lines += ["Each cycle is simulated on its own measured cell temperature; "
                   "`cell degC` is its range.", ""]
-    lines += ["```", validation_table(result), "```", "", "## Notes", ""]
+    lines += ["```", validation_table(result), "```", ""]
+    lagging = {c: v.voltage_lag_samples for c, v in result.validations.get(result.best, {}).items()
+               if v.voltage_lag_samples > 0}
+    if lagging:
+        which = ", ".join(f"`{c}` by {n} sample{'s' if n > 1 else ''}" for c, n in lagging.items())
+        lines += [f"The measured voltage lags the current in {which} (see the notes): the "
+                  "errors above include it, the data are not shifted.", ""]
+    lines += ["## Notes", ""]
     notes = list(best.notes) + list(getattr(result, "notes", []))
     lines += [f"- {n}" for n in notes] or ["- none"]
     lines += ["", "## Inputs", ""]

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data.measure import TimeSeries, charging_direction
+from ..data.measure import TimeSeries, charging_direction, voltage_lag
 from ..errors import InputError
 from .model import EcmModel
 from .rc import rc_recurrence
@@ -204,6 +204,7 @@ class Validation:
     temperature_c: np.ndarray | None = None   # the cell temperature simulated on, degC
     soc0_how: str = ""               # how the start SOC was found ("given" if given)
     warnings: tuple[str, ...] = ()   # e.g. the simulated SOC left [0, 1]
+    voltage_lag_samples: int = 0     # the record's voltage lags its current (not corrected)
 
     @property
     def temperature_range_c(self) -> tuple[float, float] | None:
@@ -233,7 +234,11 @@ def validate(model: EcmModel, series: TimeSeries, soc0: float | None = None,
     sim = simulate(model, series.time_s, series.current_a, float(soc0), temps)
     err = sim.voltage_v - series.voltage_v
     name = Path(series.source).name if series.source else ""
-    warn = soc_range_warning(sim.soc, name)
+    warns = [soc_range_warning(sim.soc, name)]
+    lag = voltage_lag(series)
+    lag_samples = 0 if lag is None else lag.samples
+    if lag_samples:
+        warns.append(lag.note(series.source))
     return Validation(series.source, float(soc0), from_ocv, Metrics.of(err),
                       Metrics.of(err[sim.soc > 0.10]), sim, series.voltage_v, temps, how,
-                      (warn,) if warn else ())
+                      tuple(w for w in warns if w), lag_samples)
