@@ -317,24 +317,14 @@ ECMRT_Q_HOT int32_t ecmrt_q_c_kr(int32_t dt, int32_t kc)
 }
 #endif
 
-/* c = 1 - exp(-dt/tau) in Q30, dt in Q16 s, tau > 0 in Q_T s (Q_T <= 21): x = dt (1/tau)
- * = dt r 2^-k in Q26, k = sh - Q_T - 10, and in Q30 (shift k - 4); k < 5 means tau <
- * 2^-16 s, so x >= 1 for any dt > 0, and k < 1 x >= 32 (c = 1) */
+/* c = 1 - exp(-dt/tau) in Q30, dt >= 0 in Q16 s, tau in Q_T s (Q_T <= 21) at least 2^-16 s
+ * (2^(Q_T - 16) raw, which the generator checks; interpolated taus are not smaller): x =
+ * dt (1/tau) = dt r 2^-sh in Q30 with the shift sh - Q_T - 14 >= 1 */
 ECMRT_Q_HOT int32_t ecmrt_q_c_dt_tau(int32_t dt, int32_t tau)
 {
     unsigned sh;
     const uint32_t r = ecmrt_q_recip((uint32_t)tau, &sh);
-    if (dt <= 0) {
-        return 0;
-    }
-    if (sh <= (unsigned)(ECMRT_Q_T + 10)) {
-        return ECMRT_ONE30;
-    }
-    sh -= (unsigned)(ECMRT_Q_T + 10);
-    if (sh >= 5u) {
-        return ecmrt_q_c_rate(dt, r, sh - 4u);
-    }
-    return ecmrt_q_one_minus_exp_neg_big(ECMRT_RSHRV((int64_t)dt * (int64_t)r, sh));
+    return ecmrt_q_c_rate(dt, r, sh - (unsigned)(ECMRT_Q_T + 14));
 }
 #else
 #if !defined(ECMRT_Q_DF) || !defined(ECMRT_Q_DS) || !defined(ECMRT_Q_CF) || !defined(ECMRT_Q_CS)

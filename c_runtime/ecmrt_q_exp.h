@@ -107,10 +107,12 @@ static inline int32_t ecmrt_q_one_minus_exp_neg_big(int64_t x)
         1073741824, 984625594, 902905651, 827968132,
         759250125, 696235434, 638450708, 585461881
     };
+#if defined(__OPTIMIZE_SIZE__)
     /* (-1)^k / k! in Q30, k = 0..6 */
     static const int32_t poly[7] = {
         1073741824, -1073741824, 536870912, -178956971, 44739243, -8947849, 1491308
     };
+#endif
     int64_t p;
     int32_t y, f, r, e;
     unsigned n, j;
@@ -122,7 +124,18 @@ static inline int32_t ecmrt_q_one_minus_exp_neg_big(int64_t x)
     j = ((unsigned)y >> 23) & 7u;
     f = y & 0x7FFFFF;
     r = (int32_t)ECMRT_RSHR((int64_t)f * ECMRT_LN2_Q30, 26);  /* f ln2 in Q30, < 0.0867 */
+#if defined(__OPTIMIZE_SIZE__)
     p = ecmrt_q_horner(poly, 7, r);
+#else
+    /* the same Horner steps unrolled, on constants */
+    p = 1491308;
+    p = -8947849 + ECMRT_RSHR(r * p, ECMRT_Q30);
+    p = 44739243 + ECMRT_RSHR(r * p, ECMRT_Q30);
+    p = -178956971 + ECMRT_RSHR(r * p, ECMRT_Q30);
+    p = 536870912 + ECMRT_RSHR(r * p, ECMRT_Q30);
+    p = -1073741824 + ECMRT_RSHR(r * p, ECMRT_Q30);
+    p = 1073741824 + ECMRT_RSHR(r * p, ECMRT_Q30);
+#endif
     e = (int32_t)ECMRT_RSHR((int64_t)exp2_tab[j] * p, ECMRT_Q30);   /* Q30, in (0.5, 1] */
     if (n > 0u) {
         e = (int32_t)(((uint32_t)e + (1u << (n - 1u))) >> n);

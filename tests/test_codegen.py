@@ -328,6 +328,23 @@ def test_bad_in_memory_model_refused(tmp_path, synthetic_model):
     assert not (tmp_path / "out").exists()
 
 
+def test_fixed_point_smallest_time_constant(tmp_path, synthetic_model):
+    """Variable-dt fixed point takes time constants down to 2^-16 s (ecmrt_q_c_dt_tau's shift
+    stays >= 1 without a check in the step; the tables' taus are >= 1 ms, an extra_rc's
+    may be smaller) and refuses smaller ones in one line."""
+    from ecmgen.model import effects as fx
+
+    def with_tau(tau):
+        return synthetic_model.with_effects([fx.make_effect("extra_rc", r_ohm=0.01, tau_s=tau)])
+
+    spec = prepare(with_tau(2.0**-16), numeric="fixed")
+    assert spec.fx["x_k"] == 2 ** (spec.q["Q_T"] - 16)
+    with pytest.raises(InputError, match="time constants too small for the fixed-point format"):
+        generate_c(with_tau(0.9 * 2.0**-16), tmp_path / "out", numeric="fixed")
+    assert not (tmp_path / "out").exists()
+    prepare(with_tau(0.9 * 2.0**-16), numeric="float")
+
+
 @pytest.mark.parametrize("kw,words", [
     ({"prefix": "1cell"}, "prefix"), ({"prefix": "a-b"}, "prefix"), ({"prefix": ""}, "prefix"),
     ({"numeric": "double"}, "numeric"), ({"dt_s": 0.0}, "dt_s"), ({"dt_s": -0.1}, "dt_s"),

@@ -162,8 +162,10 @@ def test_runtime_exp_fixed(exp_lib):
     ffi, lib = exp_lib.ffi, exp_lib.lib
     rng = np.random.default_rng(2)
     q_t = 21
-    tau = np.concatenate([[2**21, 1, 2**31 - 1, 5, 100], rng.integers(2**10, 2**31 - 1, 20000)])
-    dt = np.concatenate([[0, 6554, 2**31 - 1, -5, 1], rng.integers(0, 2**22, 20000)])
+    # the domain the generator guarantees: dt >= 0 (the step clamps it), tau >= 2^-16 s
+    tau = np.concatenate([[2**21, 2**(q_t - 16), 2**31 - 1, 2**(q_t - 16), 100],
+                          rng.integers(2**10, 2**31 - 1, 20000)])
+    dt = np.concatenate([[0, 6554, 2**31 - 1, 0, 1], rng.integers(0, 2**22, 20000)])
     tau, dt = tau.astype(np.int32), dt.astype(np.int32)
     out = np.empty_like(dt)
     lib.t_q(ffi.from_buffer("int32_t[]", dt), ffi.from_buffer("int32_t[]", tau),
@@ -182,7 +184,7 @@ def test_runtime_exp_fixed(exp_lib):
           f"{err[x < 0.25].max():.2f} LSB")
     assert np.all(err <= tol)
     assert np.all(err[x < 0.25] <= 2.5 + 1e-8 * exact[x < 0.25])
-    assert out[0] == 0 and out[3] == 0 and out[2] == 2**30
+    assert out[0] == 0 and out[3] == 0 and out[2] == 2**30 and out[1] == 2**30
 
 
 def test_runtime_recip(exp_lib):

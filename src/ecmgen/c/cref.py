@@ -470,19 +470,12 @@ def c_rate_q(dt_raw, r, sh) -> np.ndarray:
 
 
 def c_dt_tau_q(dt_raw, tau_raw, q_t: int) -> np.ndarray:
-    """ecmrt_q_c_dt_tau: 1 - exp(-dt/tau) in Q30; dt in Q16, tau in Q_T (> 0)."""
+    """ecmrt_q_c_dt_tau: 1 - exp(-dt/tau) in Q30; dt >= 0 in Q16, tau >= 2^(q_t - 16) in
+    Q(q_t) (the generator's bound: the shift of c_rate_q is >= 1)."""
     dt, tau = np.broadcast_arrays(np.asarray(dt_raw, dtype=np.int64),
                                   np.asarray(tau_raw, dtype=np.int64))
     r, sh = recip_q(tau)
-    p = np.maximum(dt, 0) * r
-    k = sh - (q_t + 10)
-    x30 = _rshr(p, np.maximum(k - 4, 1))
-    small = (k >= 5) & (x30 < Q_XSMALL30)
-    x26 = np.where(k >= 5, _rshr(x30, 4), _rshr(p, np.maximum(k, 1)))
-    c = np.where(small, _omexp_small_q(np.where(small, x30, 0)),
-                 _omexp_big_q(np.where(small, Q_XSMALL26, x26)))
-    c = np.where(k < 1, ONE30, c)
-    return np.where(dt > 0, c, 0).astype(np.int64)
+    return c_rate_q(dt, r, sh - (q_t + 14))
 
 
 def inv_d_q(d_raw, qcd: int) -> np.ndarray:

@@ -212,8 +212,8 @@ def prepare_fixed(ctx: SimpleNamespace) -> CSpec:
         q["Q_T"] = min(21, _q_fit(tau_max))
         if q["Q_T"] < -10:
             raise InputError(None, "time constants too large for the fixed-point format")
-        # ecmrt_q_c_dt_tau: the shift sh - Q_T - 10 >= 1 needs tau >= 2^(Q_T - 20) raw
-        if int(quantize([tau_min], q["Q_T"])[0]) < 2 ** max(0, q["Q_T"] - 20):
+        # ecmrt_q_c_dt_tau: the shift sh - Q_T - 14 >= 1 needs tau >= 2^(Q_T - 16) raw (2^-16 s)
+        if int(quantize([tau_min], q["Q_T"])[0]) < 2 ** max(0, q["Q_T"] - 16):
             raise InputError(None, "time constants too small for the fixed-point format")
         if math.ldexp(tau_min, q["Q_T"]) < 1024:
             notes.append(f"the smallest time constant {tau_min:.3g} s has under 10 bits in Q{q['Q_T']}")
