@@ -13,7 +13,12 @@
    reference (coulomb counting the measured current from the true start), the largest
    |SOC(C) - SOC(float64)|, C == float32 reference bit for bit (every step, state and
    covariance entry), and plain coulomb counting with the same sensor errors;
-4. the covariance's dynamic range over those runs (the fixed-point question).
+4. the covariance's dynamic range over those runs (the fixed-point question);
+5. models with diagnose effects: 1. and 2. for the test model with a hysteresis effect and
+   with every effect (hysteresis, extra_rc, current_dependent_resistance, capacity_error,
+   temperature_dependence), and the SOC on synthetic LFP-like cells with hysteresis
+   (ecmgen.diagnosis.synthcell, whole drive cycle, guess 0.6 for 0.95, offset C/100, gain
+   1.01) with the filter's hysteresis state and on the model without it.
 
 Model: tests/data/panasonic-temperature-model.json, [estimator] defaults.
 Usage: python bench/bench_estimator_c.py [--steps N] [--json] [--no-reference]
@@ -50,7 +55,15 @@ from ecmgen.c.esttarget import estimator_sizes  # noqa: E402
 from ecmgen.config import EstimatorConfig  # noqa: E402
 from ecmgen.data.measure import read_timeseries  # noqa: E402
 from ecmgen.estimate.run import SocMetrics, coulomb_count  # noqa: E402
+from ecmgen.model.effects import make_effect  # noqa: E402
 from ecmgen.model.model import load_model  # noqa: E402
+
+HYSTERESIS = make_effect("hysteresis", m_v=0.015, decay_ah=0.15, m0_v=0.002,
+                         ocv_table_state=0.0, initial_state=1.0)
+EVERY_EFFECT = (HYSTERESIS, make_effect("extra_rc", r_ohm=0.01, tau_s=900.0),
+                make_effect("current_dependent_resistance", scale_at_zero=1.1, i0_a=5.0),
+                make_effect("capacity_error", capacity_scale=0.97),
+                make_effect("temperature_dependence", activation_k=2000.0, t_ref_c=25.0))
 
 CG_MAIN = r"""
 #include <stdio.h>
@@ -173,6 +186,56 @@ def accuracy(model, reference: bool) -> tuple[list, dict]:
     return rows, rng
 
 
+def effects(model, steps: int) -> dict:
+    """Section 5: cost of the effects' states and factors, and the LFP cells' SOC."""
+    from ecmgen.diagnosis.synthcell import random_cell
+    from ecmgen.model.simulate import simulate
+
+    cost = []
+    for label, fx in (("none", ()), ("hysteresis", (HYSTERESIS,)), ("every effect", EVERY_EFFECT)):
+        m = model.with_effects(fx)
+        spec = prepare(m, "float", None, "cost")
+        cost.append({"effects": label, "states": prepare_estimator(m, spec).n,
+                     "instructions": instructions_per_step(m, steps), "flash_ram": flash_ram(m)})
+    lfp = []
+    for seed in (1, 2, 3):
+        cell = random_cell(seed, "hysteresis", chemistry="lfp")
+        cyc = cell.drive_cycle()
+        t = cyc.time_s
+        seen = GAIN * cyc.current_a + 0.01 * cell.capacity_ah
+        truth = simulate(cell.hidden, t, cyc.current_a, 0.95, cyc.temperature_c).soc
+        row = {"seed": seed, "steps": int(t.size), "m_v": cell.hidden.effects[0].m_v}
+        for label, m in (("hysteresis", cell.hidden), ("without", cell.hidden.with_effects(()))):
+            spec = prepare(m, "float", None, "lfp")
+            est = prepare_estimator(m, spec, EstimatorConfig())
+            got = run_estimator_c(cbuild.compile_spec(spec, estimator=est), seen,
+                                  cref.dt_from_time(t), cyc.voltage_v, 0.6, cyc.temperature_c)
+            err = (got.soc.astype(np.float64) - truth)[t > 600]
+            row[label] = (float(np.sqrt(np.mean(err ** 2))), float(np.max(np.abs(err))))
+        lfp.append(row)
+    return {"cost": cost, "lfp": lfp}
+
+
+def print_effects(fx: dict) -> None:
+    print("\n5. models with diagnose effects (the test model; instructions as in 1., Cortex-M4F "
+          "-Os as in 2.)")
+    print("| effects | states | est_step instr. | model step instr. | estimator code B | "
+          "est_t B | stack B |")
+    print("|---|---|---|---|---|---|---|")
+    for r in fx["cost"]:
+        ins, fr = r["instructions"], r["flash_ram"]
+        i1 = "- | -" if "skipped" in ins else f"{ins['est_step']:.0f} | {ins['model step']:.0f}"
+        f1 = ("- | - | -" if "skipped" in fr else
+              f"{fr['code_estimator']} | {fr['state_bytes']} | {fr['stack_est_step_path']}")
+        print(f"| {r['effects']} | {r['states']} | {i1} | {f1} |")
+    print("   LFP-like cells with hysteresis, SOC RMSE / max after 600 s, %: with the filter's "
+          "hysteresis state | on the model without it")
+    for r in fx["lfp"]:
+        h, w = r["hysteresis"], r["without"]
+        print(f"   seed {r['seed']} ({r['steps']} steps, m_v {1000 * r['m_v']:.1f} mV): "
+              f"{100 * h[0]:.2f} / {100 * h[1]:.2f} | {100 * w[0]:.2f} / {100 * w[1]:.2f}")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=20000, help="samples for callgrind")
@@ -184,6 +247,7 @@ def main(argv=None) -> int:
     res = {"model": MODEL.name, "instructions": instructions_per_step(model, args.steps),
            "flash_ram": flash_ram(model)}
     res["cycles"], res["covariance"] = accuracy(model, not args.no_reference)
+    res["effects"] = effects(model, args.steps)
     if args.json:
         print(json.dumps(res, indent=1))
         return 0
@@ -227,6 +291,7 @@ def main(argv=None) -> int:
           + f"; all nonzero |P_ij| span {cv['span_decades']:.1f} decades; after the first "
           f"sample one update leaves at least {cv['min_p00_ratio_per_step']:.3f} of the SOC "
           "variance")
+    print_effects(res["effects"])
     return 0
 
 

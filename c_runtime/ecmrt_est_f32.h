@@ -10,22 +10,28 @@
  *     <prefix>_step()         the model's own step: the predicted state and voltage;
  *     ecmrt_est_f32_update()  Jacobians, covariance prediction, measurement update.
  * The filter is the one of src/ecmgen/estimate/ekf.py (states soc, u_fast, u_slow and,
- * with ECMRT_DIFF, u_diff), operation for operation mirrored in float32 by
- * src/ecmgen/c/estref.py (bit-identical results, checked through cffi and under QEMU):
+ * in this order, u_diff with ECMRT_DIFF, u_x with ECMRT_FX_XRC, h with ECMRT_FX_HYST),
+ * operation for operation mirrored in float32 by src/ecmgen/c/estref.py (bit-identical
+ * results, checked through cffi and under QEMU):
  *
  *   F = d step / d x at the state before the step (a_j = 1 - c_j on the diagonal, the SOC
- *       column through the tables' SOC slopes at the new SOC), P = F P F^T + Q;
- *   H = [dOCV/dsoc + dr0/dsoc i, 1, 1 (, 1)], R from the model error and its correlation
- *       time (R = 0: the sample carries no information, e.g. dt = 0 after the first);
+ *       column through the tables' SOC slopes at the new SOC; u_x and h have no SOC
+ *       slope: a_x = 1 - c_x, a_h = 1 - c_h, the step's own coefficients), P = F P F^T + Q;
+ *   H = [dOCV/dsoc + dr0/dsoc g f i, 1, 1 (, 1) (, 1) (, m_v)], R from the model error and
+ *       its correlation time (R = 0: the sample carries no information, e.g. dt = 0 after
+ *       the first); the resistances and their SOC slopes times the effects' factors
+ *       (current_dependent_resistance g on r0 and r_fast, temperature_dependence f on r0,
+ *       r_fast and r_slow, as the step);
  *   K = P H^T / (H P H^T + R), iterated (relinearised at the updated SOC, at most 5 times)
  *       while the update moves the SOC by more than 1e-3; Joseph form
- *       P = (I - K H) P (I - K H)^T + R K K^T, then exactly symmetric; SOC to [0, 1].
+ *       P = (I - K H) P (I - K H)^T + R K K^T, then exactly symmetric; SOC to [0, 1], h to
+ *       [-1, 1].
  * A reading that is NaN, inf or beyond +-1 kV, and an update that would leave the state or
  * the covariance not finite, are not applied: the sample only predicts.
  *
  * Noise constants (ecmrt_est_f32_noise_t) come from the [estimator] settings, baked into
- * the generated .c. No effects (diagnose), no fixed dt, no offset state: the generator
- * refuses those models and settings.
+ * the generated .c. No fixed dt, no offset state: the generator refuses those (capacity_error
+ * is in the step's k_soc and needs nothing here).
  */
 #ifndef ECMRT_EST_F32_H
 #define ECMRT_EST_F32_H
@@ -36,16 +42,29 @@
 #if !defined(ECMRT_F32_H) || !defined(ECMRT_EST_T)
 #error "ecmrt_est_f32.h is included by a generated <prefix>_ecm.c after ecmrt_f32.h"
 #endif
-#if !ECMRT_VARIABLE_DT || ECMRT_FX_HYST || ECMRT_FX_XRC || ECMRT_FX_CDR || ECMRT_FX_ARR
-#error "the estimator needs the variable-dt step of a model without effects"
+#if !ECMRT_VARIABLE_DT
+#error "the estimator needs the variable-dt step"
 #endif
 
-#define ECMRT_EST_N (3u + (unsigned)ECMRT_DIFF)       /* soc, u_fast, u_slow (, u_diff) */
+/* soc, u_fast, u_slow (, u_diff) (, u_x) (, h) */
+#define ECMRT_EST_N (3u + (unsigned)ECMRT_DIFF + (unsigned)ECMRT_FX_XRC + (unsigned)ECMRT_FX_HYST)
+#define ECMRT_EST_IX (3u + (unsigned)ECMRT_DIFF)      /* u_x's index (with ECMRT_FX_XRC) */
+#define ECMRT_EST_IH (ECMRT_EST_IX + (unsigned)ECMRT_FX_XRC)  /* h's (with ECMRT_FX_HYST) */
 
 #define ECMRT_EST_ITER 5                              /* relinearisations at most */
 #define ECMRT_EST_ITER_SOC 1.0e-3f                    /* ... when the update moves the SOC more */
 #define ECMRT_EST_ITER_TOL 1.0e-5f                    /* ... until an iteration moves it less */
 #define ECMRT_EST_V_MAX 1000.0f      /* a reading beyond +-1 kV is no cell voltage: no update */
+
+/* the N x N loops unrolled when optimising for speed (GCC 8+, not -Os: the same operations
+ * in the same order, the same bits; GCC -O2 unrolls them by itself for 4 states but not for
+ * the 5 or 6 of a model with effects: 2655 -> 1669 instructions per step with hysteresis,
+ * bench/bench_estimator_c.py) */
+#if defined(__GNUC__) && !defined(__clang__) && __GNUC__ >= 8 && !defined(__OPTIMIZE_SIZE__)
+#define ECMRT_EST_UNROLL _Pragma("GCC unroll 8")
+#else
+#define ECMRT_EST_UNROLL
+#endif
 
 /* the filter's settings (ecmgen.estimate.ekf.NoiseModel), float32 */
 typedef struct {
@@ -59,6 +78,9 @@ typedef struct {
     float vn2;                /* voltage_noise_v^2, V^2 */
     float model_error;        /* model voltage error / model overpotential */
     float corr_s;             /* error_correlation_s */
+#if ECMRT_FX_HYST
+    float p0_h;               /* hysteresis_sigma^2: h's initial variance and its noise scale */
+#endif
 } ecmrt_est_f32_noise_t;
 
 /* What the update needs from before the step. */
@@ -215,6 +237,7 @@ static inline float ecmrt_est_f32_dot(const float *y, const float *h)
 {
     unsigned b;
     float sum = y[0] * h[0];
+    ECMRT_EST_UNROLL
     for (b = 1u; b < ECMRT_EST_N; b++) {
         sum = sum + y[b] * h[b];
     }
@@ -227,6 +250,7 @@ static inline int ecmrt_est_f32_gain(const float *P, const float *h, float r, co
 {
     unsigned a;
     float sum;
+    ECMRT_EST_UNROLL
     for (a = 0u; a < ECMRT_EST_N; a++) {
         c[a] = ecmrt_est_f32_dot(P + ECMRT_EST_N * a, h);
     }
@@ -234,6 +258,7 @@ static inline int ecmrt_est_f32_gain(const float *P, const float *h, float r, co
     if (!(sum > 0.0f) || sum > FLT_MAX) {
         return 0;
     }
+    ECMRT_EST_UNROLL
     for (a = 0u; a < ECMRT_EST_N; a++) {
         k[a] = c[a] / sum;
         x[a] = x0[a] + k[a] * e;
@@ -250,19 +275,63 @@ static inline float ecmrt_est_f32_clamp(float soc)
     return soc > 1.0f ? 1.0f : soc;
 }
 
+#if ECMRT_FX_HYST
+/* the hysteresis state into [-1, 1] (NaN stays NaN: the finiteness check refuses it) */
+static inline float ecmrt_est_f32_clamp_h(float h)
+{
+    if (h < -1.0f) {
+        return -1.0f;
+    }
+    return h > 1.0f ? 1.0f : h;
+}
+#endif
+
+#if ECMRT_FX_CDR || ECMRT_FX_ARR
+/* a parameter effect's factor g on the accessor's r0 (and r_fast with fast, r_slow with
+ * slow) and their SOC slopes */
+static inline void ecmrt_est_f32_scale(ecmrt_est_f32_par_t *p, float g, int fast, int slow)
+{
+    p->r0 = p->r0 * g;
+    p->dr0 = p->dr0 * g;
+    if (fast) {
+        p->rf = p->rf * g;
+        p->drf = p->drf * g;
+    }
+    if (slow) {
+        p->rs = p->rs * g;
+        p->drs = p->drs * g;
+    }
+}
+
+/* the parameter effects' factors, in the step's order: current_dependent_resistance g on
+ * r0, r_fast; temperature_dependence f on r0, r_fast, r_slow; all = 0: r0 only */
+static inline void ecmrt_est_f32_fx(ecmrt_est_f32_par_t *p, float g, float f, int all)
+{
+#if ECMRT_FX_CDR
+    ecmrt_est_f32_scale(p, g, all, 0);
+#endif
+#if ECMRT_FX_ARR
+    ecmrt_est_f32_scale(p, f, all, all);
+#endif
+    (void)g;
+    (void)f;
+}
+#endif
+
 static inline float ecmrt_est_f32_abs(float x)
 {
     return x < 0.0f ? -x : x;
 }
 
-/* After the model's step s (current i, dt as sanitised by ecmrt_est_f32_prior, predicted
- * voltage vp): the covariance prediction and the update with the measured voltage vm
- * (not finite: no update). P is the N x N covariance, row-major, exactly symmetric. */
+/* After the model's step s (current i, dt as sanitised by ecmrt_est_f32_prior, the cell
+ * temperature temp as given to the step, predicted voltage vp): the covariance prediction
+ * and the update with the measured voltage vm (not finite: no update). P is the N x N
+ * covariance, row-major, exactly symmetric. */
 static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
                                         const ecmrt_est_f32_noise_t *nz, ECMRT_STATE *s,
                                         float *P, uint8_t *first,
-                                        const ecmrt_est_f32_prior_t *pr, float i, float dt,
-                                        float vp, float vm)
+                                        const ecmrt_est_f32_prior_t *pr, float i, float temp,
+                                        float dt, float vp, float vm)
 {
 #define N ECMRT_EST_N
     const unsigned dir = s->charging;
@@ -288,6 +357,19 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 #if ECMRT_DIFF
     float rd, ad;
 #endif
+#if ECMRT_FX_CDR || ECMRT_FX_ARR
+    float gc = 1.0f, fa = 1.0f;
+#endif
+#if ECMRT_FX_CDR
+    float xc;
+#endif
+#if ECMRT_FX_HYST
+    const float sg = dir == ECMRT_CHARGE ? 1.0f : -1.0f;
+    float ch, vx;
+#endif
+#if !ECMRT_FX_ARR
+    (void)temp;
+#endif
 #if ECMRT_TEMP && (ECMRT_BV || ECMRT_DIFF)
     if (kt > (unsigned)m->t.n - 2u) {
         kt = (unsigned)m->t.n - 2u;
@@ -302,7 +384,25 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 #if ECMRT_DIFF
     x0[3] = s->u_diff;
 #endif
+#if ECMRT_FX_XRC
+    x0[ECMRT_EST_IX] = s->u_x;
+#endif
+#if ECMRT_FX_HYST
+    x0[ECMRT_EST_IH] = s->h;
+#endif
     ecmrt_est_f32_params(m, s, dir, x0[0], &p, 1);
+    /* the parameter effects' factors, as the step computes them */
+#if ECMRT_FX_CDR
+    xc = ai * m->g_inv_i0;
+    gc = m->g_scale * ecmrt_f32_asinh(&xc);
+    gc = gc / xc;
+#endif
+#if ECMRT_FX_ARR
+    fa = ecmrt_f32_arrhenius(m, temp);
+#endif
+#if ECMRT_FX_CDR || ECMRT_FX_ARR
+    ecmrt_est_f32_fx(&p, gc, fa, 1);
+#endif
 #if ECMRT_BV
     xb = ai / ECMRT_EST_TV(br, ECMRT_B_I0);           /* the step's factor asinh(x)/x */
     gf = ecmrt_f32_asinh(&xb);
@@ -348,6 +448,22 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     e = (nz->pol * rd) * i;
     q[3] = (e * e) * (1.0f - ad * ad);
 #endif
+#if ECMRT_FX_XRC
+    /* extra_rc: u_x' = a_x u_x + r_x (1 - a_x) i, no SOC slope */
+    one_a = ecmrt_f32_one_minus_exp_neg(dt / m->x_k);
+    a[ECMRT_EST_IX] = 1.0f - one_a;
+    f[ECMRT_EST_IX] = 0.0f;
+    e = (nz->pol * m->x_r) * i;
+    q[ECMRT_EST_IX] = (e * e) * (1.0f - a[ECMRT_EST_IX] * a[ECMRT_EST_IX]);
+#endif
+#if ECMRT_FX_HYST
+    /* hysteresis: h' = a_h h + (1 - a_h) s, a_h = exp(-|i| dt / (3600 decay_ah)); its noise
+     * sigma_h^2 (1 - a_h^2), 1 - a_h^2 written c_h (2 - c_h) */
+    ch = ecmrt_f32_one_minus_exp_neg((ai * dt) * m->h_k);
+    a[ECMRT_EST_IH] = 1.0f - ch;
+    f[ECMRT_EST_IH] = 0.0f;
+    q[ECMRT_EST_IH] = nz->p0_h * (ch * (2.0f - ch));
+#endif
     /* SOC: the sensor's bias over the drift horizon, (b k dt)^2 (horizon / dt) written
      * (b k)^2 (dt horizon) (no 0 * inf for a denormal dt), and white current noise */
     if (dt > 0.0f) {
@@ -362,12 +478,16 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
         }
     }
     /* 2. P = F P F^T + Q (F: diagonal a, SOC column f) */
+    ECMRT_EST_UNROLL
     for (u = 0u; u < N; u++) {
+        ECMRT_EST_UNROLL
         for (v = 0u; v < N; v++) {
             fp[N * u + v] = a[u] * P[N * u + v] + f[u] * P[v];
         }
     }
+    ECMRT_EST_UNROLL
     for (u = 0u; u < N; u++) {
+        ECMRT_EST_UNROLL
         for (v = u; v < N; v++) {
             r = a[v] * fp[N * u + v] + f[v] * fp[N * u];
             if (u == v) {
@@ -382,6 +502,9 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     for (u = 1u; u < N; u++) {
         h[u] = 1.0f;
     }
+#if ECMRT_FX_HYST
+    h[ECMRT_EST_IH] = m->h_m;
+#endif
     e = nz->model_error * (vp - p.ocv);
     r = nz->vn2 + e * e;
     if (!*first && dt < nz->corr_s) {
@@ -396,13 +519,28 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
         ok = ecmrt_est_f32_gain(P, h, r, x0, vm - vp, c, k, xu);
         for (it = 0; ok && it < ECMRT_EST_ITER; it++) {
             xu[0] = ecmrt_est_f32_clamp(xu[0]);
+#if ECMRT_FX_HYST
+            xu[ECMRT_EST_IH] = ecmrt_est_f32_clamp_h(xu[ECMRT_EST_IH]);
+#endif
             if (ecmrt_est_f32_abs(xu[0] - x0[0]) < ECMRT_EST_ITER_SOC) {
                 break;
             }
             ecmrt_est_f32_params(m, s, dir, xu[0], &p, 0);
+#if ECMRT_FX_CDR || ECMRT_FX_ARR
+            ecmrt_est_f32_fx(&p, gc, fa, 0);
+#endif
             vi = ((p.ocv + p.r0 * i) + xu[1]) + xu[2];
 #if ECMRT_DIFF
             vi = vi + xu[3];
+#endif
+#if ECMRT_FX_HYST
+            vx = m->h_m * (xu[ECMRT_EST_IH] - m->h_ref) + m->h_m0 * (sg - m->h_ref);
+#if ECMRT_FX_XRC
+            vx = vx + xu[ECMRT_EST_IX];
+#endif
+            vi = vi + vx;
+#elif ECMRT_FX_XRC
+            vi = vi + xu[ECMRT_EST_IX];
 #endif
             h[0] = p.docv + p.dr0 * i;
             e = vm - vi;
@@ -423,14 +561,18 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
         if (ok) {
             /* Joseph form: M = P - K c^T, d = M h, P = M - d K^T + R K K^T, symmetrised
              * (M, then the new P before symmetrising, in fp) */
+            ECMRT_EST_UNROLL
             for (u = 0u; u < N; u++) {
+                ECMRT_EST_UNROLL
                 for (v = 0u; v < N; v++) {
                     fp[N * u + v] = P[N * u + v] - k[u] * c[v];
                 }
                 d[u] = ecmrt_est_f32_dot(fp + N * u, h);
             }
             e = 0.0f;                  /* x * 0 is 0 for a finite x, NaN for inf or NaN */
+            ECMRT_EST_UNROLL
             for (u = 0u; u < N; u++) {
+                ECMRT_EST_UNROLL
                 for (v = 0u; v < N; v++) {
                     fp[N * u + v] = (fp[N * u + v] - d[u] * k[v]) + r * (k[u] * k[v]);
                     e = e + fp[N * u + v] * 0.0f;
@@ -440,7 +582,9 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
             ok = e == 0.0f;
         }
         if (ok) {                      /* applied only when all of it is finite */
+            ECMRT_EST_UNROLL
             for (u = 0u; u < N; u++) {
+                ECMRT_EST_UNROLL
                 for (v = u; v < N; v++) {
                     e = 0.5f * (fp[N * u + v] + fp[N * v + u]);
                     P[N * u + v] = e;
@@ -451,6 +595,12 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
             s->u_slow = xu[2];
 #if ECMRT_DIFF
             s->u_diff = xu[3];
+#endif
+#if ECMRT_FX_XRC
+            s->u_x = xu[ECMRT_EST_IX];
+#endif
+#if ECMRT_FX_HYST
+            s->h = ecmrt_est_f32_clamp_h(xu[ECMRT_EST_IH]);
 #endif
             x0[0] = xu[0];
         }

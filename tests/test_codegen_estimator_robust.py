@@ -23,7 +23,7 @@ from ecmgen.model.model import load_model
 from ecmgen.model.simulate import simulate
 
 from conftest import REPO, SHARED_DATA, need
-from test_estimate import drive_profile, model_over_temperature
+from test_estimate import ALL_EFFECTS, drive_profile, model_over_temperature
 
 MODEL = REPO / "tests" / "data" / "panasonic-temperature-model.json"
 
@@ -33,9 +33,16 @@ def _model():
     return load_model(MODEL)
 
 
+def _effects_model():
+    """Every diagnose effect (hysteresis, extra_rc, current_dependent_resistance,
+    capacity_error, temperature_dependence) on the synthetic model with both branches."""
+    return model_over_temperature(effects=ALL_EFFECTS)
+
+
 @functools.lru_cache(maxsize=None)
 def _cm(which: str):
-    m = _model() if which == "panasonic" else model_over_temperature()
+    m = {"panasonic": _model, "synthetic": model_over_temperature,
+         "effects": _effects_model}[which]()
     spec = prepare(m, "float", None, "hyp")
     return m, cbuild.compile_spec(spec, estimator=prepare_estimator(m, spec, EstimatorConfig()))
 
@@ -45,7 +52,8 @@ def _cm(which: str):
 def test_qemu_cortex_m4f_bit_identical_to_the_host():
     """A real cycle's start in issue 10's scenario (guess 0.8, 29 mA offset, gain 1.01) and a
     synthetic profile with dt = 0, gaps, temperatures beyond the tables and missing
-    voltages: every predicted voltage, state and covariance entry the same bits on the
+    voltages, on a model without and one with every diagnose effect (the hysteresis state
+    and the extra RC pair in the filter): every predicted voltage, state and covariance entry the same bits on the
     emulated Cortex-M4F (hard float, -O2) as on the host."""
     reason = target.skip_reason(qemu=True)
     if reason:
@@ -58,12 +66,12 @@ def test_qemu_cortex_m4f_bit_identical_to_the_host():
     res = qemu_estimator_equivalence(_model(), s.time_s[:n], 1.01 * s.current_a[:n] + 0.029,
                                      s.voltage_v[:n], 0.8, s.temperature_c[:n])
     assert res["bit_exact"], res
-    m = model_over_temperature()
     t, i, temp = drive_profile(1200, seed=4)
-    v = simulate(m, t, i, 0.8, temp).voltage_v
-    v[[3, 500]] = np.nan
-    res = qemu_estimator_equivalence(m, t, i, v, 0.6, temp)
-    assert res["bit_exact"], res
+    for m in (model_over_temperature(), _effects_model()):
+        v = simulate(m, t, i, 0.8, temp).voltage_v
+        v[[3, 500]] = np.nan
+        res = qemu_estimator_equivalence(m, t, i, v, 0.6, temp)
+        assert res["bit_exact"], res
 
 
 # -- sanitizers ------------------------------------------------------------------------
@@ -71,22 +79,26 @@ def test_qemu_cortex_m4f_bit_identical_to_the_host():
 SAN_MAIN = (REPO / "tests" / "data" / "estimator_sanitize_main.c")
 
 
-def test_sanitized_build_through_absurd_inputs(tmp_path):
+@pytest.mark.parametrize("which", ["panasonic", "effects"])
+def test_sanitized_build_through_absurd_inputs(tmp_path, which):
     """ASan + UBSan (+ float-cast-overflow): every combination of absurd currents, dt,
     temperatures, measured voltages (NaN, inf, +-FLT_MAX, denormals) and start SOCs, then
     10^6 random steps: no undefined behaviour, and after every step the SOC in [0, 1], the
-    states and the covariance finite, the covariance exactly symmetric with a non-negative
-    diagonal."""
+    states and the covariance finite (h in [-1, 1] with the effects), the covariance exactly
+    symmetric with a non-negative diagonal."""
     cc = cbuild.host_cc()
     probe = subprocess.run([*cc, *cbuild.SANITIZE_FLAGS, "-x", "c", "-", "-o", tmp_path / "probe"],
                            input="int main(void){return 0;}\n", capture_output=True, text=True)
     if probe.returncode != 0:
         pytest.skip(f"compiler cannot build with sanitizers: {probe.stderr.strip()[:200]}")
-    generate_c(_model(), tmp_path, prefix="fe", estimator=EstimatorConfig())
+    fx = which == "effects"
+    generate_c(_effects_model() if fx else _model(), tmp_path, prefix="fe",
+               estimator=EstimatorConfig())
     (tmp_path / "main.c").write_text(SAN_MAIN.read_text())
     exe = tmp_path / "san"
     flags = [f for f in cbuild.STRICT_CFLAGS if f != "-Werror"]
-    proc = subprocess.run([*cc, *flags, *cbuild.SANITIZE_FLAGS, "-O1", "-I", str(tmp_path),
+    proc = subprocess.run([*cc, *flags, *cbuild.SANITIZE_FLAGS, "-O1", f"-DFE_FX={int(fx)}",
+                           "-I", str(tmp_path),
                            str(tmp_path / "fe_ecm.c"), str(tmp_path / "main.c"), "-o", str(exe)],
                           capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
@@ -122,14 +134,15 @@ def records(draw, max_size=150):
     return cur.astype(np.float64), temp.astype(np.float64), dts, np.asarray(noise), guess
 
 
-@pytest.mark.parametrize("which", ["panasonic", "synthetic"])
+@pytest.mark.parametrize("which", ["panasonic", "synthetic", "effects"])
 @SETTINGS
 @given(rec=records())
 def test_random_records_bit_identical_and_sane(which, rec):
     """Random currents (both ways, saturated, NaN), temperatures (beyond the tables, NaN,
     inf), dt (0, denormal, negative, NaN, an hour, a day) and voltages (the model's own
-    plus noise, NaN, absurd): C == float32 reference bit for bit; SOC in [0, 1], the
-    covariance finite, symmetric, its diagonal non-negative."""
+    plus noise, NaN, absurd), on the test model, a synthetic one and one with every effect:
+    C == float32 reference bit for bit; SOC in [0, 1], the covariance finite, symmetric, its
+    diagonal non-negative."""
     cur, temp, dts, noise, guess = rec
     m, cm = _cm(which)
     t = np.cumsum(np.where(np.isfinite(dts) & (dts > 0), dts, 0.0))

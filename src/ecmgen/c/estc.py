@@ -8,7 +8,9 @@ tables, so the filter's table accessor reads them and the model's step inlines),
 filter itself in the hand-written ``c_runtime/ecmrt_est_f32.h``. The filter is the extended
 Kalman filter of :mod:`ecmgen.estimate.ekf` (chosen over the sigma-point filter by
 measurement, issue 10), its noise settings (:class:`ecmgen.config.EstimatorConfig`) baked
-in as float32 constants.
+in as float32 constants. A model's diagnose effects are taken: the hysteresis state and the
+extra RC pair are states of the filter (the layout of :mod:`ecmgen.estimate.process`), the
+parameter effects scale the resistances in its Jacobians.
 
 Float32 only, by decision: the covariance spans 0.09 (the start SOC's variance) down to
 ~1e-9 (a settled SOC's, and the cross terms) and the Joseph update subtracts nearly equal
@@ -40,6 +42,11 @@ NOISE_FIELDS = (("p0_soc", "initial SOC variance, soc0_sigma^2"),
                 ("vn2", "voltage_noise_v^2, V^2"),
                 ("model_error", "model voltage error / model overpotential"),
                 ("corr_s", "error_correlation_s, s"))
+# with a hysteresis effect (ECMRT_FX_HYST) only
+HYST_FIELDS = (("p0_h", "hysteresis_sigma^2: h's initial variance and noise scale"),)
+# the model state's fields of the filter's states (ecmgen.estimate.process.state_layout names)
+STATE_FIELDS = {"soc": "soc", "u_fast_v": "u_fast", "u_slow_v": "u_slow", "u_diff_v": "u_diff",
+                "u_extra_v": "u_x", "h": "h"}
 
 
 @dataclass(frozen=True)
@@ -55,6 +62,16 @@ class EstSpec:
     def n(self) -> int:
         return len(self.names)
 
+    @property
+    def fields(self) -> tuple[str, ...]:
+        """The model state's field of each filter state, in order."""
+        return tuple(STATE_FIELDS[k] for k in self.names)
+
+    @property
+    def noise_fields(self) -> tuple[tuple[str, str], ...]:
+        """ecmrt_est_f32_noise_t's fields, in order: (name, comment)."""
+        return NOISE_FIELDS + (HYST_FIELDS if "h" in self.names else ())
+
 
 def prepare_estimator(model, spec: CSpec, cfg: EstimatorConfig | None = None,
                       kind: str = "ekf") -> EstSpec:
@@ -68,10 +85,6 @@ def prepare_estimator(model, spec: CSpec, cfg: EstimatorConfig | None = None,
                                "\"float\"")
     if not spec.variable_dt:
         raise InputError(None, "the C estimator needs the variable-dt step: leave c.dt_s unset")
-    if spec.has_fx:
-        names = sorted(e.name for e in model.effects if e.name != "capacity_error")
-        raise InputError(None, f"the C estimator does not take the model's effects yet "
-                               f"({', '.join(names)}); estimate on the model without them")
     if cfg.offset_state:
         raise InputError(None, "the C estimator has no current-offset state: set "
                                "estimator.offset_state = false")
@@ -80,12 +93,16 @@ def prepare_estimator(model, spec: CSpec, cfg: EstimatorConfig | None = None,
             "offset_a": nm.offset_sigma_a, "gain": nm.gain_sigma,
             "noise_a": nm.current_noise_a, "horizon_s": nm.drift_horizon_s,
             "pol": nm.polarization_error, "vn2": nm.voltage_noise_v ** 2,
-            "model_error": nm.model_error, "corr_s": nm.error_correlation_s}
-    noise = {k: np.float32(vals[k]) for k, _ in NOISE_FIELDS}
+            "model_error": nm.model_error, "corr_s": nm.error_correlation_s,
+            "p0_h": nm.hysteresis_sigma ** 2}
+    # the states of ecmgen.estimate.process.state_layout, in its order
+    names = (("soc", "u_fast_v", "u_slow_v") + (("u_diff_v",) if spec.diff else ())
+             + (("u_extra_v",) if spec.fx.get("xrc") else ()) + (("h",) if spec.fx.get("hyst") else ()))
+    fields = NOISE_FIELDS + (HYST_FIELDS if "h" in names else ())
+    noise = {k: np.float32(vals[k]) for k, _ in fields}
     for k, v in noise.items():
         if not np.isfinite(v):
             raise InputError(None, f"estimator setting {k} does not fit float32")
-    names = ("soc", "u_fast_v", "u_slow_v") + (("u_diff_v",) if spec.diff else ())
     return EstSpec(kind, names, noise, cfg)
 
 
@@ -97,7 +114,7 @@ def render_estimator(env, ctx: dict, est: EstSpec, c_float) -> tuple[str, str]:
     """(the code appended to <prefix>_ecm.c, the text of <prefix>_est.h); ``env`` and
     ``ctx`` the renderer's jinja2 environment and context, ``c_float`` its float literal."""
     ectx = dict(ctx, n=est.n, names=est.names,
-                noise=[(k, c_float(est.noise[k]), c) for k, c in NOISE_FIELDS])
+                noise=[(k, c_float(est.noise[k]), c) for k, c in est.noise_fields])
     return (env.get_template("ecm_est.c.j2").render(ectx),
             env.get_template("ecm_est.h.j2").render(ectx))
 
@@ -114,8 +131,7 @@ def _trace_sig(spec: CSpec) -> str:
 
 def harness_source(spec: CSpec, est: EstSpec) -> str:
     n = est.n
-    xs = ["soc", "u_fast", "u_slow"] + (["u_diff"] if spec.diff else [])
-    rec = "".join(f"        x[{n}u * k + {j}u] = e->m.{f};\n" for j, f in enumerate(xs))
+    rec = "".join(f"        x[{n}u * k + {j}u] = e->m.{f};\n" for j, f in enumerate(est.fields))
     return f"""
 #include "{spec.prefix}_est.h"
 {_trace_sig(spec)}

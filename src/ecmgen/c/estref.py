@@ -5,8 +5,9 @@ every step (tests/test_codegen_estimator.py, through cffi and under QEMU).
 The model's step is mirrored here per sample (the filter changes the state between
 steps, so :func:`ecmgen.c.cref.simulate_f32`, which runs a whole record at once, cannot
 drive it); what does not depend on the state (the sanitised inputs, the direction, the
-temperature row and weight, the per-temperature branch values, the Butler-Volmer factor)
-is computed for the whole record at once, as cref does. numpy float32 scalars round once
+temperature row and weight, the per-temperature branch values, the Butler-Volmer factor,
+the effects' factors and the hysteresis and extra RC coefficients) is computed for the
+whole record at once, as cref does. numpy float32 scalars round once
 per operation, as the C built with -ffp-contract=off.
 """
 
@@ -44,6 +45,8 @@ class EstRef:
     v_pred: np.ndarray
     x: np.ndarray
     p: np.ndarray
+    f: np.ndarray | None = None     # with jacobians=True: dstep/dx (n x N x N) and, before
+    h: np.ndarray | None = None     # any iteration, dv/dx (n x N) of each sample
 
     @property
     def soc(self) -> np.ndarray:
@@ -171,7 +174,17 @@ def _inputs(spec: CSpec, current_a, temperature_c, dt_s):
             branch[name] = np.where(chg == 1, per_dir[1], per_dir[0]).astype(F32)
     ai = np.abs(i).astype(F32)
     out: dict = {"i": i, "dt": dt, "chg": chg, "kt": kt, "wt": wt,
-           "dsoc": ((i * dt) * F32(spec.k_soc)).astype(F32)}
+                 "dsoc": ((i * dt) * F32(spec.k_soc)).astype(F32)}
+    fx = spec.fx
+    with np.errstate(all="ignore"):      # the effects' factors and coefficients, as the step's
+        if fx.get("cdr"):
+            out["g_cdr"] = cref.cdr_factor_f32(ai, fx["g_scale"], fx["g_inv_i0"])
+        if fx.get("arr"):
+            out["f_arr"] = cref.arrhenius_f32(temp, fx["a_k"], fx["a_inv_ref"])
+        if fx.get("hyst"):
+            out["c_h"] = cref.one_minus_exp_neg_f32((ai * dt) * F32(fx["h_k"]))
+        if fx.get("xrc"):
+            out["c_x"] = cref.one_minus_exp_neg_f32(dt / F32(fx["x_k"]))
     if "i0" in branch:
         with np.errstate(all="ignore"):
             a, x = cref.asinh_f32(ai / branch["i0"])
@@ -205,18 +218,23 @@ def _inputs(spec: CSpec, current_a, temperature_c, dt_s):
 
 
 def simulate_estimator_f32(spec: CSpec, est: EstSpec, current_a, dt_s, voltage_v,
-                           soc0: float, temperature_c=None) -> EstRef:
+                           soc0: float, temperature_c=None, jacobians: bool = False
+                           ) -> EstRef:
     """The C estimator's float32 reference: ``<prefix>_est_init(soc0)``, then
     ``<prefix>_est_step(i[k], T[k], dt[k], v[k])`` for every sample (``current_a`` the
     current the filter sees, ``dt_s`` per sample, e.g. cref.dt_from_time). Overflow to inf
-    and the like are IEEE results the C gets too, not errors."""
-    if spec.fixed or not spec.variable_dt or spec.has_fx:
-        raise ValueError("the estimator runs on the variable-dt float step without effects")
+    and the like are IEEE results the C gets too, not errors. ``jacobians``: also the
+    filter's F and H of every sample (tests/test_codegen_estimator_effects.py holds them
+    against finite differences of the C step)."""
+    if spec.fixed or not spec.variable_dt:
+        raise ValueError("the estimator runs on the variable-dt float step")
     with np.errstate(all="ignore"):
-        return _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c)
+        return _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c,
+                         jacobians)
 
 
-def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c) -> EstRef:
+def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobians
+              ) -> EstRef:
     tab = _Tables(spec)
     inp = _inputs(spec, current_a, temperature_c, dt_s)
     vm_all = np.asarray(voltage_v, dtype=np.float64).astype(F32)
@@ -229,13 +247,25 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c) -> Est
     soc = _clamp(F32(s0))
     u = [ZERO] * N                   # u[0] unused
     P = [[ZERO] * N for _ in range(N)]
+    fx = spec.fx
+    cdr, arr, hyst, xrc = (bool(fx.get(k)) for k in ("cdr", "arr", "hyst", "xrc"))
+    ix = 3 + int(diff)                       # ECMRT_EST_IX, ECMRT_EST_IH
+    ih = ix + int(xrc)
     P[0][0] = nz["p0_soc"]
     for r in range(1, N):
         P[r][r] = nz["p0_u"]
+    if hyst:
+        P[ih][ih] = nz["p0_h"]
+        u[ih] = F32(fx["h_init"])
+        h_k, h_m, h_m0, h_ref = (F32(fx[k]) for k in ("h_k", "h_m", "h_m0", "h_ref"))
+    if xrc:
+        x_r = F32(fx["x_r"])
     first = True
     v_out = np.empty(n, dtype=F32)
     x_out = np.empty((n, N), dtype=F32)
     p_out = np.empty((n, N, N), dtype=F32)
+    f_out = np.zeros((n, N, N), dtype=F32) if jacobians else None
+    h_out = np.zeros((n, N), dtype=F32) if jacobians else None
     slo, shi = F32(-SOC_LIM), F32(SOC_LIM)
     i_a, dt_a, chg, kt_a, wt_a = inp["i"], inp["dt"], inp["chg"], inp["kt"], inp["wt"]
     fields_all = ("r0", "rf", "tf", "rs", "ts")
@@ -255,6 +285,12 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c) -> Est
         soc = sn
         pv = tab.values(d, soc, kt, wt, fields_all, False)
         r0, rf, rs, ocv = pv["r0"][0], pv["rf"][0], pv["rs"][0], pv["ocv"][0]
+        gc = inp["g_cdr"][t] if cdr else ONE
+        fa = inp["f_arr"][t] if arr else ONE
+        if cdr:
+            r0, rf = r0 * gc, rf * gc
+        if arr:
+            r0, rf, rs = r0 * fa, rf * fa, rs * fa
         if bv:
             rf = rf * inp["g_bv"][t]
         # the accessor (ecmrt_est_f32_params) at the same SOC
@@ -274,11 +310,32 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c) -> Est
             ud = u[3] + inp["c_diff"][t] * (rd * i - u[3])
             vp = vp + ud
             u[3] = ud
+        if hyst:
+            sg = ONE if d == 1 else F32(-1.0)
+            ch = inp["c_h"][t]
+            hh = u[ih] + ch * (sg - u[ih])
+            u[ih] = hh
+            vh = h_m * (hh - h_ref) + h_m0 * (sg - h_ref)
+        if xrc:
+            cx = inp["c_x"][t]
+            ux = u[ix] + cx * (x_r * i - u[ix])
+            u[ix] = ux
+        if hyst and xrc:
+            vp = vp + (vh + ux)
+        elif hyst:
+            vp = vp + vh
+        elif xrc:
+            vp = vp + ux
         # ---- the filter (ecmrt_est_f32_update) ----
         x0 = [soc] + u[1:]
         gf = inp["g_bv"][t] if bv else ONE
         a, f, q = [ONE] + [ZERO] * (N - 1), [ZERO] * N, [ZERO] * N
-        (rf_, drf), (rs_, drs) = pa["rf"], pa["rs"]
+        (r0a, dr0a), (rf_, drf), (rs_, drs) = pa["r0"], pa["rf"], pa["rs"]
+        if cdr:                               # ecmrt_est_f32_fx
+            r0a, dr0a, rf_, drf = r0a * gc, dr0a * gc, rf_ * gc, drf * gc
+        if arr:
+            r0a, dr0a, rf_, drf = r0a * fa, dr0a * fa, rf_ * fa, drf * fa
+            rs_, drs = rs_ * fa, drs * fa
         one_a = ja[0]
         a[1] = ONE - one_a
         if tau_t:
@@ -303,6 +360,13 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c) -> Est
             a[3] = ad
             e = (nz["pol"] * inp["r_diff"][t]) * i
             q[3] = (e * e) * (ONE - ad * ad)
+        if xrc:
+            a[ix] = ONE - cx
+            e = (nz["pol"] * x_r) * i
+            q[ix] = (e * e) * (ONE - a[ix] * a[ix])
+        if hyst:
+            a[ih] = ONE - ch
+            q[ih] = nz["p0_h"] * (ch * (F32(2.0) - ch))
         if dt > ZERO:
             kk = dt * F32(spec.k_soc)
             b = nz["gain"] * ai + nz["offset_a"]
@@ -318,7 +382,13 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c) -> Est
                 if r == c:
                     val = val + q[r]
                 P[r][c] = P[c][r] = val
-        h = [pa["ocv"][1] + pa["r0"][1] * i] + [ONE] * (N - 1)
+        h = [pa["ocv"][1] + dr0a * i] + [ONE] * (N - 1)
+        if hyst:
+            h[ih] = h_m
+        if jacobians:
+            f_out[t][np.diag_indices(N)] = a
+            f_out[t, 1:, 0] = f[1:]
+            h_out[t] = h
         e = nz["model_error"] * (vp - pa["ocv"][0])
         R = nz["vn2"] + e * e
         if not first and dt < nz["corr_s"]:
@@ -336,13 +406,27 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c) -> Est
                 if not ok:
                     break
                 xu[0] = _clamp(xu[0])
+                if hyst:
+                    xu[ih] = _clamp_h(xu[ih])
                 if _abs(xu[0] - x0[0]) < ITER_SOC:
                     break
                 pi = tab.values(d, xu[0], kt, wt, ("r0",), True)
-                vi = ((pi["ocv"][0] + pi["r0"][0] * i) + xu[1]) + xu[2]
+                (r0i, dr0i) = pi["r0"]
+                if cdr:
+                    r0i, dr0i = r0i * gc, dr0i * gc
+                if arr:
+                    r0i, dr0i = r0i * fa, dr0i * fa
+                vi = ((pi["ocv"][0] + r0i * i) + xu[1]) + xu[2]
                 if diff:
                     vi = vi + xu[3]
-                h[0] = pi["ocv"][1] + pi["r0"][1] * i
+                if hyst:
+                    vx = h_m * (xu[ih] - h_ref) + h_m0 * (sg - h_ref)
+                    if xrc:
+                        vx = vx + xu[ix]
+                    vi = vi + vx
+                elif xrc:
+                    vi = vi + xu[ix]
+                h[0] = pi["ocv"][1] + dr0i * i
                 e = vm - vi
                 for j in range(N):
                     e = e - h[j] * (x0[j] - xu[j])
@@ -365,13 +449,15 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c) -> Est
                     for j in range(r, N):
                         P[r][j] = P[j][r] = HALF * (pn[r][j] + pn[j][r])
                 u[1:] = xu[1:]
+                if hyst:
+                    u[ih] = _clamp_h(xu[ih])
                 x0[0] = xu[0]
         soc = _clamp(x0[0])
         v_out[t] = vp
         x_out[t, 0] = soc
         x_out[t, 1:] = u[1:]
         p_out[t] = P
-    return EstRef(v_out, x_out, p_out)
+    return EstRef(v_out, x_out, p_out, f_out, h_out)
 
 
 def _gain(P, h, R, x0, e):
@@ -433,6 +519,13 @@ def _clamp(soc):
     if not soc >= ZERO:
         return ZERO
     return ONE if soc > ONE else soc
+
+
+def _clamp_h(h):
+    """ecmrt_est_f32_clamp_h: into [-1, 1] (NaN stays NaN)."""
+    if h < F32(-1.0):
+        return F32(-1.0)
+    return ONE if h > ONE else h
 
 
 def _abs(x):
