@@ -18,7 +18,10 @@
    with every effect (hysteresis, extra_rc, current_dependent_resistance, capacity_error,
    temperature_dependence), and the SOC on synthetic LFP-like cells with hysteresis
    (ecmgen.diagnosis.synthcell, whole drive cycle, guess 0.6 for 0.95, offset C/100, gain
-   1.01) with the filter's hysteresis state and on the model without it.
+   1.01) with the filter's hysteresis state and on the model without it;
+6. the current-offset state ([estimator] offset_state = true): its cost in 5.'s table, and
+   per shared cycle the C filter's SOC with it (the scenario's 29 mA offset) and the offset
+   it estimates by the end.
 
 Model: tests/data/panasonic-temperature-model.json, [estimator] defaults.
 Usage: python bench/bench_estimator_c.py [--steps N] [--json] [--no-reference]
@@ -94,7 +97,7 @@ def _cycle(folder, name):
     return read_timeseries(DATA / f"panasonic-18650pf-{folder}" / f"{name}.mat", capacity_ah=2.9)
 
 
-def instructions_per_step(model, n: int) -> dict:
+def instructions_per_step(model, n: int, cfg=None) -> dict:
     if shutil.which("valgrind") is None:
         return {"skipped": "valgrind not found (apt-get install valgrind)"}
     s = _cycle("25degC", "us06")
@@ -102,7 +105,7 @@ def instructions_per_step(model, n: int) -> dict:
     seen = GAIN * s.current_a[:n] + OFFSET_A
     arrays = [seen, s.temperature_c[:n], cref.dt_from_time(s.time_s[:n]), s.voltage_v[:n]]
     spec = prepare(model, "float", None, "bench")
-    est = prepare_estimator(model, spec, EstimatorConfig())
+    est = prepare_estimator(model, spec, cfg or EstimatorConfig())
     cc = cbuild.host_cc()
     out = {"samples": n, "cycle": "25degC us06 (scenario)"}
     with tempfile.TemporaryDirectory() as tmp:
@@ -126,11 +129,11 @@ def instructions_per_step(model, n: int) -> dict:
     return out
 
 
-def flash_ram(model) -> dict:
+def flash_ram(model, cfg=None) -> dict:
     reason = target.skip_reason(qemu=False)
     if reason:
         return {"skipped": reason}
-    sz = estimator_sizes(model, cpu="m4f", opt="-Os")
+    sz = estimator_sizes(model, cfg, cpu="m4f", opt="-Os")
     fr = sz["stack_frames"]
     update = next((v for k, v in fr.items() if k.startswith("ecmrt_est_f32_update")), 0)
     inner = max(fr.get("fe_step", 0) + fr.get("ecmrt_f32_locate", 0),
@@ -192,11 +195,15 @@ def effects(model, steps: int) -> dict:
     from ecmgen.model.simulate import simulate
 
     cost = []
-    for label, fx in (("none", ()), ("hysteresis", (HYSTERESIS,)), ("every effect", EVERY_EFFECT)):
+    for label, fx, off in (("none", (), False), ("hysteresis", (HYSTERESIS,), False),
+                           ("every effect", EVERY_EFFECT, False), ("offset state", (), True),
+                           ("every effect + offset state", EVERY_EFFECT, True)):
         m = model.with_effects(fx)
         spec = prepare(m, "float", None, "cost")
-        cost.append({"effects": label, "states": prepare_estimator(m, spec).n,
-                     "instructions": instructions_per_step(m, steps), "flash_ram": flash_ram(m)})
+        cfg = EstimatorConfig(offset_state=off)
+        cost.append({"effects": label, "states": prepare_estimator(m, spec, cfg).n,
+                     "instructions": instructions_per_step(m, steps, cfg),
+                     "flash_ram": flash_ram(m, cfg)})
     lfp = []
     for seed in (1, 2, 3):
         cell = random_cell(seed, "hysteresis", chemistry="lfp")
@@ -213,7 +220,25 @@ def effects(model, steps: int) -> dict:
             err = (got.soc.astype(np.float64) - truth)[t > 600]
             row[label] = (float(np.sqrt(np.mean(err ** 2))), float(np.max(np.abs(err))))
         lfp.append(row)
-    return {"cost": cost, "lfp": lfp}
+    return {"cost": cost, "lfp": lfp, "offset": offset_state(model)}
+
+
+def offset_state(model) -> list:
+    """Section 6: the C filter with the current-offset state over every shared cycle."""
+    spec = prepare(model, "float", None, "off")
+    cm = cbuild.compile_spec(spec, estimator=prepare_estimator(
+        model, spec, EstimatorConfig(offset_state=True)))
+    rows = []
+    for folder, name in CYCLES:
+        s = _cycle(folder, name)
+        seen = GAIN * s.current_a + OFFSET_A
+        got = run_estimator_c(cm, seen, cref.dt_from_time(s.time_s), s.voltage_v, GUESS,
+                              s.temperature_c)
+        mc = SocMetrics.of(s.time_s, got.soc.astype(np.float64),
+                           coulomb_count(model, s.time_s, s.current_a, 1.0))
+        rows.append({"cycle": f"{folder} {name}", "c_rmse": mc.soc_rmse,
+                     "c_max600": mc.soc_max_abs_after_600s, "offset_end_a": float(got.x[-1, -1])})
+    return rows
 
 
 def print_effects(fx: dict) -> None:
@@ -234,6 +259,11 @@ def print_effects(fx: dict) -> None:
         h, w = r["hysteresis"], r["without"]
         print(f"   seed {r['seed']} ({r['steps']} steps, m_v {1000 * r['m_v']:.1f} mV): "
               f"{100 * h[0]:.2f} / {100 * h[1]:.2f} | {100 * w[0]:.2f} / {100 * w[1]:.2f}")
+    print(f"\n6. the current-offset state on the shared cycles (scenario offset {OFFSET_A} A): "
+          "C SOC RMSE / max after 600 s, %; the offset state at the end, A")
+    for r in fx["offset"]:
+        print(f"   {r['cycle']}: {100 * r['c_rmse']:.2f} / {100 * r['c_max600']:.2f}; "
+              f"{r['offset_end_a']:.4f}")
 
 
 def main(argv=None) -> int:

@@ -29,9 +29,13 @@
  * A reading that is NaN, inf or beyond +-1 kV, and an update that would leave the state or
  * the covariance not finite, are not applied: the sample only predicts.
  *
+ * With ECMRT_EST_OFFSET the current sensor's offset is a state too (last; the caller's
+ * <prefix>_est_t holds it): the step runs on i - offset, F gets the offset column (d x' /
+ * d offset = -(d x' / d i), through the effects' and the Butler-Volmer branch's d(i g)/di)
+ * and H its entry -r0 d(i g0)/di, as ecmgen.estimate.process.
  * Noise constants (ecmrt_est_f32_noise_t) come from the [estimator] settings, baked into
- * the generated .c. No fixed dt, no offset state: the generator refuses those (capacity_error
- * is in the step's k_soc and needs nothing here).
+ * the generated .c. No fixed dt: the generator refuses it (capacity_error is in the step's
+ * k_soc and needs nothing here).
  */
 #ifndef ECMRT_EST_F32_H
 #define ECMRT_EST_F32_H
@@ -45,11 +49,16 @@
 #if !ECMRT_VARIABLE_DT
 #error "the estimator needs the variable-dt step"
 #endif
+#if !defined(ECMRT_EST_OFFSET)
+#error "ECMRT_EST_OFFSET (the current-offset state, 0 or 1) is defined by the generated .c"
+#endif
 
-/* soc, u_fast, u_slow (, u_diff) (, u_x) (, h) */
-#define ECMRT_EST_N (3u + (unsigned)ECMRT_DIFF + (unsigned)ECMRT_FX_XRC + (unsigned)ECMRT_FX_HYST)
+/* soc, u_fast, u_slow (, u_diff) (, u_x) (, h) (, offset_a) */
+#define ECMRT_EST_N (3u + (unsigned)ECMRT_DIFF + (unsigned)ECMRT_FX_XRC + \
+                     (unsigned)ECMRT_FX_HYST + (unsigned)ECMRT_EST_OFFSET)
 #define ECMRT_EST_IX (3u + (unsigned)ECMRT_DIFF)      /* u_x's index (with ECMRT_FX_XRC) */
 #define ECMRT_EST_IH (ECMRT_EST_IX + (unsigned)ECMRT_FX_XRC)  /* h's (with ECMRT_FX_HYST) */
+#define ECMRT_EST_IB (ECMRT_EST_N - 1u)               /* the offset's (with ECMRT_EST_OFFSET) */
 
 #define ECMRT_EST_ITER 5                              /* relinearisations at most */
 #define ECMRT_EST_ITER_SOC 1.0e-3f                    /* ... when the update moves the SOC more */
@@ -80,6 +89,9 @@ typedef struct {
     float corr_s;             /* error_correlation_s */
 #if ECMRT_FX_HYST
     float p0_h;               /* hysteresis_sigma^2: h's initial variance and its noise scale */
+#endif
+#if ECMRT_EST_OFFSET
+    float p0_b;               /* offset_a^2: the offset state's initial variance, A^2 */
 #endif
 } ecmrt_est_f32_noise_t;
 
@@ -230,6 +242,9 @@ static inline void ecmrt_est_f32_prior(const ecmrt_f32_model_t *m, const ECMRT_S
 #if ECMRT_DIFF
     pr->u[3] = s->u_diff;
 #endif
+#if ECMRT_FX_HYST && ECMRT_EST_OFFSET
+    pr->u[ECMRT_EST_IH] = s->h;                       /* for d h' / d offset */
+#endif
 }
 
 /* y . h, summed from the first entry on */
@@ -331,7 +346,7 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
                                         const ecmrt_est_f32_noise_t *nz, ECMRT_STATE *s,
                                         float *P, uint8_t *first,
                                         const ecmrt_est_f32_prior_t *pr, float i, float temp,
-                                        float dt, float vp, float vm)
+                                        float dt, float vp, float vm, float *ob)
 {
 #define N ECMRT_EST_N
     const unsigned dir = s->charging;
@@ -367,8 +382,16 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     const float sg = dir == ECMRT_CHARGE ? 1.0f : -1.0f;
     float ch, vx;
 #endif
+#if ECMRT_EST_OFFSET
+    /* the offset column o of F (d x' / d offset: the filter's current is i_seen - offset),
+     * the resistances before the current's factors, d(i g)/di of those factors */
+    float o[N], ds_di, rb0, rbf, dg0 = 1.0f, dgf = 1.0f;
+#endif
 #if !ECMRT_FX_ARR
     (void)temp;
+#endif
+#if !ECMRT_EST_OFFSET
+    (void)ob;
 #endif
 #if ECMRT_TEMP && (ECMRT_BV || ECMRT_DIFF)
     if (kt > (unsigned)m->t.n - 2u) {
@@ -390,6 +413,9 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 #if ECMRT_FX_HYST
     x0[ECMRT_EST_IH] = s->h;
 #endif
+#if ECMRT_EST_OFFSET
+    x0[ECMRT_EST_IB] = *ob;
+#endif
     ecmrt_est_f32_params(m, s, dir, x0[0], &p, 1);
     /* the parameter effects' factors, as the step computes them */
 #if ECMRT_FX_CDR
@@ -400,6 +426,20 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 #if ECMRT_FX_ARR
     fa = ecmrt_f32_arrhenius(m, temp);
 #endif
+#if ECMRT_EST_OFFSET
+    rb0 = p.r0;
+    rbf = p.rf;
+#if ECMRT_FX_ARR
+    rb0 = rb0 * fa;
+    rbf = rbf * fa;
+#endif
+#if ECMRT_FX_CDR
+    dg0 = m->g_scale / ecmrt_f32_sqrt(xc * xc + 1.0f);  /* d(i g)/di = scale / sqrt(1 + x^2) */
+    dgf = dg0;
+#endif
+    ds_di = dt * m->k_soc;           /* d x' / d offset = -(d x' / d i), d soc' / d i = dt k */
+    o[0] = -ds_di;
+#endif
 #if ECMRT_FX_CDR || ECMRT_FX_ARR
     ecmrt_est_f32_fx(&p, gc, fa, 1);
 #endif
@@ -407,6 +447,12 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     xb = ai / ECMRT_EST_TV(br, ECMRT_B_I0);           /* the step's factor asinh(x)/x */
     gf = ecmrt_f32_asinh(&xb);
     gf = gf / xb;
+#if ECMRT_EST_OFFSET && ECMRT_FX_CDR
+    /* d(i gc gf)/di, the product rule as ecmgen.estimate.process.current_factors */
+    dgf = (gc * (1.0f / ecmrt_f32_sqrt(xb * xb + 1.0f)) + gf * dg0) - gc * gf;
+#elif ECMRT_EST_OFFSET
+    dgf = 1.0f / ecmrt_f32_sqrt(xb * xb + 1.0f);
+#endif
 #endif
     a[0] = 1.0f;
     f[0] = 0.0f;
@@ -422,6 +468,9 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     da = ((a[1] * dt) / (p.tf * p.tf)) * p.dtf;
 #endif
     f[1] = da * pr->u[1] + ((p.drf * one_a - p.rf * da) * gf) * i;
+#if ECMRT_EST_OFFSET
+    o[1] = -((rbf * one_a) * dgf) - f[1] * ds_di;
+#endif
     rg = p.rf * gf;
     e = (nz->pol * rg) * i;
     q[1] = (e * e) * (1.0f - a[1] * a[1]);
@@ -434,16 +483,23 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     da = ((a[2] * dt) / (p.ts * p.ts)) * p.dts;
 #endif
     f[2] = da * pr->u[2] + (p.drs * one_a - p.rs * da) * i;
+#if ECMRT_EST_OFFSET
+    o[2] = -(p.rs * one_a) - f[2] * ds_di;
+#endif
     e = (nz->pol * p.rs) * i;
     q[2] = (e * e) * (1.0f - a[2] * a[2]);
 #if ECMRT_DIFF
     rd = ECMRT_EST_TV(br, ECMRT_B_RD);                /* r_diff, tau_diff: no SOC slope */
 #if ECMRT_TAU_T
-    ad = 1.0f - ecmrt_f32_one_minus_exp_neg(dt * ECMRT_KC(s, dir, ECMRT_K_D));
+    one_a = ecmrt_f32_one_minus_exp_neg(dt * ECMRT_KC(s, dir, ECMRT_K_D));
 #else
-    ad = 1.0f - ecmrt_f32_one_minus_exp_neg(dt / ECMRT_EST_TV(br, ECMRT_B_KD));
+    one_a = ecmrt_f32_one_minus_exp_neg(dt / ECMRT_EST_TV(br, ECMRT_B_KD));
 #endif
+    ad = 1.0f - one_a;
     a[3] = ad;
+#if ECMRT_EST_OFFSET
+    o[3] = -(rd * one_a);
+#endif
     f[3] = 0.0f;
     e = (nz->pol * rd) * i;
     q[3] = (e * e) * (1.0f - ad * ad);
@@ -452,6 +508,9 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     /* extra_rc: u_x' = a_x u_x + r_x (1 - a_x) i, no SOC slope */
     one_a = ecmrt_f32_one_minus_exp_neg(dt / m->x_k);
     a[ECMRT_EST_IX] = 1.0f - one_a;
+#if ECMRT_EST_OFFSET
+    o[ECMRT_EST_IX] = -(m->x_r * one_a);
+#endif
     f[ECMRT_EST_IX] = 0.0f;
     e = (nz->pol * m->x_r) * i;
     q[ECMRT_EST_IX] = (e * e) * (1.0f - a[ECMRT_EST_IX] * a[ECMRT_EST_IX]);
@@ -464,11 +523,27 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     f[ECMRT_EST_IH] = 0.0f;
     q[ECMRT_EST_IH] = nz->p0_h * (ch * (2.0f - ch));
 #endif
+#if ECMRT_EST_OFFSET
+#if ECMRT_FX_HYST
+    /* d h' / d i = -(h - s) sign(i) c a_h, c = dt / (3600 decay_ah) */
+    o[ECMRT_EST_IH] = (((pr->u[ECMRT_EST_IH] - sg) * (i > 0.0f ? 1.0f : (i < 0.0f ? -1.0f : 0.0f)))
+                       * (dt * m->h_k)) * a[ECMRT_EST_IH];
+#endif
+    o[ECMRT_EST_IB] = 0.0f;
+    a[ECMRT_EST_IB] = 1.0f;
+    f[ECMRT_EST_IB] = 0.0f;
+#endif
     /* SOC: the sensor's bias over the drift horizon, (b k dt)^2 (horizon / dt) written
-     * (b k)^2 (dt horizon) (no 0 * inf for a denormal dt), and white current noise */
+     * (b k)^2 (dt horizon) (no 0 * inf for a denormal dt), and white current noise; with
+     * the offset state the offset is a state (a random walk over the horizon) instead */
     if (dt > 0.0f) {
         kk = dt * m->k_soc;
+#if ECMRT_EST_OFFSET
+        b = nz->gain * ai;
+        q[ECMRT_EST_IB] = (nz->p0_b * dt) / nz->horizon_s;
+#else
         b = nz->gain * ai + nz->offset_a;
+#endif
         e = b * m->k_soc;
         r = nz->noise_a * kk;
         q[0] = (e * e) * (dt * nz->horizon_s) + r * r;
@@ -477,12 +552,15 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
             q[u] = 0.0f;
         }
     }
-    /* 2. P = F P F^T + Q (F: diagonal a, SOC column f) */
+    /* 2. P = F P F^T + Q (F: diagonal a, SOC column f, offset column o) */
     ECMRT_EST_UNROLL
     for (u = 0u; u < N; u++) {
         ECMRT_EST_UNROLL
         for (v = 0u; v < N; v++) {
             fp[N * u + v] = a[u] * P[N * u + v] + f[u] * P[v];
+#if ECMRT_EST_OFFSET
+            fp[N * u + v] = fp[N * u + v] + o[u] * P[N * ECMRT_EST_IB + v];
+#endif
         }
     }
     ECMRT_EST_UNROLL
@@ -490,6 +568,9 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
         ECMRT_EST_UNROLL
         for (v = u; v < N; v++) {
             r = a[v] * fp[N * u + v] + f[v] * fp[N * u];
+#if ECMRT_EST_OFFSET
+            r = r + o[v] * fp[N * u + ECMRT_EST_IB];
+#endif
             if (u == v) {
                 r = r + q[u];
             }
@@ -504,6 +585,9 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     }
 #if ECMRT_FX_HYST
     h[ECMRT_EST_IH] = m->h_m;
+#endif
+#if ECMRT_EST_OFFSET
+    h[ECMRT_EST_IB] = -(rb0 * dg0);                   /* d v / d offset = -r0 d(i g0)/di */
 #endif
     e = nz->model_error * (vp - p.ocv);
     r = nz->vn2 + e * e;
@@ -526,6 +610,13 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
                 break;
             }
             ecmrt_est_f32_params(m, s, dir, xu[0], &p, 0);
+#if ECMRT_EST_OFFSET
+            rb0 = p.r0;
+#if ECMRT_FX_ARR
+            rb0 = rb0 * fa;
+#endif
+            h[ECMRT_EST_IB] = -(rb0 * dg0);
+#endif
 #if ECMRT_FX_CDR || ECMRT_FX_ARR
             ecmrt_est_f32_fx(&p, gc, fa, 0);
 #endif
@@ -601,6 +692,9 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 #endif
 #if ECMRT_FX_HYST
             s->h = ecmrt_est_f32_clamp_h(xu[ECMRT_EST_IH]);
+#endif
+#if ECMRT_EST_OFFSET
+            *ob = xu[ECMRT_EST_IB];
 #endif
             x0[0] = xu[0];
         }

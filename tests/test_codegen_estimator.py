@@ -127,14 +127,13 @@ def test_strict_flags_at_every_optimisation_level_give_the_same_bits(model):
 
 
 @pytest.mark.parametrize("case, needle", [
-    ("fixed", "float32 only"), ("dt", "variable-dt"), ("offset", "offset_state"),
-    ("kind", "c.estimator")])
+    ("fixed", "float32 only"), ("dt", "variable-dt"), ("kind", "c.estimator")])
 def test_refusals(case, needle):
-    """What the C estimator still refuses, in one line (models with effects it takes:
-    tests/test_codegen_estimator_effects.py)."""
+    """What the C estimator still refuses, in one line (models with effects and the offset
+    state it takes: tests/test_codegen_estimator_effects.py)."""
     m = model_over_temperature(effects=ALL_EFFECTS)
     spec = prepare(m, "fixed" if case == "fixed" else "float", 0.1 if case == "dt" else None)
-    cfg = EstimatorConfig(offset_state=case == "offset")
+    cfg = EstimatorConfig(offset_state=True)
     with pytest.raises(InputError) as exc:
         prepare_estimator(m, spec, cfg, kind="ukf" if case == "kind" else "ekf")
     assert needle in str(exc.value) and "\n" not in str(exc.value)

@@ -1,9 +1,10 @@
 """The C SOC estimator on models with diagnose effects (hysteresis, extra_rc,
-current_dependent_resistance, capacity_error, temperature_dependence): the hysteresis state
-and the extra RC pair in the filter, the parameter effects in its Jacobians. Bit-identical
-to the float32 reference over whole cycles, close to the float64 Python filter, its
-Jacobians those of the C step (finite differences), and the SOC it gives on an LFP-like
-cell with hysteresis and on the CALCE A123 cell (hysteresis found by diagnose)."""
+current_dependent_resistance, capacity_error, temperature_dependence) and with the
+current-offset state: the hysteresis state, the extra RC pair and the offset in the filter,
+the parameter effects in its Jacobians. Bit-identical to the float32 reference over whole
+cycles, close to the float64 Python filter, its Jacobians those of the C step (finite
+differences), and the SOC it gives on an LFP-like cell with hysteresis and on the CALCE
+A123 cell (hysteresis found by diagnose)."""
 
 from __future__ import annotations
 
@@ -43,25 +44,30 @@ def _effects_model(case: str):
     return model_over_temperature(effects=ALL_EFFECTS)
 
 
-@pytest.mark.parametrize("case", ["all-effects", "hysteresis-only", "curve-layout"])
-def test_effects_models_bit_identical_with_gaps_and_missing_voltages(case):
+@pytest.mark.parametrize("case, offset", [("all-effects", False), ("hysteresis-only", False),
+                                          ("curve-layout", False), ("all-effects", True),
+                                          ("hysteresis-only", True)])
+def test_effects_models_bit_identical_with_gaps_and_missing_voltages(case, offset):
     """Every effect at once (with the diffusion pair and the Butler-Volmer branch; in the
     curve fit's layout too) and the hysteresis alone: random currents both ways, dt = 0,
     gaps up to 20000 s, temperatures beyond the tables, voltages with noise and a few NaN:
     C == float32 reference at every step, state (h and u_x included) and covariance entry;
     SOC within 2e-5 of the float64 Python filter. The raw profile, which drains the truth
-    far below empty: bit-identical and finite."""
+    far below empty: bit-identical and finite. With the offset state (last) too, the
+    current the filter sees 50 mA off."""
     m = _effects_model(case)
-    cm = _compiled(m)
+    cm = _compiled(m, cfg=EstimatorConfig(offset_state=offset))
     names = cm.estimator.names
-    assert names[-1] == "h" and ("u_extra_v" in names) == (case != "hysteresis-only")
+    assert names[-1] == ("offset_a" if offset else "h") and "h" in names
+    assert ("u_extra_v" in names) == (case != "hysteresis-only")
     t, i_raw, temp = drive_profile(1500, seed=1)
     i = i_raw - i_raw.mean()
     i[np.diff(t, prepend=t[0]) > 60.0] = 0.0
     noise = 0.003 * np.random.default_rng(2).standard_normal(t.size)
     v = simulate(m, t, i, 0.7, temp).voltage_v + noise
+    i = i + 0.05 * offset
     got, _ = _check(m, cm, t, i, v, 0.5, temp, tol=2e-5)
-    assert np.all(np.abs(got.x[:, -1]) <= 1)                       # h in [-1, 1]
+    assert np.all(np.abs(got.x[:, names.index("h")]) <= 1)         # h in [-1, 1]
     _check(m, cm, t, i_raw, simulate(m, t, i_raw, 0.7, temp).voltage_v + noise, 0.5, temp,
            tol=None)
     v[[5, 700, 701]] = np.nan
@@ -75,15 +81,16 @@ def _grids(m):
     return np.concatenate([m.ocv.soc, m.charge.soc, m.discharge.soc])
 
 
-@pytest.mark.parametrize("case", ["all-effects", "lfp-hysteresis"])
+@pytest.mark.parametrize("case", ["all-effects", "lfp-hysteresis", "all-effects-offset"])
 def test_jacobians_are_those_of_the_c_step(case):
-    """The filter's F (the diagonal and the SOC column) and H, as the float32 reference
-    records them (bit-identical to the C's, checked above), against central differences of
-    the generated C step itself (the state before sample k perturbed, the step run from it):
-    F = d state' / d state, H F = d v / d state."""
+    """The filter's F (the diagonal, the SOC column and the offset column) and H, as the
+    float32 reference records them (bit-identical to the C's, checked above), against
+    central differences of the generated C step itself (the state before sample k
+    perturbed, the step run from it on the current less the offset state): F = d state' /
+    d state, H F = d v / d state."""
     m = (random_cell(1, "hysteresis", chemistry="lfp").hidden if case == "lfp-hysteresis"
          else model_over_temperature(effects=ALL_EFFECTS))
-    cm = _compiled(m)
+    cm = _compiled(m, cfg=EstimatorConfig(offset_state=case.endswith("offset")))
     spec, est, lib, ffi = cm.spec, cm.estimator, cm.lib, cm.ffi
     t, i, temp = drive_profile(800, seed=7, gaps=False)
     i = np.clip(i, -8.0, 4.0)
@@ -93,7 +100,7 @@ def test_jacobians_are_those_of_the_c_step(case):
     assert bits_equal(ref, run_estimator_c(cm, i, dt, v, 0.65, temp))
     fields, N, p = est.fields, est.n, spec.prefix
     grids = _grids(m)
-    steps = {"soc": 1e-3}                   # the others enter the step linearly: 1e-2
+    steps = {"m.soc": 1e-3}                 # the others enter the step linearly: 1e-2
     checked = 0
     for k in range(1, t.size, 7):
         if abs(i[k]) < 0.2 or dt[k] <= 0:
@@ -107,11 +114,15 @@ def test_jacobians_are_those_of_the_c_step(case):
         def run(x):
             s = ffi.new(f"{p}_state_t *")
             getattr(lib, f"{p}_init")(s, 0.5)
+            b = x[-1] if est.offset else 0.0
             for f, val in zip(fields, x):
-                setattr(s, f, float(val))
-            s.charging = int(i[k] > 0)
-            vk = getattr(lib, f"{p}_step")(s, float(i[k]), float(temp[k]), float(dt[k]))
-            return np.array([getattr(s, f) for f in fields]), vk
+                if f.startswith("m."):
+                    setattr(s, f[2:], float(val))
+            s.charging = int(i[k] - b > 0)
+            vk = getattr(lib, f"{p}_step")(s, float(np.float32(i[k]) - np.float32(b)),
+                                           float(temp[k]), float(dt[k]))
+            return np.array([getattr(s, f[2:]) for f in fields if f.startswith("m.")]
+                            + ([b] if est.offset else [])), vk
 
         F = np.zeros((N, N))
         dv = np.zeros(N)
@@ -191,3 +202,25 @@ def test_a123_with_hysteresis_from_diagnose():
               f"{100 * np.max(np.abs(err)):.2f} % after 600 s"
               + (f", max |dSOC| vs float64 {d:.2e}" if d is not None else ""))
     assert rmse["hysteresis"] < 0.02 and rmse["hysteresis"] < 0.75 * rmse["without"]
+
+
+@pytest.mark.parametrize("folder, name", [("25degC", "us06"), ("n20degC", "hwfet")])
+def test_offset_state_on_real_cycles(folder, name):
+    """The current-offset state on the test model over the first 3000 samples of shared
+    Panasonic cycles in issue 10's scenario (guess 0.8 for a full cell, 29 mA offset, gain
+    1.01): C == float32 reference at every step, state and covariance entry, SOC within
+    5e-4 of the float64 filter with the same state."""
+    from ecmgen.model.model import load_model
+
+    from test_codegen_estimator import MODEL, _cycle
+
+    m = load_model(MODEL)
+    cm = _compiled(m, "off", EstimatorConfig(offset_state=True))
+    assert cm.estimator.names[-1] == "offset_a"
+    s = _cycle(folder, name)
+    sl = slice(0, 3000)
+    seen = 1.01 * s.current_a[sl] + 0.029
+    got, d = _check(m, cm, s.time_s[sl], seen, s.voltage_v[sl], 0.8, s.temperature_c[sl],
+                    tol=5e-4)
+    print(f"{folder} {name}: max |dSOC| vs float64 {d:.2e}, offset state at the end "
+          f"{got.x[-1, -1]:.4f} A")

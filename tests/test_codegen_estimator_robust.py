@@ -42,9 +42,10 @@ def _effects_model():
 @functools.lru_cache(maxsize=None)
 def _cm(which: str):
     m = {"panasonic": _model, "synthetic": model_over_temperature,
-         "effects": _effects_model}[which]()
+         "effects": _effects_model, "effects-offset": _effects_model}[which]()
     spec = prepare(m, "float", None, "hyp")
-    return m, cbuild.compile_spec(spec, estimator=prepare_estimator(m, spec, EstimatorConfig()))
+    cfg = EstimatorConfig(offset_state=which.endswith("offset"))
+    return m, cbuild.compile_spec(spec, estimator=prepare_estimator(m, spec, cfg))
 
 
 # -- QEMU ------------------------------------------------------------------------------
@@ -52,8 +53,9 @@ def _cm(which: str):
 def test_qemu_cortex_m4f_bit_identical_to_the_host():
     """A real cycle's start in issue 10's scenario (guess 0.8, 29 mA offset, gain 1.01) and a
     synthetic profile with dt = 0, gaps, temperatures beyond the tables and missing
-    voltages, on a model without and one with every diagnose effect (the hysteresis state
-    and the extra RC pair in the filter): every predicted voltage, state and covariance entry the same bits on the
+    voltages, on a model without and one with every diagnose effect and the current-offset
+    state (the hysteresis state, the extra RC pair and the offset in the filter): every
+    predicted voltage, state and covariance entry the same bits on the
     emulated Cortex-M4F (hard float, -O2) as on the host."""
     reason = target.skip_reason(qemu=True)
     if reason:
@@ -67,10 +69,11 @@ def test_qemu_cortex_m4f_bit_identical_to_the_host():
                                      s.voltage_v[:n], 0.8, s.temperature_c[:n])
     assert res["bit_exact"], res
     t, i, temp = drive_profile(1200, seed=4)
-    for m in (model_over_temperature(), _effects_model()):
+    for m, offset in ((model_over_temperature(), False), (_effects_model(), True)):
         v = simulate(m, t, i, 0.8, temp).voltage_v
         v[[3, 500]] = np.nan
-        res = qemu_estimator_equivalence(m, t, i, v, 0.6, temp)
+        res = qemu_estimator_equivalence(m, t, i + 0.05, v, 0.6, temp,
+                                         cfg=EstimatorConfig(offset_state=offset))
         assert res["bit_exact"], res
 
 
@@ -84,8 +87,8 @@ def test_sanitized_build_through_absurd_inputs(tmp_path, which):
     """ASan + UBSan (+ float-cast-overflow): every combination of absurd currents, dt,
     temperatures, measured voltages (NaN, inf, +-FLT_MAX, denormals) and start SOCs, then
     10^6 random steps: no undefined behaviour, and after every step the SOC in [0, 1], the
-    states and the covariance finite (h in [-1, 1] with the effects), the covariance exactly
-    symmetric with a non-negative diagonal."""
+    states and the covariance finite (h in [-1, 1] with the effects, which are built with the
+    offset state too), the covariance exactly symmetric with a non-negative diagonal."""
     cc = cbuild.host_cc()
     probe = subprocess.run([*cc, *cbuild.SANITIZE_FLAGS, "-x", "c", "-", "-o", tmp_path / "probe"],
                            input="int main(void){return 0;}\n", capture_output=True, text=True)
@@ -93,7 +96,7 @@ def test_sanitized_build_through_absurd_inputs(tmp_path, which):
         pytest.skip(f"compiler cannot build with sanitizers: {probe.stderr.strip()[:200]}")
     fx = which == "effects"
     generate_c(_effects_model() if fx else _model(), tmp_path, prefix="fe",
-               estimator=EstimatorConfig())
+               estimator=EstimatorConfig(offset_state=fx))
     (tmp_path / "main.c").write_text(SAN_MAIN.read_text())
     exe = tmp_path / "san"
     flags = [f for f in cbuild.STRICT_CFLAGS if f != "-Werror"]
@@ -134,13 +137,14 @@ def records(draw, max_size=150):
     return cur.astype(np.float64), temp.astype(np.float64), dts, np.asarray(noise), guess
 
 
-@pytest.mark.parametrize("which", ["panasonic", "synthetic", "effects"])
+@pytest.mark.parametrize("which", ["panasonic", "synthetic", "effects", "effects-offset"])
 @SETTINGS
 @given(rec=records())
 def test_random_records_bit_identical_and_sane(which, rec):
     """Random currents (both ways, saturated, NaN), temperatures (beyond the tables, NaN,
     inf), dt (0, denormal, negative, NaN, an hour, a day) and voltages (the model's own
-    plus noise, NaN, absurd), on the test model, a synthetic one and one with every effect:
+    plus noise, NaN, absurd), on the test model, a synthetic one and one with every effect
+    (and with the offset state):
     C == float32 reference bit for bit; SOC in [0, 1], the covariance finite, symmetric, its
     diagonal non-negative."""
     cur, temp, dts, noise, guess = rec

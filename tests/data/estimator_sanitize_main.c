@@ -14,8 +14,8 @@ static void check(const fe_est_t *e, float vp)
     unsigned a, b;
     int bad = !(e->m.soc >= 0.0f && e->m.soc <= 1.0f) || !finite(e->m.u_fast) ||
               !finite(e->m.u_slow) || !finite(e->m.u_diff) || !(vp == vp);
-#if defined(FE_FX) && FE_FX           /* the effects' states: h in [-1, 1], u_x finite */
-    bad |= !(e->m.h >= -1.0f && e->m.h <= 1.0f) || !finite(e->m.u_x);
+#if defined(FE_FX) && FE_FX     /* effects and offset state: h in [-1, 1], u_x, offset finite */
+    bad |= !(e->m.h >= -1.0f && e->m.h <= 1.0f) || !finite(e->m.u_x) || !finite(e->offset_a);
 #endif
     for (a = 0; a < FE_EST_STATES; a++) {
         bad |= !(e->p[a * FE_EST_STATES + a] >= 0.0f);

@@ -10,7 +10,8 @@ Kalman filter of :mod:`ecmgen.estimate.ekf` (chosen over the sigma-point filter 
 measurement, issue 10), its noise settings (:class:`ecmgen.config.EstimatorConfig`) baked
 in as float32 constants. A model's diagnose effects are taken: the hysteresis state and the
 extra RC pair are states of the filter (the layout of :mod:`ecmgen.estimate.process`), the
-parameter effects scale the resistances in its Jacobians.
+parameter effects scale the resistances in its Jacobians; ``offset_state`` adds the current
+sensor's offset as the last state (held in ``<prefix>_est_t.offset_a``).
 
 Float32 only, by decision: the covariance spans 0.09 (the start SOC's variance) down to
 ~1e-9 (a settled SOC's, and the cross terms) and the Joseph update subtracts nearly equal
@@ -42,11 +43,12 @@ NOISE_FIELDS = (("p0_soc", "initial SOC variance, soc0_sigma^2"),
                 ("vn2", "voltage_noise_v^2, V^2"),
                 ("model_error", "model voltage error / model overpotential"),
                 ("corr_s", "error_correlation_s, s"))
-# with a hysteresis effect (ECMRT_FX_HYST) only
+# with a hysteresis effect (ECMRT_FX_HYST) only; with the offset state (ECMRT_EST_OFFSET) only
 HYST_FIELDS = (("p0_h", "hysteresis_sigma^2: h's initial variance and noise scale"),)
-# the model state's fields of the filter's states (ecmgen.estimate.process.state_layout names)
-STATE_FIELDS = {"soc": "soc", "u_fast_v": "u_fast", "u_slow_v": "u_slow", "u_diff_v": "u_diff",
-                "u_extra_v": "u_x", "h": "h"}
+OFFSET_FIELDS = (("p0_b", "offset_a^2: the offset state's initial variance, A^2"),)
+# where <prefix>_est_t holds each filter state (ecmgen.estimate.process.state_layout names)
+STATE_FIELDS = {"soc": "m.soc", "u_fast_v": "m.u_fast", "u_slow_v": "m.u_slow",
+                "u_diff_v": "m.u_diff", "u_extra_v": "m.u_x", "h": "m.h", "offset_a": "offset_a"}
 
 
 @dataclass(frozen=True)
@@ -63,14 +65,20 @@ class EstSpec:
         return len(self.names)
 
     @property
+    def offset(self) -> bool:
+        """The current-offset state is the last state."""
+        return self.names[-1] == "offset_a"
+
+    @property
     def fields(self) -> tuple[str, ...]:
-        """The model state's field of each filter state, in order."""
+        """Where <prefix>_est_t holds each filter state, in order (``m.soc``, ...)."""
         return tuple(STATE_FIELDS[k] for k in self.names)
 
     @property
     def noise_fields(self) -> tuple[tuple[str, str], ...]:
         """ecmrt_est_f32_noise_t's fields, in order: (name, comment)."""
-        return NOISE_FIELDS + (HYST_FIELDS if "h" in self.names else ())
+        return (NOISE_FIELDS + (HYST_FIELDS if "h" in self.names else ())
+                + (OFFSET_FIELDS if self.offset else ()))
 
 
 def prepare_estimator(model, spec: CSpec, cfg: EstimatorConfig | None = None,
@@ -85,21 +93,18 @@ def prepare_estimator(model, spec: CSpec, cfg: EstimatorConfig | None = None,
                                "\"float\"")
     if not spec.variable_dt:
         raise InputError(None, "the C estimator needs the variable-dt step: leave c.dt_s unset")
-    if cfg.offset_state:
-        raise InputError(None, "the C estimator has no current-offset state: set "
-                               "estimator.offset_state = false")
     nm = NoiseModel.from_config(cfg, model.capacity_ah)
     vals = {"p0_soc": nm.soc0_sigma ** 2, "p0_u": nm.u0_sigma_v ** 2,
             "offset_a": nm.offset_sigma_a, "gain": nm.gain_sigma,
             "noise_a": nm.current_noise_a, "horizon_s": nm.drift_horizon_s,
             "pol": nm.polarization_error, "vn2": nm.voltage_noise_v ** 2,
             "model_error": nm.model_error, "corr_s": nm.error_correlation_s,
-            "p0_h": nm.hysteresis_sigma ** 2}
+            "p0_h": nm.hysteresis_sigma ** 2, "p0_b": nm.offset_sigma_a ** 2}
     # the states of ecmgen.estimate.process.state_layout, in its order
     names = (("soc", "u_fast_v", "u_slow_v") + (("u_diff_v",) if spec.diff else ())
-             + (("u_extra_v",) if spec.fx.get("xrc") else ()) + (("h",) if spec.fx.get("hyst") else ()))
-    fields = NOISE_FIELDS + (HYST_FIELDS if "h" in names else ())
-    noise = {k: np.float32(vals[k]) for k, _ in fields}
+             + (("u_extra_v",) if spec.fx.get("xrc") else ()) + (("h",) if spec.fx.get("hyst") else ())
+             + (("offset_a",) if cfg.offset_state else ()))
+    noise = {k: np.float32(vals[k]) for k, _ in EstSpec(kind, names, {}, cfg).noise_fields}
     for k, v in noise.items():
         if not np.isfinite(v):
             raise InputError(None, f"estimator setting {k} does not fit float32")
@@ -113,7 +118,7 @@ def est_file_names(prefix: str) -> dict[str, str]:
 def render_estimator(env, ctx: dict, est: EstSpec, c_float) -> tuple[str, str]:
     """(the code appended to <prefix>_ecm.c, the text of <prefix>_est.h); ``env`` and
     ``ctx`` the renderer's jinja2 environment and context, ``c_float`` its float literal."""
-    ectx = dict(ctx, n=est.n, names=est.names,
+    ectx = dict(ctx, n=est.n, names=est.names, offset=est.offset,
                 noise=[(k, c_float(est.noise[k]), c) for k, c in est.noise_fields])
     return (env.get_template("ecm_est.c.j2").render(ectx),
             env.get_template("ecm_est.h.j2").render(ectx))
@@ -131,7 +136,7 @@ def _trace_sig(spec: CSpec) -> str:
 
 def harness_source(spec: CSpec, est: EstSpec) -> str:
     n = est.n
-    rec = "".join(f"        x[{n}u * k + {j}u] = e->m.{f};\n" for j, f in enumerate(est.fields))
+    rec = "".join(f"        x[{n}u * k + {j}u] = e->{f};\n" for j, f in enumerate(est.fields))
     return f"""
 #include "{spec.prefix}_est.h"
 {_trace_sig(spec)}
@@ -160,7 +165,8 @@ def harness_decls(spec: CSpec, est: EstSpec) -> str:
 def cdef(spec: CSpec, est: EstSpec) -> str:
     p = spec.prefix
     return "\n".join([
-        f"typedef struct {{ {p}_state_t m; float p[{est.n * est.n}]; uint8_t first; }} {p}_est_t;",
+        f"typedef struct {{ {p}_state_t m; float p[{est.n * est.n}]; "
+        + ("float offset_a; " if est.offset else "") + f"uint8_t first; }} {p}_est_t;",
         f"void {p}_est_init({p}_est_t *e, float soc0);",
         f"float {p}_est_step({p}_est_t *e, float i, float temperature, float dt, float v);",
         _trace_sig(spec) + ";",
@@ -171,4 +177,4 @@ def cdef(spec: CSpec, est: EstSpec) -> str:
 def est_state_bytes(spec: CSpec, est: EstSpec) -> int:
     """sizeof(<prefix>_est_t) on a 32-bit target: the model's state, the covariance, the
     flag, padded to 4."""
-    return -(-(state_bytes(spec) + 4 * est.n * est.n + 1) // 4) * 4
+    return -(-(state_bytes(spec) + 4 * est.n * est.n + 4 * est.offset + 1) // 4) * 4

@@ -7,7 +7,8 @@ steps, so :func:`ecmgen.c.cref.simulate_f32`, which runs a whole record at once,
 drive it); what does not depend on the state (the sanitised inputs, the direction, the
 temperature row and weight, the per-temperature branch values, the Butler-Volmer factor,
 the effects' factors and the hysteresis and extra RC coefficients) is computed for the
-whole record at once, as cref does. numpy float32 scalars round once
+whole record at once, as cref does; with the offset state the current depends on the
+state, and what depends on the current is computed per sample (``_current_terms``). numpy float32 scalars round once
 per operation, as the C built with -ffp-contract=off.
 """
 
@@ -147,8 +148,10 @@ class _Tables:
         return out
 
 
-def _inputs(spec: CSpec, current_a, temperature_c, dt_s):
-    """The record's sanitised float32 inputs and what depends on them alone."""
+def _inputs(spec: CSpec, current_a, temperature_c, dt_s, chg=None):
+    """The record's sanitised float32 inputs and what depends on them alone; ``chg``: the
+    direction of every sample instead of the current's (the offset state's per-direction
+    values)."""
     i = np.asarray(current_a, dtype=np.float64).astype(F32)
     imax = F32(spec.i_lim_a)
     i = np.where(np.isnan(i), ZERO, np.clip(i, -imax, imax)).astype(F32)
@@ -157,7 +160,7 @@ def _inputs(spec: CSpec, current_a, temperature_c, dt_s):
     n = i.size
     temp = np.broadcast_to(np.asarray(temperature_c if temperature_c is not None else 0.0,
                                       dtype=np.float64), (n,)).astype(F32)
-    chg = cref._direction(i, spec.deadband)
+    chg = cref._direction(i, spec.deadband) if chg is None else chg
     if spec.temp:
         kt, wt = _locate_vec(spec.temp_grid, temp)
     else:
@@ -186,6 +189,7 @@ def _inputs(spec: CSpec, current_a, temperature_c, dt_s):
         if fx.get("xrc"):
             out["c_x"] = cref.one_minus_exp_neg_f32(dt / F32(fx["x_k"]))
     if "i0" in branch:
+        out["i0"] = branch["i0"]
         with np.errstate(all="ignore"):
             a, x = cref.asinh_f32(ai / branch["i0"])
             out["g_bv"] = (a / x).astype(F32)
@@ -236,7 +240,15 @@ def simulate_estimator_f32(spec: CSpec, est: EstSpec, current_a, dt_s, voltage_v
 def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobians
               ) -> EstRef:
     tab = _Tables(spec)
-    inp = _inputs(spec, current_a, temperature_c, dt_s)
+    off = est.offset
+    if off:        # the current is the reading less the offset state: per sample, below
+        n0 = np.asarray(current_a).size
+        per = [_inputs(spec, np.zeros(n0), temperature_c, dt_s, np.full(n0, d, np.uint8))
+               for d in (0, 1)]
+        inp = per[0]
+        seen = np.asarray(current_a, dtype=np.float64).astype(F32)
+    else:
+        inp = _inputs(spec, current_a, temperature_c, dt_s)
     vm_all = np.asarray(voltage_v, dtype=np.float64).astype(F32)
     n, N = inp["i"].size, est.n
     nz = {k: F32(v) for k, v in est.noise.items()}
@@ -260,6 +272,12 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
         h_k, h_m, h_m0, h_ref = (F32(fx[k]) for k in ("h_k", "h_m", "h_m0", "h_ref"))
     if xrc:
         x_r = F32(fx["x_r"])
+    ib = N - 1                               # ECMRT_EST_IB (with the offset state)
+    if off:
+        P[ib][ib] = nz["p0_b"]
+        d_prev = 0
+        imax, dband = F32(spec.i_lim_a), F32(spec.deadband)
+    k_soc = F32(spec.k_soc)
     first = True
     v_out = np.empty(n, dtype=F32)
     x_out = np.empty((n, N), dtype=F32)
@@ -271,12 +289,23 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
     fields_all = ("r0", "rf", "tf", "rs", "ts")
     tau_t = spec.tau_t
     for t in range(n):
-        i, dt, d, kt = i_a[t], dt_a[t], int(chg[t]), int(kt_a[t])
+        dt, kt = dt_a[t], int(kt_a[t])
         wt = None if wt_a is None else wt_a[t]
-        ai = -i if i < ZERO else i
+        if off:
+            i = _sanitise(seen[t] - u[ib], imax)
+            d = 1 if i > dband else (0 if i < -dband else d_prev)
+            d_prev = d
+            ai = -i if i < ZERO else i
+            src, cur = per[d], _current_terms(spec, ai, dt, per[d], t)
+            dsoc = (i * dt) * k_soc
+        else:
+            i, d = i_a[t], int(chg[t])
+            ai = -i if i < ZERO else i
+            src, cur = inp, {k: inp[k][t] for k in ("g_cdr", "g_bv", "c_h") if k in inp}
+            dsoc = inp["dsoc"][t]
         # ---- the model's step (ecmrt_f32_step) ----
         u_prev = list(u)
-        y = inp["dsoc"][t] - ZERO                          # soc_c is 0 after every est step
+        y = dsoc - ZERO                                    # soc_c is 0 after every est step
         sn = soc + y
         if sn < slo:
             sn = slo
@@ -285,18 +314,18 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
         soc = sn
         pv = tab.values(d, soc, kt, wt, fields_all, False)
         r0, rf, rs, ocv = pv["r0"][0], pv["rf"][0], pv["rs"][0], pv["ocv"][0]
-        gc = inp["g_cdr"][t] if cdr else ONE
+        gc = cur["g_cdr"] if cdr else ONE
         fa = inp["f_arr"][t] if arr else ONE
         if cdr:
             r0, rf = r0 * gc, rf * gc
         if arr:
             r0, rf, rs = r0 * fa, rf * fa, rs * fa
         if bv:
-            rf = rf * inp["g_bv"][t]
+            rf = rf * cur["g_bv"]
         # the accessor (ecmrt_est_f32_params) at the same SOC
         pa = tab.values(d, soc, kt, wt, fields_all, True)
         if tau_t:            # the state's coefficients kc = 1/tau(T), for step and filter
-            cf, cs = omexp(dt * inp["kc_f"][t]), omexp(dt * inp["kc_s"][t])
+            cf, cs = omexp(dt * src["kc_f"][t]), omexp(dt * src["kc_s"][t])
             ja = (cf, cs)
         else:
             cf, cs = omexp(dt / pv["tf"][0]), omexp(dt / pv["ts"][0])
@@ -306,13 +335,13 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
         vp = ((ocv + r0 * i) + uf) + us
         u[1], u[2] = uf, us
         if diff:
-            rd = inp["r_diff"][t]
-            ud = u[3] + inp["c_diff"][t] * (rd * i - u[3])
+            rd = src["r_diff"][t]
+            ud = u[3] + src["c_diff"][t] * (rd * i - u[3])
             vp = vp + ud
             u[3] = ud
         if hyst:
             sg = ONE if d == 1 else F32(-1.0)
-            ch = inp["c_h"][t]
+            ch = cur["c_h"]
             hh = u[ih] + ch * (sg - u[ih])
             u[ih] = hh
             vh = h_m * (hh - h_ref) + h_m0 * (sg - h_ref)
@@ -328,9 +357,21 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
             vp = vp + ux
         # ---- the filter (ecmrt_est_f32_update) ----
         x0 = [soc] + u[1:]
-        gf = inp["g_bv"][t] if bv else ONE
+        gf = cur["g_bv"] if bv else ONE
         a, f, q = [ONE] + [ZERO] * (N - 1), [ZERO] * N, [ZERO] * N
         (r0a, dr0a), (rf_, drf), (rs_, drs) = pa["r0"], pa["rf"], pa["rs"]
+        if off:                               # before the current's factors
+            rb0, rbf = (r0a * fa, rf_ * fa) if arr else (r0a, rf_)
+            dg0 = (F32(fx["g_scale"]) / _s(cref.sqrt_f32(cur["xc"] * cur["xc"] + ONE))
+                   if cdr else ONE)
+            dgf = dg0
+            if bv:
+                xb = cur["xb"]
+                dbv = ONE / _s(cref.sqrt_f32(xb * xb + ONE))
+                dgf = (gc * dbv + gf * dg0) - gc * gf if cdr else dbv
+            ds_di = dt * k_soc
+            o = [ZERO] * N
+            o[0] = -ds_di
         if cdr:                               # ecmrt_est_f32_fx
             r0a, dr0a, rf_, drf = r0a * gc, dr0a * gc, rf_ * gc, drf * gc
         if arr:
@@ -344,6 +385,8 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
             (tf_, dtf) = pa["tf"]
             da = ((a[1] * dt) / (tf_ * tf_)) * dtf
         f[1] = da * u_prev[1] + ((drf * one_a - rf_ * da) * gf) * i
+        if off:
+            o[1] = -((rbf * one_a) * dgf) - f[1] * ds_di
         rg = rf_ * gf
         e = (nz["pol"] * rg) * i
         q[1] = (e * e) * (ONE - a[1] * a[1])
@@ -353,41 +396,64 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
             (ts_, dts) = pa["ts"]
             da = ((a[2] * dt) / (ts_ * ts_)) * dts
         f[2] = da * u_prev[2] + (drs * one_a - rs_ * da) * i
+        if off:
+            o[2] = -(rs_ * one_a) - f[2] * ds_di
         e = (nz["pol"] * rs_) * i
         q[2] = (e * e) * (ONE - a[2] * a[2])
         if diff:
-            ad = ONE - inp["c_diff"][t]
+            ad = ONE - src["c_diff"][t]
             a[3] = ad
-            e = (nz["pol"] * inp["r_diff"][t]) * i
+            if off:
+                o[3] = -(src["r_diff"][t] * src["c_diff"][t])
+            e = (nz["pol"] * src["r_diff"][t]) * i
             q[3] = (e * e) * (ONE - ad * ad)
         if xrc:
             a[ix] = ONE - cx
+            if off:
+                o[ix] = -(x_r * cx)
             e = (nz["pol"] * x_r) * i
             q[ix] = (e * e) * (ONE - a[ix] * a[ix])
         if hyst:
             a[ih] = ONE - ch
             q[ih] = nz["p0_h"] * (ch * (F32(2.0) - ch))
+        if off:
+            if hyst:
+                si = ONE if i > ZERO else (F32(-1.0) if i < ZERO else ZERO)
+                o[ih] = (((u_prev[ih] - sg) * si) * (dt * h_k)) * a[ih]
+            o[ib], a[ib], f[ib] = ZERO, ONE, ZERO
         if dt > ZERO:
             kk = dt * F32(spec.k_soc)
-            b = nz["gain"] * ai + nz["offset_a"]
+            if off:
+                b = nz["gain"] * ai
+                q[ib] = (nz["p0_b"] * dt) / nz["horizon_s"]
+            else:
+                b = nz["gain"] * ai + nz["offset_a"]
             e = b * F32(spec.k_soc)
             r = nz["noise_a"] * kk
             q[0] = (e * e) * (dt * nz["horizon_s"]) + r * r
         else:
             q = [ZERO] * N
         fp = [[a[r] * P[r][c] + f[r] * P[0][c] for c in range(N)] for r in range(N)]
+        if off:
+            fp = [[fp[r][c] + o[r] * P[ib][c] for c in range(N)] for r in range(N)]
         for r in range(N):
             for c in range(r, N):
                 val = a[c] * fp[r][c] + f[c] * fp[r][0]
+                if off:
+                    val = val + o[c] * fp[r][ib]
                 if r == c:
                     val = val + q[r]
                 P[r][c] = P[c][r] = val
         h = [pa["ocv"][1] + dr0a * i] + [ONE] * (N - 1)
         if hyst:
             h[ih] = h_m
+        if off:
+            h[ib] = -(rb0 * dg0)
         if jacobians:
             f_out[t][np.diag_indices(N)] = a
             f_out[t, 1:, 0] = f[1:]
+            if off:
+                f_out[t, :ib, ib] = o[:ib]
             h_out[t] = h
         e = nz["model_error"] * (vp - pa["ocv"][0])
         R = nz["vn2"] + e * e
@@ -412,6 +478,8 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
                     break
                 pi = tab.values(d, xu[0], kt, wt, ("r0",), True)
                 (r0i, dr0i) = pi["r0"]
+                if off:
+                    h[ib] = -((r0i * fa if arr else r0i) * dg0)
                 if cdr:
                     r0i, dr0i = r0i * gc, dr0i * gc
                 if arr:
@@ -519,6 +587,36 @@ def _clamp(soc):
     if not soc >= ZERO:
         return ZERO
     return ONE if soc > ONE else soc
+
+
+def _sanitise(i, imax):
+    """ecmrt_est_f32_prior's current: NaN 0, saturated to +-imax."""
+    if not i >= -imax:
+        return -imax if i == i else ZERO
+    return imax if i > imax else i
+
+
+def _s(a):
+    """A float32 scalar of a one-value array."""
+    return F32(np.asarray(a).reshape(-1)[0])
+
+
+def _current_terms(spec, ai, dt, src, t) -> dict:
+    """What depends on the current (with the offset state, per sample): the step's
+    current_dependent_resistance and Butler-Volmer factors (and their x), the hysteresis
+    coefficient, as ``_inputs`` computes them for a whole record."""
+    fx, out = spec.fx, {}
+    if fx.get("cdr"):
+        a, x = cref.asinh_f32(ai * F32(fx["g_inv_i0"]))
+        out["xc"] = _s(x)
+        out["g_cdr"] = (F32(fx["g_scale"]) * _s(a)) / out["xc"]
+    if "i0" in src:
+        a, x = cref.asinh_f32(ai / src["i0"][t])
+        out["xb"] = _s(x)
+        out["g_bv"] = _s(a) / out["xb"]
+    if fx.get("hyst"):
+        out["c_h"] = omexp((ai * dt) * F32(fx["h_k"]))
+    return out
 
 
 def _clamp_h(h):

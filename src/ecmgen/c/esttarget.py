@@ -36,7 +36,7 @@ def firmware_main(spec: CSpec, est: EstSpec, i, temp, dt, v, soc0: float) -> str
     """main(): est_init, est_step over the inputs, then the predicted voltages, states and
     covariances (n x (1 + N + N^2) floats) written through semihosting."""
     p, n, N = spec.prefix, int(np.size(i)), est.n
-    rec = "".join(f"        out[{1 + N + N * N}u * k + {1 + j}u] = e.m.{f};\n"
+    rec = "".join(f"        out[{1 + N + N * N}u * k + {1 + j}u] = e.{f};\n"
                   for j, f in enumerate(est.fields))
     arrays = "".join(_array(name, a, False) for name, a in
                      (("in_i", i), ("in_t", temp), ("in_dt", dt), ("in_v", v)))
