@@ -23,6 +23,7 @@ Cells: MAE / RMSE / max |error| in mV.
 Run:  OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/loto_temperature.py [--no-loto]
       [--no-steps] [--no-bv] [--no-diffusion]
       .venv/bin/python bench/loto_temperature.py --build [CONFIG] [--step-c 5] [--lag 1]
+      [--surface-soc-gain 0.5]
 """
 
 from __future__ import annotations
@@ -197,6 +198,8 @@ def main(argv=None):
     ap.add_argument("--build", nargs="?", const=str(EXAMPLE_CONFIG), metavar="CONFIG",
                     help="every method through the build chain (default config: the demo)")
     ap.add_argument("--step-c", type=float, help="--build: [model] temperature_step_c")
+    ap.add_argument("--surface-soc-gain", type=float,
+                    help="--build: [model] surface_soc_gain (default: the config's)")
     a = ap.parse_args(argv)
     if a.build:
         return main_build(a)
@@ -243,12 +246,14 @@ def main_build(a) -> None:
 
     from ecmgen.config import load_config
     from ecmgen.model.temperature import assemble_over_temperature
-    from ecmgen.pipeline import fit_pulse_tests
+    from ecmgen.pipeline import fit_pulse_tests, with_surface_soc
 
     t0 = time.perf_counter()
     cfg = load_config(a.build)
     if a.step_c is not None:
         cfg = replace(cfg, temperature_step_c=a.step_c)
+    if a.surface_soc_gain is not None:
+        cfg = replace(cfg, surface_soc_gain=a.surface_soc_gain)
     warm = cfg.warm_row_c if a.t_hi == 45.0 else a.t_hi
     tests = fit_pulse_tests(cfg, workers=2)
     keys = [_temperature_key(t.temperature_c) for t in tests]
@@ -259,9 +264,10 @@ def main_build(a) -> None:
     for method in cfg.methods:
         def model(use):
             sel = [t for k, t in zip(keys, tests) if k in use]
-            return assemble_over_temperature([t.models[method] for t in sel],
-                                             [t.temperature_c for t in sel],
-                                             step_c=cfg.temperature_step_c, warm_c=warm)
+            m = assemble_over_temperature([t.models[method] for t in sel],
+                                          [t.temperature_c for t in sel],
+                                          step_c=cfg.temperature_step_c, warm_c=warm)
+            return with_surface_soc(cfg, {method: m})[method]
 
         print(row(f"{method}, all 4", validate_on(model(keys), TEMPS, a.lag)), flush=True)
         if not a.no_loto:

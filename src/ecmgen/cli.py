@@ -199,6 +199,7 @@ def cmd_estimate(args) -> int:
         raise InputError(None, "--current-gain must be positive and --current-offset-a a "
                                "finite current in A")
     model = load_model(args.model)
+    _not_surface(model, args.model, "the SOC estimator")
     settings = EstimatorConfig()
     if args.config:
         from .pipeline import read_series
@@ -266,6 +267,13 @@ def _settings_from_validation(cfg, model, settings, cycle: Path):
     return replace(settings, **{k: v for k, v in figures.as_dict().items() if k not in given})
 
 
+def _not_surface(model, path, what: str) -> None:
+    """Refuse a model with a surface SOC where ``what`` does not implement it yet."""
+    if model.surface_soc_gain:
+        raise InputError(path, f"{what} does not take surface_soc_gain "
+                               f"({model.surface_soc_gain:g}) yet; use a model without it")
+
+
 def cmd_codegen(args) -> int:
     from .c.codegen import generate_c
     from .model.model import load_model
@@ -276,7 +284,9 @@ def cmd_codegen(args) -> int:
         from .config import EstimatorConfig
 
         estimator = EstimatorConfig()
-    files = generate_c(load_model(args.model), Path(args.out), prefix=args.prefix,
+    model = load_model(args.model)
+    _not_surface(model, args.model, "the generated C")
+    files = generate_c(model, Path(args.out), prefix=args.prefix,
                        numeric=args.numeric, dt_s=args.dt_s, estimator=estimator)
     if not args.quiet:
         for f in files:

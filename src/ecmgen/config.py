@@ -50,6 +50,9 @@
     [model]  temperature_step_c = 5   (the uniform temperature grid of the tables; 0 keeps
              the measured breakpoints, linear between them)   warm_row_c = 45 (a derived
              row at this temperature, Arrhenius-extrapolated; false: none)
+             surface_soc_gain = 0.5 (lam: the RC tables read at the surface SOC
+             soc + lam u_diff / max(dOCV/dSOC, 0.3 V), ecmgen.model.simulate; models with
+             the diffusion pair only; default 0 = off; not in the generated C yet)
     [data.columns]             # optional column mapping for CSV files from other cyclers
     time = "Test_Time(s)"  current = "Current(A)"  voltage = "Voltage(V)"
     header = false; time = 2 ...   (no header line: columns by 1-based position)
@@ -76,6 +79,8 @@ from pathlib import Path
 from typing import Any
 
 from .errors import InputError
+
+SURFACE_SOC_GAIN_MAX = 10.0     # [model] surface_soc_gain's upper bound (0.5 measured)
 
 METHODS = ("ga", "lm", "curve")
 # [data.columns.<role>] maps the CSV columns of one file of the config (it extends the
@@ -189,6 +194,7 @@ class BuildConfig:
     curve_branches: bool = False       # [fit]: curve fit with diffusion pair + Butler-Volmer
     temperature_step_c: float = 5.0    # [model]: 0 = the measured breakpoints as they are
     warm_row_c: float | None = 45.0    # [model]: derived warm row (None: none)
+    surface_soc_gain: float = 0.0      # [model]: lam of the surface SOC (0: off)
     estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
     raw: dict = field(default_factory=dict, repr=False)
     # data.cycle_window_s: (t0, t1) for every validation file, or resolved file -> (t0, t1)
@@ -456,10 +462,16 @@ def load_config(path: str | Path) -> BuildConfig:
         if not lo <= warm <= hi:
             raise InputError(path, f"model.warm_row_c must lie in {lo:g}..{hi:g} degC (or "
                                    f"false: no derived warm row), got {warm:g}")
-    unknown = sorted(set(model_t) - {"temperature_step_c", "warm_row_c"})
+    gain = _number(model_t, "surface_soc_gain", path, "model", 0.0)
+    # the model stage's bound (ecmgen.model.model.SURFACE_SOC_GAIN_MAX; the config is
+    # below it in the pipeline, a test holds the two equal)
+    if not 0.0 <= gain <= SURFACE_SOC_GAIN_MAX:
+        raise InputError(path, f"model.surface_soc_gain must lie in 0..{SURFACE_SOC_GAIN_MAX:g} "
+                               f"(0: off), got {gain:g}")
+    unknown = sorted(set(model_t) - {"temperature_step_c", "warm_row_c", "surface_soc_gain"})
     if unknown:
         raise InputError(path, f"[model]: unknown key(s) {unknown}; known: "
-                               "temperature_step_c, warm_row_c")
+                               "temperature_step_c, warm_row_c, surface_soc_gain")
 
     return BuildConfig(
         path=path, capacity_ah=capacity, pulses=pulses, dcir=dcir,
@@ -481,5 +493,6 @@ def load_config(path: str | Path) -> BuildConfig:
         c_estimator=None if c_estimator == "none" else c_estimator,
         curve_branches=branches,
         temperature_step_c=step, warm_row_c=None if warm is False else warm,
+        surface_soc_gain=gain,
         estimator=estimator_config(raw.get("estimator", {}), path),
         raw=raw, cycle_window_s=_cycle_windows(data, base, path))

@@ -417,7 +417,7 @@ def fit_all(cfg: BuildConfig, progress: Progress = _quiet, *, workers: Workers |
     if not cfg.over_temperature:
         inputs = prepare(cfg, progress)
         models, raw = fit_models(cfg, inputs, progress)
-        return models, raw, inputs, []
+        return with_surface_soc(cfg, models), raw, inputs, []
     from .model.temperature import assemble_over_temperature
 
     tests = fit_pulse_tests(cfg, progress, workers, plots)
@@ -433,7 +433,23 @@ def fit_all(cfg: BuildConfig, progress: Progress = _quiet, *, workers: Workers |
         except ValueError as exc:
             raise InputError(cfg.path, str(exc)) from None
     warm = tests[int(np.nanargmax(temps))] if np.isfinite(temps).any() else tests[0]
-    return models, warm.raw, warm.inputs, tests
+    return with_surface_soc(cfg, models), warm.raw, warm.inputs, tests
+
+
+def with_surface_soc(cfg: BuildConfig, models: dict[str, EcmModel]) -> dict[str, EcmModel]:
+    """[model] surface_soc_gain on every model that has the diffusion RC pair (the surface
+    SOC needs its voltage); the others keep 0 and say so in their notes."""
+    gain = cfg.surface_soc_gain
+    if not gain:
+        return models
+    out = {}
+    for m, model in models.items():
+        if model.discharge.has_diffusion:
+            out[m] = replace(model, surface_soc_gain=gain)
+        else:
+            out[m] = replace(model, notes=(*model.notes, f"surface_soc_gain = {gain:g} not "
+                                           "applied: the model has no diffusion RC pair"))
+    return out
 
 
 def short_names(paths) -> list[str]:
@@ -533,6 +549,9 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
 
     out_dir = Path(out_dir).resolve()
     given = _given(cfg)
+    if c_code and cfg.c_numeric and cfg.surface_soc_gain:
+        raise InputError(cfg.path, "the generated C does not take model.surface_soc_gain "
+                                   "yet: build with --no-c (or c.numeric = [])")
     with _workers_for(cfg, workers) as pool:
         models, raw, inputs, tests = fit_all(cfg, progress, workers=pool, plots=plots)
         lap("fit")

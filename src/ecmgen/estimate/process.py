@@ -37,6 +37,7 @@ import numpy as np
 
 from ..model.effects import (CapacityError, CurrentDependentResistance, ExtraRc, Hysteresis,
                              TemperatureDependence)
+from ..errors import InputError
 from ..model.model import EcmModel, RcTable, _grid_weights
 
 KELVIN = 273.15
@@ -137,6 +138,10 @@ class StepModel:
     :meth:`measure` (terminal voltage and its gradient)."""
 
     def __init__(self, model: EcmModel, offset_state: bool = False):
+        if model.surface_soc_gain:
+            raise InputError(None, f"the SOC estimator does not take surface_soc_gain "
+                                   f"({model.surface_soc_gain:g}) yet; estimate on the model "
+                                   "without it")
         self.model = model
         self.layout = state_layout(model, offset_state)
         lay = self.layout

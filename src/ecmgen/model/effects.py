@@ -308,6 +308,14 @@ def effects_inputs(model, time_s, current_a, soc0, dt, soc, charging, params,
         temps = temperature_c if model.needs_temperature else None
         pc, pd = model.charge.at(soc, temps), model.discharge.at(soc, temps)
         params = {k: np.where(charging, pc[k], pd[k]) for k in pc}
+    return soc, parameter_effects(model, current_a, params, temperature_c)
+
+
+def parameter_effects(model, current_a, params, temperature_c=None) -> dict:
+    """Step 3's parameter effects (current_dependent_resistance, temperature_dependence)
+    applied to the table values ``params`` (a new dict; the input is not modified)."""
+    current_a = np.asarray(current_a, dtype=np.float64)
+    params = dict(params)
     for e in model.effects:
         if isinstance(e, CurrentDependentResistance):
             g = e.factor(current_a)
@@ -317,7 +325,7 @@ def effects_inputs(model, time_s, current_a, soc0, dt, soc, charging, params,
             f = e.factor(temperature_c)
             for k in ("r0_ohm", "r_fast_ohm", "r_slow_ohm"):
                 params[k] = params[k] * f
-    return soc, params
+    return params
 
 
 def effects_voltage(model, time_s, current_a, soc, charging, temperature_c, params):

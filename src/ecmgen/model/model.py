@@ -19,7 +19,9 @@ is made by the OCV stage, :mod:`ecmgen.data.ocv`, and re-exported here.
 
 model.json schema version 2 holds every table as rows (one per temperature breakpoint,
 ``temperature_c``, null when a one-row table's temperature is unknown); version 1 files
-(SOC only) load as one-row tables.
+(SOC only) load as one-row tables. The optional ``surface_soc_gain`` (dimensionless; absent
+= 0 = off, and omitted when 0 so that older models stay byte-identical) reads the RC tables
+at a surface SOC (:func:`surface_soc_per_volt`, :mod:`ecmgen.model.simulate`).
 """
 
 from __future__ import annotations
@@ -44,6 +46,9 @@ DIRECTIONS = ("charge", "discharge")
 RC_FIELDS = ("r0_ohm", "r_fast_ohm", "tau_fast_s", "r_slow_ohm", "tau_slow_s")
 # optional per-temperature values of a direction (one per temperature row; None: absent)
 BRANCH_FIELDS = ("r_diff_ohm", "tau_diff_s", "i0_a")
+# surface SOC: the OCV slope is held at >= this (V per unit SOC) on the table's flat ends
+SURFACE_MIN_SLOPE_V = 0.3
+SURFACE_SOC_GAIN_MAX = 10.0     # a sanity bound on [model] surface_soc_gain (0.5 measured)
 
 
 def _grid_weights(grid: np.ndarray, x) -> tuple[np.ndarray, np.ndarray]:
@@ -349,6 +354,9 @@ class EcmModel:
     direction_deadband_a: float = 0.0    # |i| at or below this keeps the last direction
     effects: tuple[Any, ...] = ()        # optional effects added by `diagnose`
     tool_version: str = __version__
+    # lam of the surface SOC soc + lam * u_diff / max(dOCV/dSOC, 0.3 V) at which the RC
+    # tables are read (dimensionless; 0: off); needs the diffusion RC pair
+    surface_soc_gain: float = 0.0
 
     def __post_init__(self):
         if isinstance(self.ocv, OcvTable):
@@ -356,6 +364,15 @@ class EcmModel:
         for k in BRANCH_FIELDS:
             if (getattr(self.charge, k) is None) != (getattr(self.discharge, k) is None):
                 raise ValueError(f"EcmModel: {k} in one direction's table only")
+        gain = self.surface_soc_gain
+        if isinstance(gain, bool) or not isinstance(gain, (int, float)) or \
+                not 0.0 <= gain <= SURFACE_SOC_GAIN_MAX:
+            raise ValueError(f"surface_soc_gain must be a number in 0..{SURFACE_SOC_GAIN_MAX:g}"
+                             f", got {gain!r}")
+        object.__setattr__(self, "surface_soc_gain", float(gain))
+        if gain and not self.discharge.has_diffusion:
+            raise ValueError("surface_soc_gain needs the diffusion RC pair (r_diff_ohm, "
+                             "tau_diff_s), which this model does not have")
 
     def table(self, direction: str) -> RcTable:
         return self.charge if direction == "charge" else self.discharge
@@ -373,6 +390,26 @@ class EcmModel:
         the cell temperature."""
         return max(self.ocv.n_temperatures, self.charge.n_temperatures,
                    self.discharge.n_temperatures) > 1
+
+    def surface_per_volt(self, soc, temperature_c=None) -> np.ndarray:
+        """lam / max(dOCV/dSOC, SURFACE_MIN_SLOPE_V) at (soc, temperature_c), per volt: the
+        surface SOC is clamp(soc + this * u_diff, 0, 1). dOCV/dSOC is the slope of the OCV
+        row's segment that holds soc (the end segments beyond the table's ends); the
+        per-row values lam / max(slope, 0.3 V) are linear in temperature between the OCV
+        rows, clamped -- a table over the OCV grid, so that the C needs no division."""
+        soc = np.asarray(soc, dtype=np.float64)
+        grid, v = self.ocv.soc, self.ocv.ocv_v
+        per_volt = self.surface_soc_gain / np.maximum(np.diff(v, axis=1) / np.diff(grid),
+                                                      SURFACE_MIN_SLOPE_V)
+        j = np.clip(np.searchsorted(grid, soc, side="right") - 1, 0, grid.size - 2)
+        if per_volt.shape[0] == 1 or temperature_c is None:
+            if per_volt.shape[0] > 1:
+                raise ValueError("a table over temperature needs the temperature")
+            return per_volt[0][j]
+        k, w = _grid_weights(self.ocv.temperature_c, temperature_c)
+        k, w = np.broadcast_to(k, soc.shape), np.broadcast_to(w, soc.shape)
+        lo, hi = _rows_at(per_volt, k, lambda row: row[j])
+        return lo + (hi - lo) * w
 
     def with_effects(self, effects) -> "EcmModel":
         return replace(self, effects=tuple(effects))
@@ -398,6 +435,7 @@ class EcmModel:
             "seed": self.seed,
             "capacity_ah": float(self.capacity_ah),
             "direction_deadband_a": float(self.direction_deadband_a),
+            **({"surface_soc_gain": self.surface_soc_gain} if self.surface_soc_gain else {}),
             "ocv": {"temperature_c": _temps(self.ocv.temperature_c),
                     "soc": _floats(self.ocv.soc), "ocv_v": _rows(self.ocv.ocv_v)},
             "rc": {"charge": table(self.charge), "discharge": table(self.discharge)},
@@ -551,6 +589,13 @@ def model_from_json_dict(raw: Any, path=None) -> EcmModel:
     inputs = tuple(InputRecord(str(r["role"]), str(r["name"]), str(r["sha256"]))
                    for r in raw.get("inputs", []))
     seed = raw.get("seed")
+    gain = raw.get("surface_soc_gain", 0.0)
+    if isinstance(gain, bool) or not isinstance(gain, (int, float)) or \
+            not 0.0 <= gain <= SURFACE_SOC_GAIN_MAX:
+        raise InputError(path, f"surface_soc_gain must be a number in "
+                               f"0..{SURFACE_SOC_GAIN_MAX:g}, got {gain!r}")
+    if gain and not tables["discharge"].has_diffusion:
+        raise InputError(path, "surface_soc_gain needs the diffusion RC pair (rc.*.r_diff_ohm)")
     return EcmModel(
         capacity_ah=capacity,
         ocv=ocv,
@@ -563,4 +608,5 @@ def model_from_json_dict(raw: Any, path=None) -> EcmModel:
         direction_deadband_a=float(raw.get("direction_deadband_a", 0.0)),
         effects=effects,
         tool_version=str(raw.get("tool_version", "")),
+        surface_soc_gain=float(gain),
     )

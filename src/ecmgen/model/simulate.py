@@ -15,6 +15,18 @@ The discrete step is defined here once; the generated C implements exactly this
    r_fast becomes r_fast * g_k, g_k = asinh(x_k) / x_k, x_k = max(|i_k| / i0, 1e-12);
 5. v_k = ocv(soc_k, T_k) + r0 * i_k + u_fast + u_slow [+ u_diff].
 
+With ``surface_soc_gain`` lam > 0 (a model with the diffusion pair) step 3 reads the SOC
+tables (r0, r_fast, tau_fast, r_slow, tau_slow; not the OCV, not the per-temperature
+r_diff, tau_diff, i0) at the surface SOC instead of soc_k:
+
+3'. soc_s,k = clamp(soc_k + lam * u_diff,k-1 / max(dOCV/dSOC, 0.3 V), 0, 1), with
+    u_diff,k-1 the diffusion pair's voltage after the previous sample (u_diff,-1 = 0) and
+    dOCV/dSOC the slope of the OCV segment holding soc_k (EcmModel.surface_per_volt: the
+    per-row values lam / max(slope, 0.3 V) linear in T_k between the OCV rows).
+
+A discharge depletes the particles' surface (u_diff < 0), so the resistances are read at
+a lower SOC than the coulomb count's (issue 8, bench/cold_surface_soc.py).
+
 A model with ``effects`` (added by ``ecmgen diagnose``) changes steps 2, 3 and 5 as
 defined in :mod:`ecmgen.model.effects`; without effects the step above is untouched.
 """
@@ -28,7 +40,7 @@ import numpy as np
 
 from ..data.measure import TimeSeries, charging_direction, voltage_lag
 from ..errors import InputError
-from .model import EcmModel
+from .model import RC_FIELDS, EcmModel
 from .rc import rc_recurrence
 
 
@@ -46,6 +58,7 @@ class SimResult:
     charging: np.ndarray          # bool, the direction used at each step
     extra_v: np.ndarray | None = None   # voltage added by effects (diagnose), if any
     u_diff_v: np.ndarray | None = None  # voltage over the diffusion RC pair, if any
+    soc_surface: np.ndarray | None = None   # the SOC the RC tables were read at (step 3')
 
 
 def butler_volmer_factor(current_a, i0_a) -> np.ndarray:
@@ -75,6 +88,39 @@ def step_inputs(model: EcmModel, time_s: np.ndarray, current_a: np.ndarray, soc0
     if not params:      # no samples
         params = {k: np.empty(0) for k in model.discharge.at(soc, temps)}
     return dt, soc, charging, params
+
+
+def surface_soc(model: EcmModel, dt: np.ndarray, current_a: np.ndarray, soc: np.ndarray,
+                params: dict, temperature_c=None) -> np.ndarray:
+    """Step 3': the surface SOC of every sample (the diffusion pair's r_diff, tau_diff in
+    ``params``, which depend on the temperature only)."""
+    a = np.exp(-dt / params["tau_diff_s"])
+    u_diff = rc_recurrence(a, params["r_diff_ohm"] * (1.0 - a) * current_a)
+    previous = np.concatenate([[0.0], u_diff[:-1]])[:soc.size]
+    temps = temperature_c if model.ocv.n_temperatures > 1 else None
+    return np.clip(soc + model.surface_per_volt(soc, temps) * previous, 0.0, 1.0)
+
+
+def at_surface(model: EcmModel, soc_surface: np.ndarray, charging: np.ndarray,
+               current_a: np.ndarray, params: dict, temperature_c=None) -> dict:
+    """``params`` with the SOC tables' fields read at ``soc_surface`` (each direction at
+    its own samples), the parameter effects applied as at the coulombic SOC."""
+    out = dict(params)
+    temps = None if temperature_c is None else np.broadcast_to(
+        np.asarray(temperature_c, dtype=np.float64), soc_surface.shape)
+    for table, mask in ((model.charge, charging), (model.discharge, ~charging)):
+        if not mask.any():
+            continue
+        p = table.at(soc_surface[mask], None if temps is None else temps[mask])
+        for k in RC_FIELDS:
+            if out[k] is params[k]:
+                out[k] = np.array(params[k], dtype=np.float64)
+            out[k][mask] = p[k]
+    if model.effects:
+        from .effects import parameter_effects
+
+        out = parameter_effects(model, current_a, out, temperature_c)
+    return out
 
 
 def sample_temperatures(model: EcmModel, n: int, temperature_c=None, source=None,
@@ -113,6 +159,10 @@ def simulate(model: EcmModel, time_s, current_a, soc0: float,
 
         soc, p = effects_inputs(model, time_s, current_a, soc0, dt, soc, charging, p,
                                 temperature_c)
+    soc_s = None
+    if model.surface_soc_gain:
+        soc_s = surface_soc(model, dt, current_a, soc, p, temperature_c)
+        p = at_surface(model, soc_s, charging, current_a, p, temperature_c)
     a_fast = np.exp(-dt / p["tau_fast_s"])
     a_slow = np.exp(-dt / p["tau_slow_s"])
     r_fast = p["r_fast_ohm"]
@@ -133,7 +183,8 @@ def simulate(model: EcmModel, time_s, current_a, soc0: float,
 
         extra = effects_voltage(model, time_s, current_a, soc, charging, temperature_c, p)
         v = v + extra
-    return SimResult(time_s, current_a, v, soc, ocv, u_fast, u_slow, charging, extra, u_diff)
+    return SimResult(time_s, current_a, v, soc, ocv, u_fast, u_slow, charging, extra, u_diff,
+                     soc_s)
 
 
 def initial_soc(model: EcmModel, series: TimeSeries) -> float:

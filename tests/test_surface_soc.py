@@ -1,0 +1,237 @@
+"""The surface SOC (model.surface_soc_gain, issue 8): the RC tables read at
+soc + lam * u_diff / max(dOCV/dSOC, 0.3 V). Known truth against a plain loop, the
+model.json round trip, the config key, and the refusals of the parts that do not take it."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ecmgen.errors import InputError
+from ecmgen.model.effects import make_effect
+from ecmgen.model.model import (EcmModel, OcvOverTemperature, RcTable, interp_2d,
+                                load_model, stack_rc_tables)
+from ecmgen.model.simulate import simulate
+
+REPO = Path(__file__).resolve().parents[1]
+SOC = np.linspace(0.0, 1.0, 11)
+# an OCV with a steep low end, a plateau below 0.3 V per unit SOC and a steep top
+OCV25 = np.array([3.0, 3.3, 3.45, 3.5, 3.52, 3.54, 3.6, 3.7, 3.85, 4.0, 4.2])
+TEMPS = (-10.0, 25.0)
+LAM = 0.5
+
+
+def _row(scale: float, r_diff: float, tau_diff: float) -> RcTable:
+    return RcTable(soc=SOC, r0_ohm=scale * (0.02 + 0.03 * (1 - SOC) ** 3),
+                   r_fast_ohm=scale * (0.01 + 0.02 * (1 - SOC) ** 2),
+                   tau_fast_s=2.0 + 3.0 * (1 - SOC), r_slow_ohm=scale * (0.02 + 0.01 * SOC),
+                   tau_slow_s=60.0 - 20.0 * SOC, fit_error=np.zeros(SOC.size),
+                   converged=np.ones(SOC.size, bool), r_diff_ohm=[r_diff],
+                   tau_diff_s=[tau_diff])
+
+
+def surface_model(gain: float = LAM) -> EcmModel:
+    """Two temperatures, a diffusion pair, SOC-varying resistances and time constants."""
+    table = stack_rc_tables([_row(3.0, 0.08, 600.0), _row(1.0, 0.02, 400.0)], list(TEMPS))
+    ocv = OcvOverTemperature(np.array(TEMPS), SOC, np.vstack([OCV25 - 0.02 * (1 - SOC), OCV25]))
+    return EcmModel(capacity_ah=2.9, ocv=ocv, charge=table, discharge=table,
+                    method="synthetic", direction_deadband_a=0.029, surface_soc_gain=gain)
+
+
+def plain_loop(m: EcmModel, t, i, temp, soc0: float, lam: float, g_of_i=None):
+    """The step written out sample by sample, independently of ecmgen.model.simulate."""
+    soc, u, prev_t, out = soc0, [0.0, 0.0, 0.0], t[0], []
+    grid, rows = list(SOC), [list(r) for r in m.ocv.ocv_v]
+    for k in range(t.size):
+        dt = t[k] - prev_t
+        prev_t = t[k]
+        soc += i[k] * dt / (3600 * m.capacity_ah)
+        tk = min(max(temp[k], TEMPS[0]), TEMPS[1])
+        w = (tk - TEMPS[0]) / (TEMPS[1] - TEMPS[0])
+        j = 0
+        while j < len(grid) - 2 and soc >= grid[j + 1]:
+            j += 1
+        per = [lam / max((r[j + 1] - r[j]) / (grid[j + 1] - grid[j]), 0.3) for r in rows]
+        per_volt = per[0] + (per[1] - per[0]) * w
+        surface = min(max(soc + per_volt * u[2], 0.0), 1.0)      # u[2]: u_diff of k - 1
+        p = {key: float(interp_2d(m.discharge.temperature_c, SOC, getattr(m.discharge, key),
+                                  surface, tk))
+             for key in ("r0_ohm", "r_fast_ohm", "tau_fast_s", "r_slow_ohm", "tau_slow_s")}
+        g = 1.0 if g_of_i is None else g_of_i(i[k])
+        r_d = 0.08 + (0.02 - 0.08) * w
+        tau_d = 600.0 + (400.0 - 600.0) * w
+        for n, (r, tau) in enumerate(((p["r_fast_ohm"] * g, p["tau_fast_s"]),
+                                      (p["r_slow_ohm"], p["tau_slow_s"]), (r_d, tau_d))):
+            a = math.exp(-dt / tau)
+            u[n] = a * u[n] + r * (1 - a) * i[k]
+        ocv = float(m.ocv.ocv_at(soc, tk))                    # the OCV at the mean SOC
+        out.append(ocv + p["r0_ohm"] * g * i[k] + sum(u))
+    return np.array(out)
+
+
+def _profile(seed: int = 5):
+    t = np.concatenate([np.arange(0.0, 300.0, 0.5), np.arange(300.0, 6000.0, 5.0)])
+    rng = np.random.default_rng(seed)
+    i = rng.uniform(-14.0, 4.0, t.size)
+    i[(t > 2000) & (t < 2600)] = 0.0                          # a rest: the surface refills
+    temp = np.linspace(-15.0, 30.0, t.size)
+    return t, i, temp
+
+
+def test_surface_soc_matches_a_plain_loop():
+    m = surface_model()
+    t, i, temp = _profile()
+    sim = simulate(m, t, i, 0.95, temp)
+    expected = plain_loop(m, t, i, temp, 0.95, LAM)
+    np.testing.assert_allclose(sim.voltage_v, expected, rtol=0, atol=1e-12)
+    # the surface runs below the mean SOC in discharge, by up to tenths here, and is
+    # what the tables were read at
+    gap = sim.soc - sim.soc_surface
+    assert gap.max() > 0.05 and sim.soc_surface.min() >= 0.0
+    # the effect is not small: lam = 0 differs by many mV
+    off = simulate(replace(m, surface_soc_gain=0.0), t, i, 0.95, temp)
+    assert off.soc_surface is None and np.abs(off.voltage_v - sim.voltage_v).max() > 0.02
+    np.testing.assert_allclose(off.voltage_v, plain_loop(m, t, i, temp, 0.95, 0.0),
+                               rtol=0, atol=1e-12)
+
+
+def test_surface_soc_with_parameter_effects_keeps_their_factors():
+    cdr = make_effect("current_dependent_resistance", scale_at_zero=1.2, i0_a=3.0)
+    m = surface_model().with_effects([cdr])
+    t, i, temp = _profile(7)
+    sim = simulate(m, t, i, 0.9, temp)
+    expected = plain_loop(m, t, i, temp, 0.9, LAM, g_of_i=lambda x: float(cdr.factor(x)))
+    np.testing.assert_allclose(sim.voltage_v, expected, rtol=0, atol=1e-12)
+
+
+def test_surface_model_fits_its_own_synthetic_cell():
+    """A cell with the effect: the model with the right gain reproduces it exactly, the
+    model without it (what the build made before) does not."""
+    m = surface_model()
+    t, i, temp = _profile(11)
+    measured = plain_loop(m, t, i, temp, 1.0, LAM)
+    err_on = np.abs(simulate(m, t, i, 1.0, temp).voltage_v - measured).mean()
+    err_off = np.abs(simulate(replace(m, surface_soc_gain=0.0), t, i, 1.0, temp).voltage_v
+                     - measured).mean()
+    assert err_on < 1e-12 and err_off > 0.005
+
+
+def test_round_trip_and_absent_key(tmp_path):
+    m = surface_model()
+    raw = m.to_json_dict()
+    assert raw["surface_soc_gain"] == 0.5
+    back = load_model(m.save(tmp_path / "m.json"))
+    assert back.surface_soc_gain == 0.5 and back.to_json() == m.to_json()
+    # 0 is not written, so older models stay byte-identical; absent loads as 0
+    off = replace(m, surface_soc_gain=0.0)
+    assert "surface_soc_gain" not in off.to_json_dict()
+    assert load_model(off.save(tmp_path / "off.json")).surface_soc_gain == 0.0
+
+
+@pytest.mark.parametrize("value, match", [(-0.1, "surface_soc_gain must be"),
+                                          ("0.5", "surface_soc_gain must be"),
+                                          (True, "surface_soc_gain must be"),
+                                          (11.0, "surface_soc_gain must be"),
+                                          (float("nan"), "surface_soc_gain must be")])
+def test_bad_gain_in_model_json_refused(tmp_path, value, match):
+    raw = surface_model().to_json_dict()
+    raw["surface_soc_gain"] = value
+    path = tmp_path / "m.json"
+    path.write_text(json.dumps(raw))
+    with pytest.raises(InputError, match=match) as exc:
+        load_model(path)
+    assert str(path) in str(exc.value) and "\n" not in str(exc.value)
+
+
+def test_gain_needs_the_diffusion_pair(tmp_path):
+    m = surface_model()
+    plain = replace(m.discharge, r_diff_ohm=None, tau_diff_s=None)
+    with pytest.raises(ValueError, match="diffusion RC pair"):
+        replace(m, charge=plain, discharge=plain)
+    raw = replace(m, surface_soc_gain=0.0, charge=plain, discharge=plain).to_json_dict()
+    raw["surface_soc_gain"] = 0.5
+    path = tmp_path / "m.json"
+    path.write_text(json.dumps(raw))
+    with pytest.raises(InputError, match="diffusion RC pair"):
+        load_model(path)
+
+
+def test_c_and_estimators_refuse_it_with_one_line(tmp_path):
+    from ecmgen.c.codegen import generate_c
+    from ecmgen.estimate.process import StepModel
+
+    m = surface_model()
+    with pytest.raises(InputError, match="generated C does not take surface_soc_gain"):
+        generate_c(m, tmp_path / "c", prefix="x", numeric="fixed")
+    with pytest.raises(InputError, match="estimator does not take surface_soc_gain"):
+        StepModel(m)
+    model_path = m.save(tmp_path / "m.json")
+    csv = tmp_path / "cycle.csv"
+    t, i, temp = _profile()
+    v = simulate(m, t, i, 0.95, temp).voltage_v
+    csv.write_text("time_s,current_a,voltage_v,temperature_c\n" + "".join(
+        f"{a!r},{b!r},{c!r},{d!r}\n" for a, b, c, d in zip(t, i, v, temp)))
+    for args in (["codegen", model_path, "--out", tmp_path / "out"],
+                 ["codegen", model_path, "--out", tmp_path / "out", "--estimator", "ekf"],
+                 ["estimate", model_path, csv, "--soc0", "0.95"]):
+        r = subprocess.run([sys.executable, "-m", "ecmgen.cli", *map(str, args)],
+                           capture_output=True, text=True, cwd=tmp_path)
+        assert r.returncode != 0 and "Traceback" not in r.stderr, r.stderr
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1 and "surface_soc_gain" in lines[0] and "m.json" in lines[0]
+
+
+def test_config_key(tmp_path):
+    from ecmgen.config import load_config
+    from ecmgen.pipeline import with_surface_soc
+
+    src = (REPO / "examples/panasonic-temperature/config.toml").read_text()
+    base = REPO / "examples/panasonic-temperature"
+
+    def cfg_with(line: str):
+        path = base / f"tmp-test-surface-{abs(hash(line))}.toml"
+        path.write_text(src.replace("[model]\n", f"[model]\n{line}\n"))
+        try:
+            return load_config(path)
+        finally:
+            path.unlink()
+
+    from ecmgen.config import SURFACE_SOC_GAIN_MAX
+    from ecmgen.model.model import SURFACE_SOC_GAIN_MAX as MODEL_MAX
+
+    assert SURFACE_SOC_GAIN_MAX == MODEL_MAX
+    assert cfg_with("").surface_soc_gain == 0.0
+    cfg = cfg_with("surface_soc_gain = 0.5")
+    assert cfg.surface_soc_gain == 0.5
+    for bad in ("surface_soc_gain = -1", "surface_soc_gain = \"x\"", "surface_soc_gain = 20"):
+        with pytest.raises(InputError, match="model.surface_soc_gain"):
+            cfg_with(bad)
+    # the build's models: the gain where the diffusion pair is, a note where it is not
+    m = surface_model(0.0)
+    plain = replace(m.discharge, r_diff_ohm=None, tau_diff_s=None)
+    got = with_surface_soc(cfg, {"curve": m, "lm": replace(m, charge=plain, discharge=plain)})
+    assert got["curve"].surface_soc_gain == 0.5 and got["lm"].surface_soc_gain == 0.0
+    assert "no diffusion RC pair" in got["lm"].notes[-1]
+    assert with_surface_soc(cfg_with(""), {"curve": m})["curve"] is m
+
+
+def test_build_with_c_refuses_before_fitting(tmp_path):
+    from ecmgen.config import load_config
+    from ecmgen.pipeline import build
+
+    src = (REPO / "examples/panasonic-temperature/config.toml").read_text()
+    path = REPO / "examples/panasonic-temperature/tmp-test-surface-build.toml"
+    path.write_text(src.replace("[model]\n", "[model]\nsurface_soc_gain = 0.5\n"))
+    try:
+        cfg = load_config(path)
+        with pytest.raises(InputError, match="--no-c"):
+            build(cfg, tmp_path / "out", plots=False)
+    finally:
+        path.unlink()
