@@ -26,6 +26,9 @@
  *     ECMRT_FX_XRC        effect extra_rc (state u_x)
  *     ECMRT_FX_CDR        effect current_dependent_resistance
  *     ECMRT_FX_ARR        effect temperature_dependence (Arrhenius factor on r0, r_fast, r_slow)
+ *     ECMRT_SURFACE       (optional, default 0; with ECMRT_DIFF, not ECMRT_OCV_SHARED) the
+ *                            surface SOC: the RC tables are read at clamp(soc + sv u_diff, 0, 1),
+ *                            sv = lam / max(dOCV/dSOC, 0.3 V) on the OCV's grid at (soc, T)
  * (capacity_error needs no code: the generator folds it into k_soc.) A plain model (all
  * switches 0) compiles to the 2RC step alone. All functions are static inline: no external
  * symbols, so several models link together.
@@ -51,6 +54,12 @@
     !defined(ECMRT_DIFF) || !defined(ECMRT_BV) || !defined(ECMRT_FX_HYST) || \
     !defined(ECMRT_FX_XRC) || !defined(ECMRT_FX_CDR) || !defined(ECMRT_FX_ARR)
 #error "ecmrt_f32.h needs the ECMRT_* configuration macros of a generated <prefix>_ecm.c"
+#endif
+#ifndef ECMRT_SURFACE
+#define ECMRT_SURFACE 0
+#endif
+#if ECMRT_SURFACE && (!ECMRT_DIFF || ECMRT_OCV_SHARED)
+#error "ECMRT_SURFACE needs ECMRT_DIFF and the OCV's own grid"
 #endif
 #if !defined(FLT_EVAL_METHOD) || FLT_EVAL_METHOD != 0
 #error "float expressions must be evaluated in float (FLT_EVAL_METHOD == 0), e.g. SSE or an FPv4-SP FPU"
@@ -148,6 +157,9 @@ typedef struct {
 #if !ECMRT_OCV_SHARED
     ECMRT_F32_OCV_GRID ocv_g;
     const float *ocv;         /* pairs (ocv[k], ocv[k+1] - ocv[k]), temperature row after row */
+#endif
+#if ECMRT_SURFACE
+    const float *sv;          /* 1/V at the OCV's breakpoints, laid out as ocv */
 #endif
     ecmrt_f32_dir_t dir[2];   /* [ECMRT_DISCHARGE], [ECMRT_CHARGE] */
     float deadband_a;         /* |i| <= deadband keeps the last direction */
@@ -443,6 +455,22 @@ ECMRT_F32_COLD void ecmrt_f32_coefs(const ecmrt_f32_model_t *m, ECMRT_STATE *s, 
 }
 #endif
 
+#if ECMRT_SURFACE
+/* The surface SOC the RC tables are read at: soc + sv u_diff (u_diff of the previous step,
+ * sv = lam / max(dOCV/dSOC, 0.3 V) at (soc, T), interpolated as the OCV), clamped to [0, 1]
+ * (NaN: 0). */
+static inline float ecmrt_f32_surface(const ECMRT_STATE *s, float soc, float sv)
+{
+    float r = soc + sv * s->u_diff;
+    if (!(r >= 0.0f)) {
+        r = 0.0f;
+    } else if (r > 1.0f) {
+        r = 1.0f;
+    }
+    return r;
+}
+#endif
+
 static inline void ecmrt_f32_init(const ecmrt_f32_model_t *m, ECMRT_STATE *s, float soc0)
 {
     if (soc0 != soc0) {
@@ -503,6 +531,15 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
 #endif
 #if ECMRT_DIFF
     float rd, ud;
+#endif
+#if ECMRT_SURFACE
+    float wo, socr;
+#if ECMRT_TEMP
+    const float *sp;
+    float sa;
+#endif
+#else
+#define socr soc
 #endif
 #if ECMRT_FX_HYST || ECMRT_FX_CDR || ECMRT_BV
     float ai;
@@ -584,7 +621,13 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
         ecmrt_f32_coefs(m, s, kt, wt);
 #endif
     }
-    w = ECMRT_F32_RC_LOCATE(&d->g, soc, &kd);
+#if ECMRT_SURFACE
+    wo = ECMRT_F32_OCV_LOCATE(&m->ocv_g, soc, &ko);
+    sp = m->sv + 2u * ((unsigned)m->ocv_g.n * ECMRT_KT(kt) + ko);    /* as ecmrt_f32_segment */
+    sa = sp[0] + sp[1] * wt;
+    socr = ecmrt_f32_surface(s, soc, sa + ((sp[2] + sp[3] * wt) - sa) * wo);
+#endif
+    w = ECMRT_F32_RC_LOCATE(&d->g, socr, &kd);
     key = (kd << 1) | dir;
     if (key != s->pc_key) {
         ecmrt_f32_segment(d->rows + ECMRT_NPAR * ((unsigned)d->g.n * ECMRT_KT(kt) + kd), ECMRT_NPAR,
@@ -592,7 +635,11 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
         s->pc_key = (uint16_t)key;
     }
 #else
-    w = ECMRT_F32_RC_LOCATE(&d->g, soc, &kd);
+#if ECMRT_SURFACE
+    wo = ECMRT_F32_OCV_LOCATE(&m->ocv_g, soc, &ko);
+    socr = ecmrt_f32_surface(s, soc, ecmrt_f32_lerp(m->sv + 2u * ko, wo));
+#endif
+    w = ECMRT_F32_RC_LOCATE(&d->g, socr, &kd);
     row = d->rows + ECMRT_NPAR * kd;
 #endif
 #if ECMRT_BRANCHES
@@ -641,7 +688,11 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
 #if ECMRT_OCV_SHARED
     ocv = ECMRT_F32_AT(row, ECMRT_P_OCV);
 #else
+#if ECMRT_SURFACE
+    w = wo;                                 /* the OCV at the mean SOC, located above */
+#else
     w = ECMRT_F32_OCV_LOCATE(&m->ocv_g, soc, &ko);
+#endif
 #if ECMRT_TEMP
     if (ko != s->oc_key) {
         ecmrt_f32_segment(m->ocv + 2u * ((unsigned)m->ocv_g.n * ECMRT_KT(kt) + ko), 2u, 2u, wt, s->oc);
@@ -713,6 +764,7 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
     ecmrt_hints_store(s, dir, kd, ko, kt);   /* last (see ecmrt_f32_locate) */
     return v;
 }
+#undef socr
 
 #undef ECMRT_F32_AT
 #undef ECMRT_F32_TV

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import functools
 import subprocess
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -498,13 +499,14 @@ def _temperature_fx_model(numeric):
         [fx.make_effect("temperature_dependence", activation_k=3500.0, t_ref_c=25.0)])
 
 
-@pytest.mark.parametrize("family", ["effects", "temperature"])
+@pytest.mark.parametrize("family", ["effects", "temperature", "surface"])
 def test_effects_sanitized_build_has_no_undefined_behaviour(tmp_path, family):
     """ASan + UBSan (+ float-cast-overflow) build of the four variants with all effects (and,
     for "temperature", tables over temperature with every branch and temperature_dependence),
     driven through NaN/inf/extreme currents, temperatures and dt, SOC far outside [0, 1], and
     5*10^6 (temperature: 2*10^6) random steps: no sanitizer report, no non-finite output,
-    every state finite, h within [-1, 1]."""
+    every state finite, h within [-1, 1]. "surface": the temperature family with the surface
+    SOC (surface_soc_gain 0.5) in the float variants (the fixed point does not take it yet)."""
     cc = cbuild.host_cc()
     probe = subprocess.run([*cc, *cbuild.SANITIZE_FLAGS, "-x", "c", "-", "-o", tmp_path / "probe"],
                            input="int main(void){return 0;}\n", capture_output=True, text=True)
@@ -513,10 +515,13 @@ def test_effects_sanitized_build_has_no_undefined_behaviour(tmp_path, family):
     srcs = []
     for prefix, (numeric, dt_s) in zip(("fv", "fd", "qv", "qd"), VARIANTS):
         model = _fx_model(numeric) if family == "effects" else _temperature_fx_model(numeric)
+        if family == "surface" and numeric == "float":
+            model = replace(model, surface_soc_gain=0.5)
         generate_c(model, tmp_path, prefix=prefix, numeric=numeric, dt_s=dt_s)
         src = (tmp_path / f"{prefix}_ecm.c").read_text()
         assert "ECMRT_FX_HYST 1" in src
-        if family == "temperature":
+        assert ("ECMRT_SURFACE 1" in src) == (family == "surface" and numeric == "float")
+        if family != "effects":
             assert all(f"ECMRT_{k} 1" in src for k in ("TEMP", "DIFF", "BV", "FX_ARR")), prefix
         srcs.append(tmp_path / f"{prefix}_ecm.c")
     (tmp_path / "main.c").write_text(SAN_FX_MAIN)

@@ -55,10 +55,19 @@ def plain_loop(m: EcmModel, t, i, temp, soc0: float, lam: float, g_of_i=None):
         soc += i[k] * dt / (3600 * m.capacity_ah)
         tk = min(max(temp[k], TEMPS[0]), TEMPS[1])
         w = (tk - TEMPS[0]) / (TEMPS[1] - TEMPS[0])
+        # lam / max(slope, 0.3 V) at each OCV breakpoint (the slope over its neighbours),
+        # linear in SOC between them (clamped), then in temperature
+        n = len(grid)
         j = 0
-        while j < len(grid) - 2 and soc >= grid[j + 1]:
+        while j < n - 2 and soc >= grid[j + 1]:
             j += 1
-        per = [lam / max((r[j + 1] - r[j]) / (grid[j + 1] - grid[j]), 0.3) for r in rows]
+        ws = min(max((soc - grid[j]) / (grid[j + 1] - grid[j]), 0.0), 1.0)
+        per = []
+        for r in rows:
+            node = [lam / max((r[min(q + 1, n - 1)] - r[max(q - 1, 0)]) /
+                              (grid[min(q + 1, n - 1)] - grid[max(q - 1, 0)]), 0.3)
+                    for q in (j, j + 1)]
+            per.append(node[0] + (node[1] - node[0]) * ws)
         per_volt = per[0] + (per[1] - per[0]) * w
         surface = min(max(soc + per_volt * u[2], 0.0), 1.0)      # u[2]: u_diff of k - 1
         p = {key: float(interp_2d(m.discharge.temperature_c, SOC, getattr(m.discharge, key),
@@ -168,8 +177,12 @@ def test_c_and_estimators_refuse_it_with_one_line(tmp_path):
     from ecmgen.estimate.process import StepModel
 
     m = surface_model()
-    with pytest.raises(InputError, match="generated C does not take surface_soc_gain"):
+    with pytest.raises(InputError, match="fixed-point C does not take surface_soc_gain"):
         generate_c(m, tmp_path / "c", prefix="x", numeric="fixed")
+    with pytest.raises(InputError, match="C estimator does not take surface_soc_gain"):
+        from ecmgen.config import EstimatorConfig
+
+        generate_c(m, tmp_path / "c", prefix="x", numeric="float", estimator=EstimatorConfig())
     with pytest.raises(InputError, match="estimator does not take surface_soc_gain"):
         StepModel(m)
     model_path = m.save(tmp_path / "m.json")
@@ -178,7 +191,7 @@ def test_c_and_estimators_refuse_it_with_one_line(tmp_path):
     v = simulate(m, t, i, 0.95, temp).voltage_v
     csv.write_text("time_s,current_a,voltage_v,temperature_c\n" + "".join(
         f"{a!r},{b!r},{c!r},{d!r}\n" for a, b, c, d in zip(t, i, v, temp)))
-    for args in (["codegen", model_path, "--out", tmp_path / "out"],
+    for args in (["codegen", model_path, "--out", tmp_path / "out", "--numeric", "fixed"],
                  ["codegen", model_path, "--out", tmp_path / "out", "--estimator", "ekf"],
                  ["estimate", model_path, csv, "--soc0", "0.95"]):
         r = subprocess.run([sys.executable, "-m", "ecmgen.cli", *map(str, args)],
@@ -222,6 +235,24 @@ def test_config_key(tmp_path):
     assert with_surface_soc(cfg_with(""), {"curve": m})["curve"] is m
 
 
+def test_float_c_takes_it(tmp_path):
+    from ecmgen.c import cbuild, cref
+    from ecmgen.c.codegen import generate_c
+
+    m = surface_model()
+    cm = cbuild.build(m, numeric="float", prefix="sf")
+    assert cm.spec.switches["SURFACE"] == 1 and not cm.spec.ocv_shared
+    t, i, temp = _profile()
+    v = cm.simulate(i, cref.dt_from_time(t), 0.95, temp)
+    v64 = simulate(m, t, i, 0.95, temp).voltage_v
+    assert np.abs(v - v64).max() < 0.5e-3
+    off = cbuild.build(replace(m, surface_soc_gain=0.0), numeric="float", prefix="sf")
+    assert np.abs(off.simulate(i, cref.dt_from_time(t), 0.95, temp) - v).max() > 0.02
+    files = generate_c(m, tmp_path / "c", prefix="sf")
+    header = next(f for f in files if f.name == "sf_ecm.h").read_text()
+    assert "surface SOC" in header
+
+
 def test_build_with_c_refuses_before_fitting(tmp_path):
     from ecmgen.config import load_config
     from ecmgen.pipeline import build
@@ -231,7 +262,7 @@ def test_build_with_c_refuses_before_fitting(tmp_path):
     path.write_text(src.replace("[model]\n", "[model]\nsurface_soc_gain = 0.5\n"))
     try:
         cfg = load_config(path)
-        with pytest.raises(InputError, match="--no-c"):
+        with pytest.raises(InputError, match="fixed-point C and the C estimator"):
             build(cfg, tmp_path / "out", plots=False)
     finally:
         path.unlink()

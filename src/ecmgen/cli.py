@@ -285,7 +285,10 @@ def cmd_codegen(args) -> int:
 
         estimator = EstimatorConfig()
     model = load_model(args.model)
-    _not_surface(model, args.model, "the generated C")
+    if args.numeric == "fixed":
+        _not_surface(model, args.model, "the fixed-point C")
+    if args.estimator != "none":
+        _not_surface(model, args.model, "the C estimator")
     files = generate_c(model, Path(args.out), prefix=args.prefix,
                        numeric=args.numeric, dt_s=args.dt_s, estimator=estimator)
     if not args.quiet:

@@ -309,6 +309,11 @@ def _context(spec: CSpec) -> dict:
         scalars.append(("bv_tab", arrays.add("bv_g", spec.bv["tab"], "Butler-Volmer: asinh(x)/x "
                                              f"in Q30 at x = k/64 (k < 64), then 64 points per "
                                              f"binade up to 2^{spec.bv['E']}"), ""))
+    if spec.surface is not None:
+        sv = _pairs(spec.surface, 0 if spec.temp else 1)
+        what = "surface SOC: lam / max(dOCV/dSOC, 0.3 V) at the OCV's breakpoints, 1/V" + \
+            pair + rows_note
+        scalars.append(("sv", arrays.add("surface_per_volt", sv, what), ""))
     scalars += _fx_scalars(spec, arrays)
     macros = {f"ECMRT_{k}": v for k, v in spec.switches.items()}
     if fixed:

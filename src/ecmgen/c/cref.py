@@ -284,6 +284,29 @@ def _pick(chg, per_dir, name):
     return np.where(chg == 1, per_dir[1][name], per_dir[0][name])
 
 
+def _branch_f32(spec: CSpec, d, kt, wt) -> dict:
+    """A direction's per-temperature values at the temperature (k_diff as 1/tau or 1/D
+    with ECMRT_TAU_T, as ecmrt_f32_coefs keeps it)."""
+    p = {name: _tv_f32(getattr(d, name), kt, wt) for name in ("r_diff", "k_diff", "i0")
+         if getattr(d, name) is not None}
+    if spec.tau_t and "k_diff" in p:
+        with np.errstate(all="ignore"):
+            p["k_diff"] = F32(1.0) / p["k_diff"]
+    return p
+
+
+def _u_diff_f32(spec: CSpec, per_dir, chg, i, dt) -> np.ndarray:
+    """The diffusion pair's voltage after every step (its values depend on T only)."""
+    t = (_pick(chg, per_dir, "r_diff").astype(F32) * i).astype(F32)
+    kd = _pick(chg, per_dir, "k_diff").astype(F32)
+    with np.errstate(all="ignore"):
+        if spec.tau_t:
+            return _rc_f32(one_minus_exp_neg_f32(dt * kd) if spec.variable_dt else kd, t)
+        if spec.variable_dt:
+            return _rc_f32(one_minus_exp_neg_f32(dt / kd), t)
+    return _rc_f32(kd, t, divide=True)
+
+
 def simulate_f32(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0,
                  temperature_c=None) -> RefResult:
     """Float32 reference of a numeric="float" spec. ``dt_s``: per-step dt array (variable-dt
@@ -316,20 +339,23 @@ def simulate_f32(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0,
         x0 = spec.temp_grid.x[0]
         kt, wt = _weight_f32(spec.temp_grid, np.where(temp >= x0, temp, x0).astype(F32))
 
+    soc_rc = soc
+    if spec.surface is not None:        # ecmrt_f32_surface: u_diff needs no SOC
+        ud = _u_diff_f32(spec, [_branch_f32(spec, d, kt, wt) for d in spec.dirs], chg, i, dt)
+        ko, wo = _weight_f32(spec.ocv_grid, soc, spec.ocv_uniform)
+        sv = _lerp_f32(spec.surface, ko, wo, kt, wt)
+        r = (soc + sv * np.concatenate([[F32(0.0)], ud[:-1]]).astype(F32)).astype(F32)
+        soc_rc = np.where(~(r >= 0), F32(0.0), np.where(r > 1, F32(1.0), r)).astype(F32)
     per_dir = []
     for d in spec.dirs:
-        k, w = _weight_f32(d.grid, soc, spec.rc_uniform)
+        k, w = _weight_f32(d.grid, soc_rc, spec.rc_uniform)
         p = {name: _lerp_f32(getattr(d, name), k, w, kt, wt)
              for name in (RESISTANCES if spec.tau_t else PARAMS)}
-        for name in ("r_diff", "k_diff", "i0"):
-            if getattr(d, name) is not None:
-                p[name] = _tv_f32(getattr(d, name), kt, wt)
+        p.update(_branch_f32(spec, d, kt, wt))
         if spec.tau_t:       # ecmrt_f32_coefs: 1/tau or 1/D at the temperature
             with np.errstate(all="ignore"):
                 for name in ("k_fast", "k_slow"):
                     p[name] = F32(1.0) / _tv_f32(getattr(d, name)[:, 0], kt, wt)
-                if spec.diff:
-                    p["k_diff"] = F32(1.0) / p["k_diff"]
         per_dir.append(p)
     p = {name: _pick(chg, per_dir, name).astype(F32) for name in per_dir[0]}
     fx = spec.fx
@@ -369,16 +395,7 @@ def simulate_f32(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0,
     v = ((ocv + p["r0"] * i) + uf) + us
     out = {}
     if spec.diff:
-        t = (p["r_diff"] * i).astype(F32)
-        if spec.tau_t:
-            with np.errstate(all="ignore"):
-                cd = one_minus_exp_neg_f32(dt * p["k_diff"]) if spec.variable_dt else p["k_diff"]
-            ud = _rc_f32(cd, t)
-        elif spec.variable_dt:
-            with np.errstate(all="ignore"):
-                ud = _rc_f32(one_minus_exp_neg_f32(dt / p["k_diff"]), t)
-        else:
-            ud = _rc_f32(p["k_diff"], t, divide=True)
+        ud = _u_diff_f32(spec, per_dir, chg, i, dt)
         v = v + ud
         out["u_diff"] = ud
     if fx.get("hyst"):

@@ -132,6 +132,9 @@ class CSpec:
     fx: dict = field(default_factory=dict)   # effects: "hyst"/"xrc"/"cdr"/"arr" flags and
                                              # their constants ({} for a model without)
     bv: dict = field(default_factory=dict)   # fixed point, Butler-Volmer: table and formats
+    # surface SOC (model.surface_soc_gain): lam / max(dOCV/dSOC, 0.3 V) at the OCV's
+    # breakpoints, (n_t, n_ocv), 1/V; None: off (ECMRT_SURFACE)
+    surface: np.ndarray | None = None
 
     @property
     def fixed(self) -> bool:
@@ -147,7 +150,8 @@ class CSpec:
         """The OCV is on the SOC grid of both directions' tables (ECMRT_OCV_SHARED: it takes
         their segment and weight)."""
         x = self.ocv_grid.x
-        return all(d.grid.x.shape == x.shape and np.array_equal(d.grid.x, x) for d in self.dirs)
+        return self.surface is None and all(d.grid.x.shape == x.shape and
+                                            np.array_equal(d.grid.x, x) for d in self.dirs)
 
     @property
     def tau_t(self) -> bool:
@@ -205,7 +209,8 @@ class CSpec:
                 "TAU_T": int(self.tau_t), "TAU_SAME": int(self.tau_same),
                 "DIFF": int(self.diff), "BV": int(self.has_bv),
                 "FX_HYST": int(bool(fx.get("hyst"))), "FX_XRC": int(bool(fx.get("xrc"))),
-                "FX_CDR": int(bool(fx.get("cdr"))), "FX_ARR": int(bool(fx.get("arr")))}
+                "FX_CDR": int(bool(fx.get("cdr"))), "FX_ARR": int(bool(fx.get("arr"))),
+                "SURFACE": int(self.surface is not None)}
 
 
 def state_fields(spec: CSpec) -> list[tuple[str, str, str]]:
@@ -433,7 +438,11 @@ def source_tables(model: EcmModel) -> SimpleNamespace:
         branch = {k: _on_grid(t.temperature_c, getattr(t, k), temps)
                   for k in ("r_diff_ohm", "tau_diff_s", "i0_a") if getattr(t, k) is not None}
         dirs.append((soc, dict(zip(RC_FIELDS, cols)), branch))
-    return SimpleNamespace(temps=temps, ocv_soc=ocv_soc, ocv_v=ocv_v, dirs=dirs)
+    surface = None
+    if getattr(model, "surface_soc_gain", 0.0):
+        # at the OCV's breakpoints (EcmModel.surface_per_volt), linear in T onto the grid
+        surface = _on_grid(model.ocv.temperature_c, model.surface_per_volt_rows(), temps)
+    return SimpleNamespace(temps=temps, ocv_soc=ocv_soc, ocv_v=ocv_v, dirs=dirs, surface=surface)
 
 
 def _coef(dt_s: float, tau: np.ndarray) -> np.ndarray:
@@ -517,10 +526,9 @@ def begin(model, numeric: str, dt_s: float | None, prefix: str, i_max_a: float |
     model = _as_model(model)
     check_options(prefix, numeric, dt_s, i_max_a)
     validate_for_c(model)
-    if getattr(model, "surface_soc_gain", 0.0):
-        raise InputError(None, f"the generated C does not take surface_soc_gain "
-                               f"({model.surface_soc_gain:g}) yet; generate C from the model "
-                               "without it")
+    if getattr(model, "surface_soc_gain", 0.0) and numeric == "fixed":
+        raise InputError(None, f"the fixed-point C does not take surface_soc_gain "
+                               f"({model.surface_soc_gain:g}) yet; use numeric=\"float\"")
     dt_s = None if dt_s is None else float(dt_s)
     cap = float(model.capacity_ah)
     if i_max_a is None:
@@ -578,4 +586,6 @@ def prepare_float(ctx: SimpleNamespace) -> CSpec:
     return CSpec(ocv_grid=_float_grid(src.ocv_soc, "ocv.soc", True), ocv=_f32(src.ocv_v, "ocv_v"),
                  dirs=tuple(dirs), deadband=np.float32(ctx.model.direction_deadband_a),
                  k_soc=np.float32(ctx.k_soc64), temp_grid=tg, q={}, notes=tuple(ctx.notes),
-                 fx=_fx_float(ctx.by_name, dt_s), **ctx.common)
+                 fx=_fx_float(ctx.by_name, dt_s),
+                 surface=None if src.surface is None else _f32(src.surface, "surface_soc_gain"),
+                 **ctx.common)

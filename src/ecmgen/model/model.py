@@ -391,25 +391,23 @@ class EcmModel:
         return max(self.ocv.n_temperatures, self.charge.n_temperatures,
                    self.discharge.n_temperatures) > 1
 
+    def surface_per_volt_rows(self) -> np.ndarray:
+        """lam / max(dOCV/dSOC, SURFACE_MIN_SLOPE_V) at every OCV breakpoint, 1/V,
+        (n_temperatures, n_soc): dOCV/dSOC over the breakpoint's two neighbours (one-sided
+        at the ends), per OCV row."""
+        v, x = self.ocv.ocv_v, self.ocv.soc
+        ends = np.diff(v, axis=1) / np.diff(x)
+        slope = np.concatenate([ends[:, :1], (v[:, 2:] - v[:, :-2]) / (x[2:] - x[:-2]),
+                                ends[:, -1:]], axis=1)
+        return self.surface_soc_gain / np.maximum(slope, SURFACE_MIN_SLOPE_V)
+
     def surface_per_volt(self, soc, temperature_c=None) -> np.ndarray:
         """lam / max(dOCV/dSOC, SURFACE_MIN_SLOPE_V) at (soc, temperature_c), per volt: the
-        surface SOC is clamp(soc + this * u_diff, 0, 1). dOCV/dSOC is the slope of the OCV
-        row's segment that holds soc (the end segments beyond the table's ends); the
-        per-row values lam / max(slope, 0.3 V) are linear in temperature between the OCV
-        rows, clamped -- a table over the OCV grid, so that the C needs no division."""
-        soc = np.asarray(soc, dtype=np.float64)
-        grid, v = self.ocv.soc, self.ocv.ocv_v
-        per_volt = self.surface_soc_gain / np.maximum(np.diff(v, axis=1) / np.diff(grid),
-                                                      SURFACE_MIN_SLOPE_V)
-        j = np.clip(np.searchsorted(grid, soc, side="right") - 1, 0, grid.size - 2)
-        if per_volt.shape[0] == 1 or temperature_c is None:
-            if per_volt.shape[0] > 1:
-                raise ValueError("a table over temperature needs the temperature")
-            return per_volt[0][j]
-        k, w = _grid_weights(self.ocv.temperature_c, temperature_c)
-        k, w = np.broadcast_to(k, soc.shape), np.broadcast_to(w, soc.shape)
-        lo, hi = _rows_at(per_volt, k, lambda row: row[j])
-        return lo + (hi - lo) * w
+        surface SOC is clamp(soc + this * u_diff, 0, 1). The values at the OCV breakpoints
+        (:meth:`surface_per_volt_rows`) are bilinear over (temperature, SOC) as the OCV is,
+        clamped: continuous in SOC, and a table the C interpolates without a division."""
+        return interp_2d(self.ocv.temperature_c, self.ocv.soc, self.surface_per_volt_rows(),
+                         soc, temperature_c)
 
     def with_effects(self, effects) -> "EcmModel":
         return replace(self, effects=tuple(effects))

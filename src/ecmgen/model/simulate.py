@@ -20,9 +20,10 @@ tables (r0, r_fast, tau_fast, r_slow, tau_slow; not the OCV, not the per-tempera
 r_diff, tau_diff, i0) at the surface SOC instead of soc_k:
 
 3'. soc_s,k = clamp(soc_k + lam * u_diff,k-1 / max(dOCV/dSOC, 0.3 V), 0, 1), with
-    u_diff,k-1 the diffusion pair's voltage after the previous sample (u_diff,-1 = 0) and
-    dOCV/dSOC the slope of the OCV segment holding soc_k (EcmModel.surface_per_volt: the
-    per-row values lam / max(slope, 0.3 V) linear in T_k between the OCV rows).
+    u_diff,k-1 the diffusion pair's voltage after the previous sample (u_diff,-1 = 0);
+    lam / max(dOCV/dSOC, 0.3 V) is a table over the OCV's breakpoints (the slope over each
+    breakpoint's neighbours), bilinear at (soc_k, T_k) as the OCV is
+    (EcmModel.surface_per_volt): continuous in SOC.
 
 A discharge depletes the particles' surface (u_diff < 0), so the resistances are read at
 a lower SOC than the coulomb count's (issue 8, bench/cold_surface_soc.py).
