@@ -82,10 +82,11 @@ def drive_profile(n=3000, seed=0, dt=1.0, gaps=True):
     return t, i, temp
 
 
-@pytest.mark.parametrize("effects", [(), ALL_EFFECTS], ids=["base", "all-effects"])
+@pytest.mark.parametrize("effects", [(), ALL_EFFECTS, "surface"],
+                         ids=["base", "all-effects", "surface"])
 def test_the_filter_step_is_the_model_step(effects):
     """Chained predict + measure with no updates reproduce simulate() exactly."""
-    model = model_over_temperature(effects=effects)
+    model = _model(effects)
     t, i, temp = drive_profile(2000)
     sim = simulate(model, t, i, 0.8, temp)
     sm = StepModel(model)
@@ -98,7 +99,8 @@ def test_the_filter_step_is_the_model_step(effects):
     v, socs = [], []
     for k in range(t.size):
         x, charging, _, aux = sm.predict(x, charging, inp.dt[k], inp.i_seen[k], inp.t_rc[k],
-                                         inp.temperature_factor[k], jacobian=False)
+                                         inp.temperature_factor[k], jacobian=False,
+                                         tw_ocv=inp.t_ocv[k])
         v.append(sm.measure(x, aux, inp.t_rc[k], inp.t_ocv[k], inp.temperature_factor[k],
                             jacobian=False)[0])
         socs.append(x[0])
@@ -106,14 +108,22 @@ def test_the_filter_step_is_the_model_step(effects):
     np.testing.assert_allclose(v, sim.voltage_v, rtol=0, atol=1e-11)
 
 
+def _model(effects):
+    """"surface": the base model with surface_soc_gain 0.5."""
+    if effects == "surface":
+        return replace(model_over_temperature(), surface_soc_gain=0.5)
+    return model_over_temperature(effects=effects)
+
+
 def _away_from_breakpoints(model, soc, h):
     grids = [model.ocv.soc, model.charge.soc, model.discharge.soc]
     return all(np.min(np.abs(g - soc)) > 4 * h for g in grids)
 
 
-@pytest.mark.parametrize("effects", [(), ALL_EFFECTS], ids=["base", "all-effects"])
+@pytest.mark.parametrize("effects", [(), ALL_EFFECTS, "surface"],
+                         ids=["base", "all-effects", "surface"])
 def test_jacobians_match_finite_differences(effects):
-    model = model_over_temperature(effects=effects)
+    model = _model(effects)
     sm = StepModel(model, offset_state=True)
     rng = np.random.default_rng(3)
     h = 1e-6
@@ -130,17 +140,21 @@ def test_jacobians_match_finite_differences(effects):
             x[sm.i_h] = rng.uniform(-0.9, 0.9)
         x[sm.i_b] = rng.normal(0.0, 0.05)
         charging = i_seen > 0
-        x1, _, F, aux = sm.predict(x, charging, dt, i_seen, tw, tf)
+        x1, _, F, aux = sm.predict(x, charging, dt, i_seen, tw, tf, tw_ocv=two)
         soc1 = x1[0]
-        if not (_away_from_breakpoints(model, soc, h) and _away_from_breakpoints(model, soc1, h)):
+        # the surface SOC the tables are read at, and where it is clamped (0.02 from it)
+        surf = sm.surface_soc(soc1, aux.u_prev, two)
+        if not (_away_from_breakpoints(model, soc, h) and _away_from_breakpoints(model, soc1, h)
+                and _away_from_breakpoints(model, surf[0], 50 * h)
+                and (surf[1] or model.surface_soc_gain == 0)):
             continue
         v, H, _ = sm.measure(x1, aux, tw, two, tf)
         for j in range(sm.n):
             xp, xm = list(x), list(x)
             xp[j] += h
             xm[j] -= h
-            fp = sm.predict(xp, charging, dt, i_seen, tw, tf, jacobian=False)[0]
-            fm = sm.predict(xm, charging, dt, i_seen, tw, tf, jacobian=False)[0]
+            fp = sm.predict(xp, charging, dt, i_seen, tw, tf, jacobian=False, tw_ocv=two)[0]
+            fm = sm.predict(xm, charging, dt, i_seen, tw, tf, jacobian=False, tw_ocv=two)[0]
             fd = [(a - b) / (2 * h) for a, b in zip(fp, fm)]
             np.testing.assert_allclose([row[j] for row in F], fd, rtol=1e-5, atol=1e-8,
                                        err_msg=f"dF/dx{j}")
@@ -238,9 +252,10 @@ def _noisy_truth(model, n, seed):
     return t, i, temp, v, sim.soc
 
 
-@pytest.mark.parametrize("filter_", ["ekf", "ukf"])
+@pytest.mark.parametrize("filter_", ["ekf", "ukf", "ekf-surface"])
 def test_known_truth_cell_is_tracked_within_its_sigma(filter_):
-    model = model_over_temperature()
+    model = _model("surface" if filter_.endswith("surface") else ())
+    filter_ = filter_.split("-")[0]
     n = 8000 if filter_ == "ekf" else 3000
     t, i, temp, v, soc_true = _noisy_truth(model, n, seed=11)
     assert 0.2 < soc_true.min() < 0.5

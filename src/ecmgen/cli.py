@@ -199,7 +199,6 @@ def cmd_estimate(args) -> int:
         raise InputError(None, "--current-gain must be positive and --current-offset-a a "
                                "finite current in A")
     model = load_model(args.model)
-    _not_surface(model, args.model, "the SOC estimator")
     settings = EstimatorConfig()
     if args.config:
         from .pipeline import read_series

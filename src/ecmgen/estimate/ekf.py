@@ -153,7 +153,8 @@ class Ekf(Filter):
              ) -> float:
         """One sample; returns the voltage predicted before the update."""
         sm, n = self.step_model, self.step_model.n
-        x, self.charging, F, aux = sm.predict(self.x, self.charging, dt, i_seen, tw, tfac)
+        x, self.charging, F, aux = sm.predict(self.x, self.charging, dt, i_seen, tw, tfac,
+                                              tw_ocv=tw_ocv)
         F = np.array(F)
         P = F @ self.P @ F.T
         P[np.diag_indices(n)] += process_noise(sm, self.noise, aux, dt)

@@ -37,7 +37,6 @@ import numpy as np
 
 from ..model.effects import (CapacityError, CurrentDependentResistance, ExtraRc, Hysteresis,
                              TemperatureDependence)
-from ..errors import InputError
 from ..model.model import EcmModel, RcTable, _grid_weights
 
 KELVIN = 273.15
@@ -118,6 +117,7 @@ class StepAux(NamedTuple):
     g0: float                # resistance factor of r0 (current-dependent resistance)
     dg0: float               # d(i g0)/di
     rc: tuple                # (state index, a_j, r_j g_j) per RC branch
+    u_prev: float = 0.0      # u_diff before the step (the surface SOC reads it)
 
 
 @dataclass
@@ -138,11 +138,10 @@ class StepModel:
     :meth:`measure` (terminal voltage and its gradient)."""
 
     def __init__(self, model: EcmModel, offset_state: bool = False):
-        if model.surface_soc_gain:
-            raise InputError(None, f"the SOC estimator does not take surface_soc_gain "
-                                   f"({model.surface_soc_gain:g}) yet; estimate on the model "
-                                   "without it")
         self.model = model
+        # surface SOC (model.surface_soc_gain): lam / max(dOCV/dSOC, 0.3 V) on the OCV grid
+        self.sv_rows = ([[float(v) for v in row] for row in model.surface_per_volt_rows()]
+                        if model.surface_soc_gain else None)
         self.layout = state_layout(model, offset_state)
         lay = self.layout
         self.i_ud, self.i_ux = lay.index("u_diff_v"), lay.index("u_extra_v")
@@ -239,6 +238,25 @@ class StepModel:
         v1, s1 = _ocv_row(rows[k + 1], j, t, inv)
         return v0 + (v1 - v0) * w, s0 + (s1 - s0) * w
 
+    def surface_soc(self, soc: float, u_prev: float, tw_ocv) -> tuple[float, float, float]:
+        """The SOC the RC tables are read at (ecmgen.model.simulate step 3') and its
+        derivatives by soc and by u_prev: (soc, 1, 0) for a model without the surface SOC,
+        (0 or 1, 0, 0) where it is clamped."""
+        if self.sv_rows is None:
+            return soc, 1.0, 0.0
+        j, t, inv = _segment(self.ocv_soc, soc)
+        if tw_ocv is None:
+            sv, dsv = _ocv_row(self.sv_rows[0], j, t, inv)
+        else:
+            k, w = tw_ocv
+            v0, s0 = _ocv_row(self.sv_rows[k], j, t, inv)
+            v1, s1 = _ocv_row(self.sv_rows[k + 1], j, t, inv)
+            sv, dsv = v0 + (v1 - v0) * w, s0 + (s1 - s0) * w
+        r = soc + sv * u_prev
+        if r < 0.0 or r > 1.0:
+            return min(max(r, 0.0), 1.0), 0.0, 0.0
+        return r, 1.0 + dsv * u_prev, sv
+
     def direction(self, charging: bool, i: float) -> bool:
         if i > self.deadband:
             return True
@@ -265,19 +283,22 @@ class StepModel:
 
     # -- the step ---------------------------------------------------------------------
     def predict(self, x: list[float], charging: bool, dt: float, i_seen: float, tw,
-                tfac: float = 1.0, jacobian: bool = True):
+                tfac: float = 1.0, jacobian: bool = True, tw_ocv=None):
         """One process step from state ``x`` (after sample k-1) to sample k.
 
         Returns (x_k, charging_k, F, aux): F as a dense n x n list of rows (None when
         ``jacobian`` is False); aux carries what :meth:`measure` reuses (the current, the
-        SOC-table lookup, the direction)."""
+        SOC-table lookup, the direction). ``tw_ocv``: the OCV's temperature row and weight
+        (the surface SOC's table is on the OCV's grid)."""
         n = self.n
         i_b = self.i_b
         i = i_seen - x[i_b] if i_b >= 0 else i_seen
         charging = self.direction(charging, i)
         ds_di = dt * self.soc_per_as
         soc = x[0] + i * ds_di
-        vals, slopes, (r_diff, tau_diff, i0) = self.params(charging, soc, tw)
+        u_prev = x[self.i_ud] if self.sv_rows is not None else 0.0
+        soc_t, dt_ds, dt_du = self.surface_soc(soc, u_prev, tw_ocv)
+        vals, slopes, (r_diff, tau_diff, i0) = self.params(charging, soc_t, tw)
         _r0, r_fast, tau_fast, r_slow, tau_slow = vals
         g0, dg0, gf, dgf = self.current_factors(i, i0)
         xn = list(x)
@@ -304,10 +325,13 @@ class StepModel:
             u = x[s]
             xn[s] = a * u + r * g * one_a * i
             if jacobian:
-                da = a * dt / (tau * tau) * dtau          # da/dsoc_k
-                dsoc = da * u + (dr * one_a - r * da) * g * i
+                da = a * dt / (tau * tau) * dtau          # da/dsoc of the tables
+                dpar = da * u + (dr * one_a - r * da) * g * i   # by the tables' SOC
+                dsoc = dpar * dt_ds                             # by soc_k
                 F[s][s] = a
                 F[s][0] = dsoc
+                if dt_du and s != self.i_ud:                    # the surface SOC's u_diff
+                    F[s][self.i_ud] = dpar * dt_du
                 if i_b >= 0:
                     F[s][i_b] = -r * one_a * dg - dsoc * ds_di
         if self.i_h >= 0:
@@ -323,7 +347,7 @@ class StepModel:
                     # d a / d i = -sign(i) c a;  d/db = -d/di
                     si = 1.0 if i > 0 else (-1.0 if i < 0 else 0.0)
                     F[self.i_h][i_b] = (h - sign) * si * c * a
-        aux = StepAux(i, charging, g0, dg0, tuple(rc))
+        aux = StepAux(i, charging, g0, dg0, tuple(rc), u_prev)
         return xn, charging, F, aux
 
     def r0(self, charging: bool, soc: float, tw) -> tuple[float, float]:
@@ -345,8 +369,9 @@ class StepModel:
         the model's error."""
         i, charging, g0, dg0 = aux.i, aux.charging, aux.g0, aux.dg0
         soc = x[0]
-        r0, dr0 = self.r0(charging, soc, tw)
-        r0, dr0 = r0 * tfac, dr0 * tfac
+        soc_t, dt_ds, _ = self.surface_soc(soc, aux.u_prev, tw_ocv)
+        r0, dr0 = self.r0(charging, soc_t, tw)
+        r0, dr0 = r0 * tfac, dr0 * tfac * dt_ds
         ocv, docv = self.ocv(soc, tw_ocv)
         v = ocv + r0 * g0 * i + x[1] + x[2]
         for s in (self.i_ud, self.i_ux):

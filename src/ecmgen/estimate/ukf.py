@@ -47,11 +47,12 @@ class Ukf(Filter):
         points = np.concatenate([x + spread, x - spread])
         # the mean's own step: the direction and the noise levels
         _, charging, _, aux_mean = sm.predict(self.x, self.charging, dt, i_seen, tw, tfac,
-                                              jacobian=False)
+                                              jacobian=False, tw_ocv=tw_ocv)
         aux_mean = aux_mean._replace(charging=charging)
         X, Z = [], []
         for p in points.tolist():
-            xp, _, _, aux = sm.predict(p, self.charging, dt, i_seen, tw, tfac, jacobian=False)
+            xp, _, _, aux = sm.predict(p, self.charging, dt, i_seen, tw, tfac, jacobian=False,
+                                       tw_ocv=tw_ocv)
             X.append(xp)
             Z.append(sm.measure(xp, aux._replace(charging=charging), tw, tw_ocv, tfac,
                                 jacobian=False)[0])
