@@ -255,6 +255,7 @@ def test_float_c_takes_it(tmp_path):
     files = generate_c(m, tmp_path / "c", prefix="sf")
     header = next(f for f in files if f.name == "sf_ecm.h").read_text()
     assert "surface SOC" in header
+    assert "surface SOC" in next(f for f in files if f.name.endswith("report.md")).read_text()
 
 
 def test_build_with_c_refuses_before_fitting(tmp_path):
@@ -270,3 +271,30 @@ def test_build_with_c_refuses_before_fitting(tmp_path):
             build(cfg, tmp_path / "out", plots=False)
     finally:
         path.unlink()
+
+
+@pytest.mark.slow
+def test_build_passes_it_on(tmp_path):
+    """The demo config with surface_soc_gain = 0.5 and the float C: the curve model carries
+    it, the report says so, the C takes it, and the cold cycles improve (README figures)."""
+    from ecmgen.config import load_config
+    from ecmgen.pipeline import build
+
+    src = (REPO / "examples/panasonic-temperature/config.toml").read_text()
+    src = src.replace("[model]\n", "[model]\nsurface_soc_gain = 0.5\n")
+    src = src.replace('numeric = ["float", "fixed"]', 'numeric = "float"')
+    src = "\n".join(line for line in src.splitlines() if not line.startswith("estimator ="))
+    path = REPO / "examples/panasonic-temperature/tmp-test-surface-float.toml"
+    path.write_text(src + "\n")
+    try:
+        result = build(load_config(path), tmp_path / "out", plots=False)
+    finally:
+        path.unlink()
+    best = result.models["curve"]
+    assert best.surface_soc_gain == 0.5 and result.models["ga"].surface_soc_gain == 0.0
+    assert json.loads((tmp_path / "out/model.json").read_text())["surface_soc_gain"] == 0.5
+    assert "Surface SOC" in (tmp_path / "out/report.md").read_text()
+    assert result.c_report["float"]["bit_exact_vs_reference"]
+    mae = {name: v.overall.mae_v for name, v in result.validations["curve"].items()}
+    cold = [v for name, v in mae.items() if name.startswith(("n10degC", "n20degC"))]
+    assert len(cold) == 4 and np.mean(cold) < 0.040     # 54 mV without (README)

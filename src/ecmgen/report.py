@@ -139,6 +139,11 @@ def write_build_report(cfg, result, out_dir: Path) -> Path:
                   "```", "", f"Tables over {grid.size} temperature rows "
                   f"({grid[0]:g}..{grid[-1]:g} degC), OCV over "
                   f"{best.ocv.n_temperatures} rows; see the notes.", ""]
+    if best.surface_soc_gain:
+        lines += [f"Surface SOC (`[model] surface_soc_gain` = {best.surface_soc_gain:g}): r0, "
+                  "r_fast, r_slow and their time constants are read at clamp(soc + "
+                  "gain u_diff / max(dOCV/dSOC, 0.3 V), 0, 1), u_diff of the previous sample.",
+                  ""]
     lines += ["## Validation (simulated - measured voltage)", ""]
     if result.tests:
         lines += ["Each cycle is simulated on its own measured cell temperature; "
