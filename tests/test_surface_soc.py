@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import subprocess
 import sys
 from dataclasses import replace
@@ -27,6 +28,18 @@ OCV25 = np.array([3.0, 3.3, 3.45, 3.5, 3.52, 3.54, 3.6, 3.7, 3.85, 4.0, 4.2])
 TEMPS = (-10.0, 25.0)
 LAM = 0.5
 
+
+
+def demo_config(tmp_path, edit=lambda src: src, name="config.toml"):
+    """The demo config, edited, written into tmp_path with its data paths made absolute
+    (nothing is written into the source tree)."""
+    base = REPO / "examples/panasonic-temperature"
+    src = (base / "config.toml").read_text()
+    src = re.sub(r'"([^"]+\.mat)"', lambda m: '"' + (base / m.group(1)).resolve().as_posix() + '"',
+                 src)
+    path = tmp_path / name
+    path.write_text(edit(src))
+    return path
 
 def _row(scale: float, r_diff: float, tau_diff: float) -> RcTable:
     return RcTable(soc=SOC, r0_ohm=scale * (0.02 + 0.03 * (1 - SOC) ** 3),
@@ -209,16 +222,10 @@ def test_config_key(tmp_path):
     from ecmgen.config import load_config
     from ecmgen.pipeline import with_surface_soc
 
-    src = (REPO / "examples/panasonic-temperature/config.toml").read_text()
-    base = REPO / "examples/panasonic-temperature"
-
     def cfg_with(line: str):
-        path = base / f"tmp-test-surface-{abs(hash(line))}.toml"
-        path.write_text(src.replace("[model]\n", f"[model]\n{line}\n"))
-        try:
-            return load_config(path)
-        finally:
-            path.unlink()
+        return load_config(demo_config(
+            tmp_path, lambda src: src.replace("[model]\n", f"[model]\n{line}\n"),
+            name=f"surface-{abs(hash(line))}.toml"))
 
     from ecmgen.config import SURFACE_SOC_GAIN_MAX
     from ecmgen.model.model import SURFACE_SOC_GAIN_MAX as MODEL_MAX
@@ -262,15 +269,10 @@ def test_build_with_c_refuses_before_fitting(tmp_path):
     from ecmgen.config import load_config
     from ecmgen.pipeline import build
 
-    src = (REPO / "examples/panasonic-temperature/config.toml").read_text()
-    path = REPO / "examples/panasonic-temperature/tmp-test-surface-build.toml"
-    path.write_text(src.replace("[model]\n", "[model]\nsurface_soc_gain = 0.5\n"))
-    try:
-        cfg = load_config(path)
-        with pytest.raises(InputError, match="fixed-point C and the C estimator"):
-            build(cfg, tmp_path / "out", plots=False)
-    finally:
-        path.unlink()
+    cfg = load_config(demo_config(
+        tmp_path, lambda src: src.replace("[model]\n", "[model]\nsurface_soc_gain = 0.5\n")))
+    with pytest.raises(InputError, match="fixed-point C and the C estimator"):
+        build(cfg, tmp_path / "out", plots=False)
 
 
 @pytest.mark.slow
@@ -280,16 +282,13 @@ def test_build_passes_it_on(tmp_path):
     from ecmgen.config import load_config
     from ecmgen.pipeline import build
 
-    src = (REPO / "examples/panasonic-temperature/config.toml").read_text()
-    src = src.replace("[model]\n", "[model]\nsurface_soc_gain = 0.5\n")
-    src = src.replace('numeric = ["float", "fixed"]', 'numeric = "float"')
-    src = "\n".join(line for line in src.splitlines() if not line.startswith("estimator ="))
-    path = REPO / "examples/panasonic-temperature/tmp-test-surface-float.toml"
-    path.write_text(src + "\n")
-    try:
-        result = build(load_config(path), tmp_path / "out", plots=False)
-    finally:
-        path.unlink()
+    def edit(src):
+        src = src.replace("[model]\n", "[model]\nsurface_soc_gain = 0.5\n")
+        src = src.replace('numeric = ["float", "fixed"]', 'numeric = "float"')
+        return "\n".join(line for line in src.splitlines()
+                         if not line.startswith("estimator =")) + "\n"
+
+    result = build(load_config(demo_config(tmp_path, edit)), tmp_path / "out", plots=False)
     best = result.models["curve"]
     assert best.surface_soc_gain == 0.5 and result.models["ga"].surface_soc_gain == 0.0
     assert json.loads((tmp_path / "out/model.json").read_text())["surface_soc_gain"] == 0.5
