@@ -245,3 +245,16 @@ def test_validate_reads_another_cyclers_csv_through_the_config(synthetic_project
     assert json.loads(b.stdout)["mae_v"] == pytest.approx(json.loads(a.stdout)["mae_v"], rel=1e-6)
     _fails(["validate", folder / "out" / "model.json", folder / "cycle-other.csv"],
            "cycle-other.csv", "columns not recognised")
+
+
+def test_build_notes_name_validation_cycles_as_the_table_does():
+    """Two cycles called us06.mat (0degC/, n20degC/): a validation warning that opens with
+    the base name is told apart by the build's cycle name."""
+    from ecmgen.pipeline import _named
+
+    w = "us06.mat: the voltage lags the current by 1 sample (0.1 s)"
+    assert _named(w, "/data/n20degC/us06.mat", "n20degC/us06.mat").startswith("n20degC/us06.mat: ")
+    assert _named(w, "/data/us06.mat", "us06.mat") == w
+    assert _named("simulated SOC left [0, 1]", "/d/us06.mat", "x/us06.mat") == \
+        "simulated SOC left [0, 1]"
+    assert _named(w, None, "us06.mat") == w

@@ -485,6 +485,13 @@ def validate_cycle(cfg: BuildConfig, path: Path, role: str, label: str,
     return vals, png
 
 
+def _named(warning: str, source: str | None, name: str) -> str:
+    """A validation warning that opens with the file's base name, named as the build's
+    table names the cycle (0degC/us06.mat and n20degC/us06.mat are both us06.mat)."""
+    base = Path(source).name if source else ""
+    return name + warning[len(base):] if base and warning.startswith(base + ":") else warning
+
+
 def _cycles(cfg: BuildConfig) -> list[tuple[Path, str, str]]:
     paths = ([cfg.cycle] if cfg.cycle else []) + list(cfg.extra_cycles)
     roles = (["cycle"] if cfg.cycle else []) + ["extra_cycles"] * len(cfg.extra_cycles)
@@ -626,7 +633,7 @@ def _usage(result: BuildResult) -> None:
             use = usage(result.models[m], v, ocv_span)
             result.usage[m][name] = use
             if m == result.best:
-                result.notes.extend(v.warnings)
+                result.notes.extend(_named(w, v.source, name) for w in v.warnings)
                 result.notes.extend(usage_notes(result.models[m], name, use, ocv_span))
 
 
