@@ -8,9 +8,10 @@
    the OCV on its own uniform 101-point grid; from tests/data/panasonic-temperature-model.json)
    as 4 x 21 (0 .. 15 degC, the OCV rows at the same temperatures: the target case) and as
    the whole 14 x 21 model with one OCV row per pulse test, with and without the diffusion
-   pair and the Butler-Volmer branch; and for tables with time constants varying along SOC
-   on non-uniform grids (the GA / LM fits' layout): 1 x 20 (one temperature), 4 x 20 (OCV
-   on its own 41-point grid, or on the RC grid) and 4 x 20 with the branches;
+   pair and the Butler-Volmer branch (and with them and the surface SOC, surface_soc_gain
+   0.5); and for tables with time constants varying along SOC on non-uniform grids (the
+   GA / LM fits' layout): 1 x 20 (one temperature), 4 x 20 (OCV on its own 41-point grid,
+   or on the RC grid) and 4 x 20 with the branches;
 2. flash and RAM bytes of the step code and of the tables on Cortex-M4F and Cortex-M0
    (arm-none-eabi-gcc -Os, arm-none-eabi-size), the caller's state struct, the step's stack
    frame and the libgcc helpers the object calls (no 64-bit division may appear);
@@ -40,6 +41,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -68,6 +70,8 @@ def models() -> dict:
         out[TARGET_MODEL] = fitter_layout_model(rows=slice(4, 8), ocv_t_c=(0.0, 5.0, 10.0, 15.0))
         out["fitted 14 x 21, OCV 4 x 101"] = fitter_layout_model()
         out["fitted 14 x 21 + diff + BV"] = fitter_layout_model(branches=True)
+        out["14 x 21 + diff + BV + surface"] = replace(   # surface_soc_gain 0.5
+            fitter_layout_model(branches=True), surface_soc_gain=0.5)
     out.update({"SOC-tau 1 x 20": realistic_model(n_rc=20, seed=3),
                 "SOC-tau 4 x 20": temperature_model(4, 20, seed=3),
                 "SOC-tau 4 x 20, OCV on RC grid": temperature_model(4, 20, seed=3, ocv_on_rc_grid=True),

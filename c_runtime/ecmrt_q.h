@@ -26,6 +26,10 @@
  *   extra_rc:         ECMRT_FX_SH_XR
  *   current_dependent_resistance: ECMRT_FX_SH_GX, ECMRT_FX_CDR_QX, ECMRT_FX_CDR_QG
  *   temperature_dependence: ECMRT_FX_ARR_QB, ECMRT_FX_ARR_QF
+ *   ECMRT_SURFACE     (optional, default 0; with ECMRT_DIFF, not ECMRT_OCV_SHARED) the surface
+ *                     SOC as in ecmrt_f32.h, with ECMRT_Q_SV: the table sv = lam /
+ *                     max(dOCV/dSOC, 0.3 V) in Q_SV 1/V (chosen by the generator from its
+ *                     largest value, lam / 0.3 V at most; Q_SV + Q_V - 30 >= 1)
  * Fixed by the runtime: SOC, breakpoints and interpolation weights Q30; dt Q16 (variable dt);
  * temperature Q8 degC (ECMRT_Q_TEMP); run-time c (variable dt) Q30.
  *
@@ -53,6 +57,13 @@
     !defined(ECMRT_Q_I) || !defined(ECMRT_Q_V) || !defined(ECMRT_Q_G) || !defined(ECMRT_Q_R0) || \
     !defined(ECMRT_Q_RF) || !defined(ECMRT_Q_RS) || !defined(ECMRT_SH_DSOC)
 #error "ecmrt_q.h needs the ECMRT_* configuration macros of a generated <prefix>_ecm.c"
+#endif
+
+#ifndef ECMRT_SURFACE
+#define ECMRT_SURFACE 0
+#endif
+#if ECMRT_SURFACE && (!ECMRT_DIFF || ECMRT_OCV_SHARED || !defined(ECMRT_Q_SV))
+#error "ECMRT_SURFACE needs ECMRT_DIFF, the OCV's own grid and ECMRT_Q_SV"
 #endif
 
 /* compile-time checks: arithmetic right shift, two's complement int64 */
@@ -145,6 +156,9 @@ typedef struct {
 #if !ECMRT_OCV_SHARED
     ECMRT_Q_OCV_GRID ocv_g;
     const int32_t *ocv;      /* Q_V, temperature row after row */
+#endif
+#if ECMRT_SURFACE
+    const int32_t *sv;       /* Q_SV 1/V (>= 0) at the OCV's breakpoints, laid out as ocv */
 #endif
     ecmrt_q_dir_t dir[2];    /* [ECMRT_DISCHARGE], [ECMRT_CHARGE] */
     int32_t deadband;        /* Q_I, >= 0 */
@@ -483,6 +497,21 @@ ECMRT_Q_SHARED int32_t ecmrt_q_rc(int32_t u, int32_t c, int64_t t, unsigned qc)
 #define ECMRT_Q_RC(u, c, t, qc) ((int32_t)((int64_t)(u) + ECMRT_RSHR(((t) - (int64_t)(u)) * (c), (qc))))
 #endif
 
+#if ECMRT_SURFACE
+/* The surface SOC (Q30) the RC tables are read at: soc + sv u_diff (u_diff of the previous
+ * step, sv >= 0 in Q_SV at (soc, T), interpolated as the OCV). The product of two int32 is
+ * formed in int64 (< 2^62), rounded half up to Q30 (shift Q_SV + Q_V - 30 >= 1, checked by
+ * the generator), the sum with soc in int64, then saturated on purpose to [0, 2^30]. */
+static inline int32_t ecmrt_q_surface(int32_t soc, int32_t sv, int32_t ud)
+{
+    const int64_t r = (int64_t)soc + ECMRT_RSHR((int64_t)sv * ud, ECMRT_Q_SV + ECMRT_Q_V - ECMRT_Q30);
+    if (r < 0) {
+        return 0;
+    }
+    return r > (int64_t)ECMRT_ONE30 ? ECMRT_ONE30 : (int32_t)r;
+}
+#endif
+
 /* One step: i in Q_I A, temp in Q8 degC, dt in Q16 s; returns the voltage in Q_V. */
 #if ECMRT_VARIABLE_DT
 static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int32_t i,
@@ -508,6 +537,13 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
 #endif
 #if ECMRT_DIFF
     int32_t ud, cd;
+#endif
+#if ECMRT_SURFACE
+    int32_t wo, socr;
+#if ECMRT_TEMP
+    const int32_t *sp;
+    int32_t sa;
+#endif
 #endif
 #if ECMRT_FX_HYST || ECMRT_FX_CDR || ECMRT_BV
     const int64_t ai = i < 0 ? -(int64_t)i : (int64_t)i;
@@ -560,7 +596,9 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
     /* 3. parameters at the new SOC (and temperature) */
     d = &m->dir[dir];
     kd = ECMRT_HINT_DIR(s, dir);
+#if !ECMRT_SURFACE
     w = ECMRT_Q_RC_LOCATE(&d->g, soc, &kd);
+#endif
 #if ECMRT_TEMP
     /* the temperature's row and weight, kept with the temperature (see ecmrt_f32_step; a
      * corrupted k_t is clamped where it is used) */
@@ -575,6 +613,21 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
         ecmrt_q_coefs(m, s, kt, wt);
 #endif
     }
+#endif
+#if ECMRT_SURFACE
+    /* the OCV located first; sv bilinear as the OCV (temperature first) */
+    wo = ECMRT_Q_OCV_LOCATE(&m->ocv_g, soc, &ko);
+#if ECMRT_TEMP
+    sp = m->sv + (unsigned)m->ocv_g.n * ECMRT_KT(kt) + ko;
+    sa = ecmrt_q_lerp(sp, (unsigned)m->ocv_g.n, wt);
+    socr = ecmrt_q_surface(soc, sa + (int32_t)ECMRT_RSHR((int64_t)(ecmrt_q_lerp(sp + 1u,
+        (unsigned)m->ocv_g.n, wt) - sa) * wo, ECMRT_Q30), s->u_diff);
+#else
+    socr = ecmrt_q_surface(soc, ecmrt_q_lerp(m->sv + ko, 1u, wo), s->u_diff);
+#endif
+    w = ECMRT_Q_RC_LOCATE(&d->g, socr, &kd);
+#endif
+#if ECMRT_TEMP
     key = (kd << 1) | dir;
     if (key != s->pc_key) {
         ecmrt_q_segment(d->rows + ECMRT_NPAR * ((unsigned)d->g.n * ECMRT_KT(kt) + kd), ECMRT_NPAR,
@@ -647,7 +700,11 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
 #if ECMRT_OCV_SHARED
     ocv = ECMRT_Q_AT(row, ECMRT_P_OCV);
 #else
+#if ECMRT_SURFACE
+    w = wo;                                 /* the OCV at the mean SOC, located above */
+#else
     w = ECMRT_Q_OCV_LOCATE(&m->ocv_g, soc, &ko);
+#endif
 #if ECMRT_TEMP
     if (ko != s->oc_key) {
         ecmrt_q_segment(m->ocv + (unsigned)m->ocv_g.n * ECMRT_KT(kt) + ko, 1u, 1u, (unsigned)m->ocv_g.n, wt,

@@ -506,7 +506,7 @@ def test_effects_sanitized_build_has_no_undefined_behaviour(tmp_path, family):
     driven through NaN/inf/extreme currents, temperatures and dt, SOC far outside [0, 1], and
     5*10^6 (temperature: 2*10^6) random steps: no sanitizer report, no non-finite output,
     every state finite, h within [-1, 1]. "surface": the temperature family with the surface
-    SOC (surface_soc_gain 0.5) in the float variants (the fixed point does not take it yet)."""
+    SOC (surface_soc_gain 0.5) in every variant."""
     cc = cbuild.host_cc()
     probe = subprocess.run([*cc, *cbuild.SANITIZE_FLAGS, "-x", "c", "-", "-o", tmp_path / "probe"],
                            input="int main(void){return 0;}\n", capture_output=True, text=True)
@@ -515,12 +515,12 @@ def test_effects_sanitized_build_has_no_undefined_behaviour(tmp_path, family):
     srcs = []
     for prefix, (numeric, dt_s) in zip(("fv", "fd", "qv", "qd"), VARIANTS):
         model = _fx_model(numeric) if family == "effects" else _temperature_fx_model(numeric)
-        if family == "surface" and numeric == "float":
+        if family == "surface":
             model = replace(model, surface_soc_gain=0.5)
         generate_c(model, tmp_path, prefix=prefix, numeric=numeric, dt_s=dt_s)
         src = (tmp_path / f"{prefix}_ecm.c").read_text()
         assert "ECMRT_FX_HYST 1" in src
-        assert ("ECMRT_SURFACE 1" in src) == (family == "surface" and numeric == "float")
+        assert ("ECMRT_SURFACE 1" in src) == (family == "surface")
         if family != "effects":
             assert all(f"ECMRT_{k} 1" in src for k in ("TEMP", "DIFF", "BV", "FX_ARR")), prefix
         srcs.append(tmp_path / f"{prefix}_ecm.c")

@@ -137,25 +137,28 @@ def test_real_cycles_fixed_dt_and_without_branches(folder, name):
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("numeric", ["float", "fixed"])
 @pytest.mark.parametrize("folder,name", [CYCLES[0], CYCLES[4], CYCLES[7]],
                          ids=["25degC-us06", "n10degC-us06", "n20degC-hwfet"])
-def test_real_cycles_surface_soc_float(folder, name):
-    """The surface SOC (surface_soc_gain 0.5) in the float C: the test model as fitted and
-    in the curve fit's layout, variable and fixed dt, on the cycle's cell temperature."""
+def test_real_cycles_surface_soc(folder, name, numeric):
+    """The surface SOC (surface_soc_gain 0.5) in the float and the fixed-point C: the test
+    model as fitted and in the curve fit's layout, variable and fixed dt, on the cycle's cell
+    temperature."""
     s = load_cycle_t(folder, name)
     for model in (_fitted(), _fitter_layout()):
         model = replace(model, surface_soc_gain=0.5)
         for dt_s in (None, 0.1):
-            r = cbuild.c_equivalence(model, s, 1.0, dt_s=dt_s, numerics=("float",))["float"]
-            print(f"\n{folder}/{name} surface dt {dt_s}: bit-exact {r['bit_exact_vs_reference']}, "
-                  f"max|dv| {r['max_abs_diff_vs_python_v'] * 1e3:.4f} mV")
+            r = cbuild.c_equivalence(model, s, 1.0, dt_s=dt_s, numerics=(numeric,))[numeric]
+            print(f"\n{folder}/{name} surface {numeric} dt {dt_s}: bit-exact "
+                  f"{r['bit_exact_vs_reference']}, max|dv| "
+                  f"{r['max_abs_diff_vs_python_v'] * 1e3:.4f} mV")
             assert r["bit_exact_vs_reference"]
-            assert r["max_abs_diff_vs_python_v"] <= TOL["float"][1]
+            assert r["max_abs_diff_vs_python_v"] <= TOL[numeric][1]
 
 
 # --- hypothesis ------------------------------------------------------------------------------
 
-SURFACE = ("surface", "surface_rows", "surface_one")     # float only (fixed point: not yet)
+SURFACE = ("surface", "surface_rows", "surface_one")
 
 SETTINGS = settings(max_examples=25, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
@@ -194,7 +197,7 @@ def test_property_float_bit_exact(p):
 @given(profiles())
 def test_property_fixed_bit_exact(p):
     cur, dts, temps, soc0 = p
-    for kind in ("branches", "everything", "arr", "fitter", "tau_t"):
+    for kind in ("branches", "everything", "arr", "fitter", "tau_t") + SURFACE:
         for dt_s in (None, 0.5):
             cm = _cm(kind, "fixed", dt_s)
             _fields_equal(cm, *_run_both(cm, cur, dts, temps, soc0))
@@ -221,7 +224,7 @@ def test_property_close_to_float64(p):
         # cold Arrhenius-scaled resistance at SOC 0 gives -17 V) the fixed-point resistance
         # keeps its relative resolution, not an absolute one: 1e-4 of the distance beyond.
         beyond_v = np.maximum(np.abs(v64 - 3.5) - 1.5, 0.0)
-        for numeric in ("float",) if kind in SURFACE else ("float", "fixed"):
+        for numeric in ("float", "fixed"):
             v = _cm(kind, numeric, None).simulate(cur, cref.dt_from_time(t), soc0, temps)
             assert np.all(np.abs(v - v64) <= TOL[numeric][1] + 1e-4 * beyond_v), (kind, numeric)
 

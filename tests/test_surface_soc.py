@@ -185,12 +185,10 @@ def test_gain_needs_the_diffusion_pair(tmp_path):
         load_model(path)
 
 
-def test_fixed_c_and_c_estimator_refuse_it_with_one_line(tmp_path):
+def test_c_estimator_refuses_it_with_one_line(tmp_path):
     from ecmgen.c.codegen import generate_c
 
     m = surface_model()
-    with pytest.raises(InputError, match="fixed-point C does not take surface_soc_gain"):
-        generate_c(m, tmp_path / "c", prefix="x", numeric="fixed")
     with pytest.raises(InputError, match="C estimator does not take surface_soc_gain"):
         from ecmgen.config import EstimatorConfig
 
@@ -203,8 +201,7 @@ def test_fixed_c_and_c_estimator_refuse_it_with_one_line(tmp_path):
     csv.write_text("time_s,current_a,voltage_v,temperature_c\n" + "".join(
         f"{a!r},{b!r},{c!r},{d!r}\n" for a, b, c, d in zip(t.tolist(), i.tolist(),
                                                             v.tolist(), temp.tolist())))
-    for args in (["codegen", model_path, "--out", tmp_path / "out", "--numeric", "fixed"],
-                 ["codegen", model_path, "--out", tmp_path / "out", "--estimator", "ekf"]):
+    for args in (["codegen", model_path, "--out", tmp_path / "out", "--estimator", "ekf"],):
         r = subprocess.run([sys.executable, "-m", "ecmgen.cli", *map(str, args)],
                            capture_output=True, text=True, cwd=tmp_path)
         assert r.returncode != 0 and "Traceback" not in r.stderr, r.stderr
@@ -246,22 +243,29 @@ def test_config_key(tmp_path):
     assert with_surface_soc(cfg_with(""), {"curve": m})["curve"] is m
 
 
-def test_float_c_takes_it(tmp_path):
+@pytest.mark.parametrize("numeric,tol_v", [("float", 0.5e-3), ("fixed", 2e-3)])
+def test_c_takes_it(tmp_path, numeric, tol_v):
     from ecmgen.c import cbuild, cref
     from ecmgen.c.codegen import generate_c
 
     m = surface_model()
-    cm = cbuild.build(m, numeric="float", prefix="sf")
+    cm = cbuild.build(m, numeric=numeric, prefix="sf")
     assert cm.spec.switches["SURFACE"] == 1 and not cm.spec.ocv_shared
     t, i, temp = _profile()
-    v = cm.simulate(i, cref.dt_from_time(t), 0.95, temp)
+    dt = cref.dt_from_time(t)
+    v = cm.simulate(i, dt, 0.95, temp)
     v64 = simulate(m, t, i, 0.95, temp).voltage_v
-    assert np.abs(v - v64).max() < 0.5e-3
-    off = cbuild.build(replace(m, surface_soc_gain=0.0), numeric="float", prefix="sf")
-    assert np.abs(off.simulate(i, cref.dt_from_time(t), 0.95, temp) - v).max() > 0.02
-    files = generate_c(m, tmp_path / "c", prefix="sf")
+    assert np.abs(v - v64).max() < tol_v
+    ref = cm.reference(i, dt, 0.95, temp)
+    assert np.array_equal(cref.volts(cm.spec, ref.v) if cm.spec.fixed else ref.v,
+                          v if cm.spec.fixed else v.astype(np.float32))
+    off = cbuild.build(replace(m, surface_soc_gain=0.0), numeric=numeric, prefix="sf")
+    assert np.abs(off.simulate(i, dt, 0.95, temp) - v).max() > 0.02
+    files = generate_c(m, tmp_path / "c", prefix="sf", numeric=numeric)
     header = next(f for f in files if f.name == "sf_ecm.h").read_text()
     assert "surface SOC" in header
+    if numeric == "fixed":
+        assert "SF_ECM_Q_SV" in header
     assert "surface SOC" in next(f for f in files if f.name.endswith("report.md")).read_text()
 
 
@@ -271,20 +275,20 @@ def test_build_with_c_refuses_before_fitting(tmp_path):
 
     cfg = load_config(demo_config(
         tmp_path, lambda src: src.replace("[model]\n", "[model]\nsurface_soc_gain = 0.5\n")))
-    with pytest.raises(InputError, match="fixed-point C and the C estimator"):
+    with pytest.raises(InputError, match="C estimator does not take"):
         build(cfg, tmp_path / "out", plots=False)
 
 
 @pytest.mark.slow
 def test_build_passes_it_on(tmp_path):
-    """The demo config with surface_soc_gain = 0.5 and the float C: the curve model carries
-    it, the report says so, the C takes it, and the cold cycles improve (README figures)."""
+    """The demo config with surface_soc_gain = 0.5 and the C (float and fixed point): the
+    curve model carries it, the report says so, the C takes it, and the cold cycles improve
+    (README figures)."""
     from ecmgen.config import load_config
     from ecmgen.pipeline import build
 
     def edit(src):
         src = src.replace("[model]\n", "[model]\nsurface_soc_gain = 0.5\n")
-        src = src.replace('numeric = ["float", "fixed"]', 'numeric = "float"')
         return "\n".join(line for line in src.splitlines()
                          if not line.startswith("estimator =")) + "\n"
 
@@ -293,7 +297,8 @@ def test_build_passes_it_on(tmp_path):
     assert best.surface_soc_gain == 0.5 and result.models["ga"].surface_soc_gain == 0.0
     assert json.loads((tmp_path / "out/model.json").read_text())["surface_soc_gain"] == 0.5
     assert "Surface SOC" in (tmp_path / "out/report.md").read_text()
-    assert result.c_report["float"]["bit_exact_vs_reference"]
+    for numeric in ("float", "fixed"):
+        assert result.c_report[numeric]["bit_exact_vs_reference"], numeric
     mae = {name: v.overall.mae_v for name, v in result.validations["curve"].items()}
     cold = [v for name, v in mae.items() if name.startswith(("n10degC", "n20degC"))]
     assert len(cold) == 4 and np.mean(cold) < 0.040     # 54 mV without (README)

@@ -189,8 +189,9 @@ def test_qemu_cortex_m4_bit_exact_over_temperature(tmp_path):
 
 @pytest.mark.slow
 def test_qemu_cortex_m4_bit_exact_with_surface_soc(tmp_path):
-    """The surface SOC (surface_soc_gain 0.5) on the 14 x 21 test model: the float variants
-    on an emulated Cortex-M4F equal the host bit for bit on 12 000 steps of -20 degC US06."""
+    """The surface SOC (surface_soc_gain 0.5) on the 14 x 21 test model: the float and the
+    fixed-point variants on an emulated Cortex-M4F equal the host bit for bit on 12 000 steps
+    of -20 degC US06."""
     from dataclasses import replace
 
     _need(qemu=True)
@@ -198,10 +199,12 @@ def test_qemu_cortex_m4_bit_exact_with_surface_soc(tmp_path):
     a, b = len(s) - 12000, len(s)
     res = target.qemu_equivalence(replace(temperature_fitted_model(), surface_soc_gain=0.5),
                                   s.time_s[a:b], s.current_a[a:b], 0.9, cpu="m4f",
-                                  variants=(("float", None), ("float", 0.1)), out_dir=tmp_path,
+                                  variants=(("float", None), ("float", 0.1), ("fixed", None),
+                                            ("fixed", 0.1)), out_dir=tmp_path,
                                   temperature_c=s.temperature_c[a:b])
     print("\n", res)
-    assert set(res["variants"]) == {"float/variable-dt", "float/dt=0.1"}
+    assert set(res["variants"]) == {"float/variable-dt", "float/dt=0.1", "fixed/variable-dt",
+                                    "fixed/dt=0.1"}
     for name, r in res["variants"].items():
         assert r["steps"] == 12000 and r["bit_exact"] and "u_diff" in r["fields"], (name, r)
 

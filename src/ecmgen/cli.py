@@ -284,8 +284,6 @@ def cmd_codegen(args) -> int:
 
         estimator = EstimatorConfig()
     model = load_model(args.model)
-    if args.numeric == "fixed":
-        _not_surface(model, args.model, "the fixed-point C")
     if args.estimator != "none":
         _not_surface(model, args.model, "the C estimator")
     files = generate_c(model, Path(args.out), prefix=args.prefix,

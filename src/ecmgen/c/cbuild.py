@@ -239,8 +239,15 @@ _LOADED: dict[str, object] = {}
 CACHE_KEEP = 200          # modules kept in the cache folder (least recently built go first)
 
 
+def _mtime(p: Path) -> float:
+    try:
+        return p.stat().st_mtime
+    except FileNotFoundError:           # pruned by another process sharing the cache
+        return 0.0
+
+
 def _prune(cache: Path, keep: int = CACHE_KEEP) -> None:
-    mods = sorted(cache.glob("_ecmgen_c_*"), key=lambda p: p.stat().st_mtime, reverse=True)
+    mods = sorted(cache.glob("_ecmgen_c_*"), key=_mtime, reverse=True)
     for p in mods[keep:]:
         if p.stem.split(".")[0] not in _LOADED:
             p.unlink(missing_ok=True)

@@ -209,6 +209,11 @@ def _ranges(spec: CSpec) -> list[dict]:
         rows.append(row(what, q[key], "ohm", top(key)))
     if spec.diff:
         rows.append(row("r_diff", q["Q_RD"], "ohm, diffusion pair (u_diff in Q_V)", top("Q_RD")))
+    if spec.surface is not None:
+        rows.append(row("sv", q["Q_SV"], "1/V, surface SOC: lam / max(dOCV/dSOC, 0.3 V)",
+                        f"[0, {math.ldexp(int(np.max(spec.surface)), -q['Q_SV']):.4g}]"))
+        rows.append(row("soc_s (run time)", Q30, "soc + sv u_diff (sv u_diff rounded from "
+                        f"Q{q['Q_SV'] + q['Q_V']})", "[0, 1], saturated"))
     if spec.has_bv:
         rows.append(row("i0", q["Q_I0"], "A, Butler-Volmer fast branch", top("Q_I0")))
         rows.append(row("x_bv (run time)", spec.bv["QX"], "|i| / i0",
@@ -310,9 +315,9 @@ def _context(spec: CSpec) -> dict:
                                              f"in Q30 at x = k/64 (k < 64), then 64 points per "
                                              f"binade up to 2^{spec.bv['E']}"), ""))
     if spec.surface is not None:
-        sv = _pairs(spec.surface, 0 if spec.temp else 1)
-        what = "surface SOC: lam / max(dOCV/dSOC, 0.3 V) at the OCV's breakpoints, 1/V" + \
-            pair + rows_note
+        sv = spec.surface if fixed else _pairs(spec.surface, 0 if spec.temp else 1)
+        what = "surface SOC: lam / max(dOCV/dSOC, 0.3 V) at the OCV's breakpoints, " + \
+            (f"Q{spec.q['Q_SV']} 1/V" if fixed else "1/V") + pair + rows_note
         scalars.append(("sv", arrays.add("surface_per_volt", sv, what), ""))
     scalars += _fx_scalars(spec, arrays)
     macros = {f"ECMRT_{k}": v for k, v in spec.switches.items()}
@@ -325,6 +330,7 @@ def _context(spec: CSpec) -> dict:
         names += ["Q_GUO"] if spec.ocv_uniform else []
         names += (["Q_RD"] + ([] if spec.variable_dt else ["Q_DD", "Q_CD"])) if spec.diff else []
         names += ["Q_I0"] if spec.has_bv else []
+        names += ["Q_SV"] if spec.surface is not None else []
         fmts = {n: f"{p.upper()}_ECM_{n}" for n in names}
         macros.update({f"ECMRT_{n}": v for n, v in fmts.items()})
         if spec.has_bv:

@@ -594,6 +594,30 @@ def _soc_q(soc0: int, inc: np.ndarray, sh: int) -> np.ndarray:
     return out
 
 
+def _branch_q(spec: CSpec, d, kt, wt) -> dict:
+    """A direction's per-temperature values at the temperature (k_diff as 1/tau in Q_KR with
+    ECMRT_TAU_T at variable dt, as ecmrt_q_coefs keeps it)."""
+    p = {name: _tv_q(getattr(d, name), kt, wt) for name in ("r_diff", "k_diff", "i0")
+         if getattr(d, name) is not None}
+    if spec.tau_t and spec.variable_dt and "k_diff" in p:
+        p["k_diff"] = rate_q(p["k_diff"], spec.q["Q_T"], spec.q["Q_KR"])
+    return p
+
+
+def _u_diff_q(spec: CSpec, per_dir, chg, i, dt) -> np.ndarray:
+    """The diffusion pair's voltage (Q_V) after every step (its values depend on T only)."""
+    q = spec.q
+    k_diff = _pick(chg, per_dir, "k_diff")
+    if spec.tau_t and spec.variable_dt:
+        cd, qcd = c_kr_q(dt, k_diff, q["Q_KR"]), Q30
+    elif spec.variable_dt:
+        cd, qcd = c_dt_tau_q(dt, k_diff, q["Q_T"]), Q30
+    else:
+        qcd = q["Q_CD"]
+        cd = inv_d_q(k_diff, qcd + q["Q_DD"])
+    return _rc_q(cd, _rshr(_pick(chg, per_dir, "r_diff") * i, q["Q_RD"] + q["Q_I"] - q["Q_V"]), qcd)
+
+
 def simulate_fixed_raw(spec: CSpec, i_raw, dt_raw=None, soc0_raw: int = ONE30,
                        temp_raw=None) -> RefResult:
     """Bit-true reference of a numeric="fixed" spec on raw integers: i in Q_I, dt in Q16
@@ -620,19 +644,25 @@ def simulate_fixed_raw(spec: CSpec, i_raw, dt_raw=None, soc0_raw: int = ONE30,
     if spec.temp:
         kt, wt = _weight_q(spec.temp_grid, temp, q["Q_GT"])
 
+    branches = [_branch_q(spec, d, kt, wt) for d in spec.dirs]
+    soc_rc = soc
+    if spec.surface is not None:        # ecmrt_q_surface: u_diff needs no SOC
+        ud = _u_diff_q(spec, branches, chg, i, dt)
+        ko, wo = _weight_q(spec.ocv_grid, soc, q["Q_G"], spec.ocv_uniform)
+        sv = _lerp2_q(spec.surface, ko, wo, kt, wt)
+        prev = np.concatenate([[0], ud[:-1]]).astype(np.int64)
+        soc_rc = np.clip(soc + _rshr(sv * prev, q["Q_SV"] + q["Q_V"] - Q30), 0, ONE30)
     per_dir = []
-    for d in spec.dirs:
-        k, w = _weight_q(d.grid, soc, q["Q_G"], spec.rc_uniform)
+    for d, br in zip(spec.dirs, branches):
+        k, w = _weight_q(d.grid, soc_rc, q["Q_G"], spec.rc_uniform)
         p = {name: _lerp2_q(getattr(d, name), k, w, kt, wt)
              for name in (RESISTANCES if spec.tau_t else PARAMS)}
-        for name in ("r_diff", "k_diff", "i0"):
-            if getattr(d, name) is not None:
-                p[name] = _tv_q(getattr(d, name), kt, wt)
+        p.update(br)
         if spec.tau_t:
             for name in ("k_fast", "k_slow"):
                 p[name] = _tv_q(getattr(d, name)[:, 0], kt, wt)
             if spec.variable_dt:      # ecmrt_q_coefs: 1/tau in Q_KR
-                for name in ("k_fast", "k_slow") + (("k_diff",) if spec.diff else ()):
+                for name in ("k_fast", "k_slow"):
                     p[name] = rate_q(p[name], q["Q_T"], q["Q_KR"])
         per_dir.append(p)
     p = {name: _pick(chg, per_dir, name) for name in per_dir[0]}
@@ -670,14 +700,7 @@ def simulate_fixed_raw(spec: CSpec, i_raw, dt_raw=None, soc0_raw: int = ONE30,
     v = ((ocv + t0) + uf) + us
     out = {}
     if spec.diff:
-        if spec.tau_t and spec.variable_dt:
-            cd, qcd = c_kr_q(dt, p["k_diff"], q["Q_KR"]), Q30
-        elif spec.variable_dt:
-            cd, qcd = c_dt_tau_q(dt, p["k_diff"], q["Q_T"]), Q30
-        else:
-            qcd = q["Q_CD"]
-            cd = inv_d_q(p["k_diff"], qcd + q["Q_DD"])
-        ud = _rc_q(cd, _rshr(p["r_diff"] * i, q["Q_RD"] + q_i - q_v), qcd)
+        ud = _u_diff_q(spec, per_dir, chg, i, dt)
         v = v + ud
         out["u_diff"] = ud
     if fx.get("hyst"):

@@ -186,10 +186,17 @@ def prepare_fixed(ctx: SimpleNamespace) -> CSpec:
         if not 1 <= sh <= 62:
             raise InputError(None, f"cannot choose a fixed-point format for {key} (shift {sh})")
 
+    if src.surface is not None:
+        # sv = lam / max(dOCV/dSOC, 0.3 V) in [0, lam / 0.3 V] (1/V): the largest Q holding
+        # its largest value; the product sv u_diff (Q_SV + Q_V) is rounded to the Q30 SOC
+        q["Q_SV"] = _q_fit(float(np.max(src.surface)), cap=62 - q["Q_V"] + Q30)
+        if q["Q_SV"] + q["Q_V"] - Q30 < 1:
+            raise InputError(None, "cannot choose a fixed-point format for the surface SOC "
+                                   f"table (surface_soc_gain {ctx.model.surface_soc_gain:g})")
     xs = [quantize(src.ocv_soc, Q30)] + [quantize(soc, Q30) for soc, _, _ in dirs_raw]
     q["Q_G"] = _grid_shift(xs, "SOC")
     u_rc = _uniform_shift([soc for soc, _, _ in dirs_raw])
-    shared = all(np.array_equal(x, xs[0]) for x in xs[1:])     # CSpec.ocv_shared
+    shared = src.surface is None and all(np.array_equal(x, xs[0]) for x in xs[1:])  # CSpec.ocv_shared
     u_ocv = None if shared else _uniform_shift([src.ocv_soc])
     if u_rc is not None:
         q["Q_GU"] = u_rc[1]
@@ -300,4 +307,6 @@ def prepare_fixed(ctx: SimpleNamespace) -> CSpec:
     return CSpec(ocv_grid=_qgrid(xs[0], q["Q_G"], None if u_ocv is None else (u_ocv[0][0], u_ocv[1])),
                  ocv=quantize(src.ocv_v, q["Q_V"]),
                  dirs=tuple(dirs), deadband=db, k_soc=k_soc, temp_grid=temp_grid, q=q,
-                 notes=tuple(notes), fx=fx, bv=bv_spec, **ctx.common)
+                 notes=tuple(notes), fx=fx, bv=bv_spec,
+                 surface=None if src.surface is None else quantize(src.surface, q["Q_SV"]),
+                 **ctx.common)

@@ -526,9 +526,6 @@ def begin(model, numeric: str, dt_s: float | None, prefix: str, i_max_a: float |
     model = _as_model(model)
     check_options(prefix, numeric, dt_s, i_max_a)
     validate_for_c(model)
-    if getattr(model, "surface_soc_gain", 0.0) and numeric == "fixed":
-        raise InputError(None, f"the fixed-point C does not take surface_soc_gain "
-                               f"({model.surface_soc_gain:g}) yet; use numeric=\"float\"")
     dt_s = None if dt_s is None else float(dt_s)
     cap = float(model.capacity_ah)
     if i_max_a is None:
