@@ -18,7 +18,8 @@
    with every effect (hysteresis, extra_rc, current_dependent_resistance, capacity_error,
    temperature_dependence), and the SOC on synthetic LFP-like cells with hysteresis
    (ecmgen.diagnosis.synthcell, whole drive cycle, guess 0.6 for 0.95, offset C/100, gain
-   1.01) with the filter's hysteresis state and on the model without it;
+   1.01) with the filter's hysteresis state and on the model without it; and 1. and 2. for
+   the test model with the surface SOC (surface_soc_gain 0.5);
 6. the current-offset state ([estimator] offset_state = true): its cost in 5.'s table, and
    per shared cycle the C filter's SOC with it (the scenario's 29 mA offset) and the offset
    it estimates by the end.
@@ -38,6 +39,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -197,8 +199,11 @@ def effects(model, steps: int) -> dict:
     cost = []
     for label, fx, off in (("none", (), False), ("hysteresis", (HYSTERESIS,), False),
                            ("every effect", EVERY_EFFECT, False), ("offset state", (), True),
-                           ("every effect + offset state", EVERY_EFFECT, True)):
+                           ("every effect + offset state", EVERY_EFFECT, True),
+                           ("surface SOC (gain 0.5)", (), False)):
         m = model.with_effects(fx)
+        if label.startswith("surface"):
+            m = replace(m, surface_soc_gain=0.5)
         spec = prepare(m, "float", None, "cost")
         cfg = EstimatorConfig(offset_state=off)
         cost.append({"effects": label, "states": prepare_estimator(m, spec, cfg).n,

@@ -33,6 +33,11 @@
  * <prefix>_est_t holds it): the step runs on i - offset, F gets the offset column (d x' /
  * d offset = -(d x' / d i), through the effects' and the Butler-Volmer branch's d(i g)/di)
  * and H its entry -r0 d(i g0)/di, as ecmgen.estimate.process.
+ * With ECMRT_SURFACE the step reads its RC tables at the surface SOC soc_s = clamp(soc +
+ * sv u_diff, 0, 1) (u_diff before the step): the accessor reads them there too, the tables'
+ * SOC slopes are chained through d soc_s / d soc = 1 + dsv/dsoc u_diff, and F gets a u_diff
+ * column g (d u_j' / d u_diff = d u_j' / d soc_s * sv; 0 where clamped), as
+ * ecmgen.estimate.process.
  * Noise constants (ecmrt_est_f32_noise_t) come from the [estimator] settings, baked into
  * the generated .c. No fixed dt: the generator refuses it (capacity_error is in the step's
  * k_soc and needs nothing here).
@@ -110,6 +115,10 @@ typedef struct {
  * never written. all = 0: only r0 and the OCV. */
 typedef struct {
     float r0, dr0, rf, drf, tf, dtf, rs, drs, ts, dts, ocv, docv;
+#if ECMRT_SURFACE
+    float up;                 /* in: u_diff before the step (the surface SOC reads it) */
+    float ds, du;             /* out: d soc_s / d soc, d soc_s / d u_diff (0 where clamped) */
+#endif
 } ecmrt_est_f32_par_t;
 
 /* a per-temperature branch value (r_diff, tau_diff, i0) at the state's temperature */
@@ -165,14 +174,50 @@ static inline void ecmrt_est_f32_params(const ecmrt_f32_model_t *m, const ECMRT_
     unsigned kt = s->k_t;
     const float wt = s->w_t;
 #endif
+#if ECMRT_SURFACE
+    unsigned ko = ECMRT_HINT_OCV(s);
+    float wo, invo, socr, sv, dsv;
+    const float *sp;
+#else
+#define socr soc
+#endif
     (void)s;                        /* (uniform grids, one row, shared OCV: no hint, no cache) */
 #if ECMRT_TEMP
     if (kt > (unsigned)m->t.n - 2u) {
         kt = (unsigned)m->t.n - 2u;
     }
 #endif
-    w = ECMRT_F32_RC_LOCATE(&d->g, soc, &kd);
-    inv = ECMRT_EST_RC_INV(&d->g, kd, soc);
+#if ECMRT_SURFACE
+    /* the surface SOC the step read its RC tables at: soc + sv u_diff (the u_diff before the
+     * step), sv at (soc, T) as the step interpolates it, clamped to [0, 1]; its derivatives
+     * by soc (1 + dsv/dsoc u_diff) and by u_diff (sv), 0 where clamped */
+    wo = ECMRT_F32_OCV_LOCATE(&m->ocv_g, soc, &ko);
+    invo = ECMRT_EST_OCV_INV(&m->ocv_g, ko, soc);
+#if ECMRT_TEMP
+    sp = m->sv + 2u * ((unsigned)m->ocv_g.n * kt + ko);
+    sv = sp[0] + sp[1] * wt;
+    dsv = (sp[2] + sp[3] * wt) - sv;
+    sv = sv + dsv * wo;
+    dsv = dsv * invo;
+#else
+    sp = m->sv + 2u * ko;
+    sv = sp[0] + sp[1] * wo;
+    dsv = sp[1] * invo;
+#endif
+    socr = soc + sv * p->up;
+    if (!(socr >= 0.0f)) {
+        socr = 0.0f;
+        p->ds = p->du = 0.0f;
+    } else if (socr > 1.0f) {
+        socr = 1.0f;
+        p->ds = p->du = 0.0f;
+    } else {
+        p->ds = 1.0f + dsv * p->up;
+        p->du = sv;
+    }
+#endif
+    w = ECMRT_F32_RC_LOCATE(&d->g, socr, &kd);
+    inv = ECMRT_EST_RC_INV(&d->g, kd, socr);
 #if ECMRT_TEMP
     if (((kd << 1) | dir) == (unsigned)s->pc_key) {
         row = s->pc;
@@ -199,9 +244,14 @@ static inline void ecmrt_est_f32_params(const ecmrt_f32_model_t *m, const ECMRT_
     ECMRT_EST_VS(row, ECMRT_P_OCV, p->ocv, p->docv);
 #else
     {
+#if ECMRT_SURFACE
+        w = wo;                     /* the OCV at the mean SOC, located above */
+        inv = invo;
+#else
         unsigned ko = ECMRT_HINT_OCV(s);
         w = ECMRT_F32_OCV_LOCATE(&m->ocv_g, soc, &ko);
         inv = ECMRT_EST_OCV_INV(&m->ocv_g, ko, soc);
+#endif
 #if ECMRT_TEMP
         if (ko == (unsigned)s->oc_key) {
             row = s->oc;
@@ -216,6 +266,7 @@ static inline void ecmrt_est_f32_params(const ecmrt_f32_model_t *m, const ECMRT_
     }
 #endif
 }
+#undef socr
 
 
 /* Before the model's step: i and dt sanitised exactly as the step does (so that the filter
@@ -387,6 +438,10 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
      * the resistances before the current's factors, d(i g)/di of those factors */
     float o[N], ds_di, rb0, rbf, dg0 = 1.0f, dgf = 1.0f;
 #endif
+#if ECMRT_SURFACE
+    /* the u_diff column g of F (d x' / d u_diff through the surface SOC, besides a_diff) */
+    float g[N];
+#endif
 #if !ECMRT_FX_ARR
     (void)temp;
 #endif
@@ -415,6 +470,12 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 #endif
 #if ECMRT_EST_OFFSET
     x0[ECMRT_EST_IB] = *ob;
+#endif
+#if ECMRT_SURFACE
+    p.up = pr->u[3];
+    for (u = 0u; u < N; u++) {
+        g[u] = 0.0f;
+    }
 #endif
     ecmrt_est_f32_params(m, s, dir, x0[0], &p, 1);
     /* the parameter effects' factors, as the step computes them */
@@ -468,6 +529,10 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     da = ((a[1] * dt) / (p.tf * p.tf)) * p.dtf;
 #endif
     f[1] = da * pr->u[1] + ((p.drf * one_a - p.rf * da) * gf) * i;
+#if ECMRT_SURFACE
+    g[1] = f[1] * p.du;                               /* by the tables' SOC, then chained */
+    f[1] = f[1] * p.ds;
+#endif
 #if ECMRT_EST_OFFSET
     o[1] = -((rbf * one_a) * dgf) - f[1] * ds_di;
 #endif
@@ -483,6 +548,10 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     da = ((a[2] * dt) / (p.ts * p.ts)) * p.dts;
 #endif
     f[2] = da * pr->u[2] + (p.drs * one_a - p.rs * da) * i;
+#if ECMRT_SURFACE
+    g[2] = f[2] * p.du;
+    f[2] = f[2] * p.ds;
+#endif
 #if ECMRT_EST_OFFSET
     o[2] = -(p.rs * one_a) - f[2] * ds_di;
 #endif
@@ -561,6 +630,9 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 #if ECMRT_EST_OFFSET
             fp[N * u + v] = fp[N * u + v] + o[u] * P[N * ECMRT_EST_IB + v];
 #endif
+#if ECMRT_SURFACE
+            fp[N * u + v] = fp[N * u + v] + g[u] * P[N * 3u + v];
+#endif
         }
     }
     ECMRT_EST_UNROLL
@@ -571,6 +643,9 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 #if ECMRT_EST_OFFSET
             r = r + o[v] * fp[N * u + ECMRT_EST_IB];
 #endif
+#if ECMRT_SURFACE
+            r = r + g[v] * fp[N * u + 3u];
+#endif
             if (u == v) {
                 r = r + q[u];
             }
@@ -579,7 +654,11 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
         }
     }
     /* 3. the measurement: h = dv/dx, R */
+#if ECMRT_SURFACE
+    h[0] = p.docv + (p.dr0 * p.ds) * i;               /* r0 at the surface SOC */
+#else
     h[0] = p.docv + p.dr0 * i;
+#endif
     for (u = 1u; u < N; u++) {
         h[u] = 1.0f;
     }
@@ -633,7 +712,11 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 #elif ECMRT_FX_XRC
             vi = vi + xu[ECMRT_EST_IX];
 #endif
+#if ECMRT_SURFACE
+            h[0] = p.docv + (p.dr0 * p.ds) * i;
+#else
             h[0] = p.docv + p.dr0 * i;
+#endif
             e = vm - vi;
             for (u = 0u; u < N; u++) {
                 e = e - h[u] * (x0[u] - xu[u]);

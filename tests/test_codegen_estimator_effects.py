@@ -81,6 +81,52 @@ def _grids(m):
     return np.concatenate([m.ocv.soc, m.charge.soc, m.discharge.soc])
 
 
+def jacobian_run(m, cm):
+    """A drive profile (800 samples, no gaps, -8..4 A) of model m through the compiled
+    estimator cm, started at 0.65 for 0.7: (t, i, temp, dt, the float32 reference with its
+    F and H), the reference checked bit-identical to the C."""
+    t, i, temp = drive_profile(800, seed=7, gaps=False)
+    i = np.clip(i, -8.0, 4.0)
+    v = simulate(m, t, i, 0.7, temp).voltage_v
+    dt = cref.dt_from_time(t)
+    ref = simulate_estimator_f32(cm.spec, cm.estimator, i, dt, v, 0.65, temp, jacobians=True)
+    assert bits_equal(ref, run_estimator_c(cm, i, dt, v, 0.65, temp))
+    return t, i, temp, dt, ref
+
+
+def step_derivatives(cm, x0, i_k, temp_k, dt_k, steps: dict):
+    """Central differences of the generated C step (``<prefix>_step`` on i_k less the
+    offset state) at the filter state x0 before the step: (d state' / d state, d v / d
+    state); ``steps``: the difference per state field (others 1e-2)."""
+    est, lib, ffi, p = cm.estimator, cm.lib, cm.ffi, cm.spec.prefix
+    fields, N = est.fields, est.n
+
+    def run(x):
+        s = ffi.new(f"{p}_state_t *")
+        getattr(lib, f"{p}_init")(s, 0.5)
+        b = x[-1] if est.offset else 0.0
+        for f, val in zip(fields, x):
+            if f.startswith("m."):
+                setattr(s, f[2:], float(val))
+        s.charging = int(i_k - b > 0)
+        vk = getattr(lib, f"{p}_step")(s, float(np.float32(i_k) - np.float32(b)),
+                                       float(temp_k), float(dt_k))
+        return np.array([getattr(s, f[2:]) for f in fields if f.startswith("m.")]
+                        + ([b] if est.offset else [])), vk
+
+    F = np.zeros((N, N))
+    dv = np.zeros(N)
+    for j, f in enumerate(fields):
+        d = steps.get(f, 1e-2)
+        xp, xm = x0.copy(), x0.copy()
+        xp[j] += d
+        xm[j] -= d
+        (a, va), (b, vb) = run(xp), run(xm)
+        F[:, j] = (a - b) / (2 * d)
+        dv[j] = (va - vb) / (2 * d)
+    return F, dv
+
+
 @pytest.mark.parametrize("case", ["all-effects", "lfp-hysteresis", "all-effects-offset"])
 def test_jacobians_are_those_of_the_c_step(case):
     """The filter's F (the diagonal, the SOC column and the offset column) and H, as the
@@ -91,14 +137,7 @@ def test_jacobians_are_those_of_the_c_step(case):
     m = (random_cell(1, "hysteresis", chemistry="lfp").hidden if case == "lfp-hysteresis"
          else model_over_temperature(effects=ALL_EFFECTS))
     cm = _compiled(m, cfg=EstimatorConfig(offset_state=case.endswith("offset")))
-    spec, est, lib, ffi = cm.spec, cm.estimator, cm.lib, cm.ffi
-    t, i, temp = drive_profile(800, seed=7, gaps=False)
-    i = np.clip(i, -8.0, 4.0)
-    v = simulate(m, t, i, 0.7, temp).voltage_v
-    dt = cref.dt_from_time(t)
-    ref = simulate_estimator_f32(spec, est, i, dt, v, 0.65, temp, jacobians=True)
-    assert bits_equal(ref, run_estimator_c(cm, i, dt, v, 0.65, temp))
-    fields, N, p = est.fields, est.n, spec.prefix
+    t, i, temp, dt, ref = jacobian_run(m, cm)
     grids = _grids(m)
     steps = {"m.soc": 1e-3}                 # the others enter the step linearly: 1e-2
     checked = 0
@@ -110,30 +149,7 @@ def test_jacobians_are_those_of_the_c_step(case):
         if np.min(np.abs(grids - x0[0] - i[k] * dt[k] / (3600 * m.capacity_ah))) < 3e-3 or \
                 not 0.05 < soc1 < 0.95:
             continue
-
-        def run(x):
-            s = ffi.new(f"{p}_state_t *")
-            getattr(lib, f"{p}_init")(s, 0.5)
-            b = x[-1] if est.offset else 0.0
-            for f, val in zip(fields, x):
-                if f.startswith("m."):
-                    setattr(s, f[2:], float(val))
-            s.charging = int(i[k] - b > 0)
-            vk = getattr(lib, f"{p}_step")(s, float(np.float32(i[k]) - np.float32(b)),
-                                           float(temp[k]), float(dt[k]))
-            return np.array([getattr(s, f[2:]) for f in fields if f.startswith("m.")]
-                            + ([b] if est.offset else [])), vk
-
-        F = np.zeros((N, N))
-        dv = np.zeros(N)
-        for j, f in enumerate(fields):
-            d = steps.get(f, 1e-2)
-            xp, xm = x0.copy(), x0.copy()
-            xp[j] += d
-            xm[j] -= d
-            (a, va), (b, vb) = run(xp), run(xm)
-            F[:, j] = (a - b) / (2 * d)
-            dv[j] = (va - vb) / (2 * d)
+        F, dv = step_derivatives(cm, x0, i[k], temp[k], dt[k], steps)
         Fr, Hr = ref.f[k].astype(np.float64), ref.h[k].astype(np.float64)
         np.testing.assert_allclose(F, Fr, rtol=2e-3, atol=3e-5, err_msg=f"F at sample {k}")
         np.testing.assert_allclose(dv, Hr @ Fr, rtol=2e-3, atol=3e-4, err_msg=f"H at {k}")

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import functools
 import subprocess
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -39,10 +40,16 @@ def _effects_model():
     return model_over_temperature(effects=ALL_EFFECTS)
 
 
+def _surface_model():
+    """The effects model with the surface SOC (surface_soc_gain 0.5)."""
+    return replace(_effects_model(), surface_soc_gain=0.5)
+
+
 @functools.lru_cache(maxsize=None)
 def _cm(which: str):
     m = {"panasonic": _model, "synthetic": model_over_temperature,
-         "effects": _effects_model, "effects-offset": _effects_model}[which]()
+         "effects": _effects_model, "effects-offset": _effects_model,
+         "surface-offset": _surface_model}[which]()
     spec = prepare(m, "float", None, "hyp")
     cfg = EstimatorConfig(offset_state=which.endswith("offset"))
     return m, cbuild.compile_spec(spec, estimator=prepare_estimator(m, spec, cfg))
@@ -69,7 +76,8 @@ def test_qemu_cortex_m4f_bit_identical_to_the_host():
                                      s.voltage_v[:n], 0.8, s.temperature_c[:n])
     assert res["bit_exact"], res
     t, i, temp = drive_profile(1200, seed=4)
-    for m, offset in ((model_over_temperature(), False), (_effects_model(), True)):
+    for m, offset in ((model_over_temperature(), False), (_effects_model(), True),
+                      (_surface_model(), True)):
         v = simulate(m, t, i, 0.8, temp).voltage_v
         v[[3, 500]] = np.nan
         res = qemu_estimator_equivalence(m, t, i + 0.05, v, 0.6, temp,
@@ -82,7 +90,7 @@ def test_qemu_cortex_m4f_bit_identical_to_the_host():
 SAN_MAIN = (REPO / "tests" / "data" / "estimator_sanitize_main.c")
 
 
-@pytest.mark.parametrize("which", ["panasonic", "effects"])
+@pytest.mark.parametrize("which", ["panasonic", "effects", "surface"])
 def test_sanitized_build_through_absurd_inputs(tmp_path, which):
     """ASan + UBSan (+ float-cast-overflow): every combination of absurd currents, dt,
     temperatures, measured voltages (NaN, inf, +-FLT_MAX, denormals) and start SOCs, then
@@ -94,8 +102,9 @@ def test_sanitized_build_through_absurd_inputs(tmp_path, which):
                            input="int main(void){return 0;}\n", capture_output=True, text=True)
     if probe.returncode != 0:
         pytest.skip(f"compiler cannot build with sanitizers: {probe.stderr.strip()[:200]}")
-    fx = which == "effects"
-    generate_c(_effects_model() if fx else _model(), tmp_path, prefix="fe",
+    fx = which != "panasonic"
+    generate_c({"effects": _effects_model, "surface": _surface_model,
+                "panasonic": _model}[which](), tmp_path, prefix="fe",
                estimator=EstimatorConfig(offset_state=fx))
     (tmp_path / "main.c").write_text(SAN_MAIN.read_text())
     exe = tmp_path / "san"
@@ -137,7 +146,8 @@ def records(draw, max_size=150):
     return cur.astype(np.float64), temp.astype(np.float64), dts, np.asarray(noise), guess
 
 
-@pytest.mark.parametrize("which", ["panasonic", "synthetic", "effects", "effects-offset"])
+@pytest.mark.parametrize("which", ["panasonic", "synthetic", "effects", "effects-offset",
+                                   "surface-offset"])
 @SETTINGS
 @given(rec=records())
 def test_random_records_bit_identical_and_sane(which, rec):

@@ -266,13 +266,6 @@ def _settings_from_validation(cfg, model, settings, cycle: Path):
     return replace(settings, **{k: v for k, v in figures.as_dict().items() if k not in given})
 
 
-def _not_surface(model, path, what: str) -> None:
-    """Refuse a model with a surface SOC where ``what`` does not implement it yet."""
-    if model.surface_soc_gain:
-        raise InputError(path, f"{what} does not take surface_soc_gain "
-                               f"({model.surface_soc_gain:g}) yet; use a model without it")
-
-
 def cmd_codegen(args) -> int:
     from .c.codegen import generate_c
     from .model.model import load_model
@@ -284,8 +277,6 @@ def cmd_codegen(args) -> int:
 
         estimator = EstimatorConfig()
     model = load_model(args.model)
-    if args.estimator != "none":
-        _not_surface(model, args.model, "the C estimator")
     files = generate_c(model, Path(args.out), prefix=args.prefix,
                        numeric=args.numeric, dt_s=args.dt_s, estimator=estimator)
     if not args.quiet:

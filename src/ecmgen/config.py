@@ -52,7 +52,7 @@
              row at this temperature, Arrhenius-extrapolated; false: none)
              surface_soc_gain = 0.5 (lam: the RC tables read at the surface SOC
              soc + lam u_diff / max(dOCV/dSOC, 0.3 V), ecmgen.model.simulate; models with
-             the diffusion pair only; default 0 = off; not in the C estimator yet)
+             the diffusion pair only; default 0 = off)
     [data.columns]             # optional column mapping for CSV files from other cyclers
     time = "Test_Time(s)"  current = "Current(A)"  voltage = "Voltage(V)"
     header = false; time = 2 ...   (no header line: columns by 1-based position)

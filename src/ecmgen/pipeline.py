@@ -556,9 +556,6 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
 
     out_dir = Path(out_dir).resolve()
     given = _given(cfg)
-    if c_code and cfg.surface_soc_gain and cfg.c_estimator:
-        raise InputError(cfg.path, "the C estimator does not take model.surface_soc_gain yet: "
-                                   "build without c.estimator, or with --no-c")
     with _workers_for(cfg, workers) as pool:
         models, raw, inputs, tests = fit_all(cfg, progress, workers=pool, plots=plots)
         lap("fit")

@@ -182,6 +182,11 @@ def ocv_rows(spec: CSpec) -> np.ndarray:
     return spec.ocv if spec.fixed else _pairs(spec.ocv, 0 if spec.temp else 1)
 
 
+def surface_rows(spec: CSpec) -> np.ndarray:
+    """The surface SOC's per-volt table (float), laid out as the OCV's: m->sv."""
+    return _pairs(spec.surface, 0 if spec.temp else 1)
+
+
 def _ranges(spec: CSpec) -> list[dict]:
     """Rows of the fixed-point format table in the header."""
     q = spec.q
@@ -315,7 +320,7 @@ def _context(spec: CSpec) -> dict:
                                              f"in Q30 at x = k/64 (k < 64), then 64 points per "
                                              f"binade up to 2^{spec.bv['E']}"), ""))
     if spec.surface is not None:
-        sv = spec.surface if fixed else _pairs(spec.surface, 0 if spec.temp else 1)
+        sv = spec.surface if fixed else surface_rows(spec)
         what = "surface SOC: lam / max(dOCV/dSOC, 0.3 V) at the OCV's breakpoints, " + \
             (f"Q{spec.q['Q_SV']} 1/V" if fixed else "1/V") + pair + rows_note
         scalars.append(("sv", arrays.add("surface_per_volt", sv, what), ""))

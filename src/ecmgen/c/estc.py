@@ -93,10 +93,6 @@ def prepare_estimator(model, spec: CSpec, cfg: EstimatorConfig | None = None,
                                "\"float\"")
     if not spec.variable_dt:
         raise InputError(None, "the C estimator needs the variable-dt step: leave c.dt_s unset")
-    if spec.surface is not None:
-        raise InputError(None, f"the C estimator does not take surface_soc_gain "
-                               f"({model.surface_soc_gain:g}) yet; estimate on the model "
-                               "without it")
     nm = NoiseModel.from_config(cfg, model.capacity_ah)
     vals = {"p0_soc": nm.soc0_sigma ** 2, "p0_u": nm.u0_sigma_v ** 2,
             "offset_a": nm.offset_sigma_a, "gain": nm.gain_sigma,

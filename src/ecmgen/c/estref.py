@@ -8,7 +8,9 @@ drive it); what does not depend on the state (the sanitised inputs, the directio
 temperature row and weight, the per-temperature branch values, the Butler-Volmer factor,
 the effects' factors and the hysteresis and extra RC coefficients) is computed for the
 whole record at once, as cref does; with the offset state the current depends on the
-state, and what depends on the current is computed per sample (``_current_terms``). numpy float32 scalars round once
+state, and what depends on the current is computed per sample (``_current_terms``). With
+the surface SOC the step's RC tables and the accessor's are read at the surface SOC from the
+u_diff before the step (``_Tables.surface``), F gets its u_diff column. numpy float32 scalars round once
 per operation, as the C built with -ffp-contract=off.
 """
 
@@ -20,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import cref
-from .codegen import branch_rows, ocv_rows, table_rows
+from .codegen import branch_rows, ocv_rows, surface_rows, table_rows
 from .estc import EstSpec
 from .qformat import DT_MAX_S, SOC_LIM
 from .spec import CSpec
@@ -117,6 +119,8 @@ class _Tables:
         if not self.shared:
             self.ocv_grid = _Grid(spec.ocv_grid, spec.ocv_uniform)
             self.ocv = [[list(map(F32, pt)) for pt in row] for row in ocv_rows(spec)]
+        self.sv = (None if spec.surface is None else
+                   [[list(map(F32, pt)) for pt in row] for row in surface_rows(spec)])
 
     @staticmethod
     def _vs(rows, kt, k, j, w, wt, inv, slope: bool):
@@ -129,13 +133,31 @@ class _Tables:
         dd = (r2[j] + r2[j + 1] * wt) - a
         return a + dd * w, (dd * inv if slope else None)
 
-    def values(self, d, soc, kt, wt, fields, slope: bool):
-        """{field: (value, slope)} of direction d at soc (the step's lookups; with slope:
-        the accessor ecmrt_est_f32_params); fields of ("r0", "rf", "tf", "rs", "ts"), and
-        "ocv" always."""
-        g = self.grids[d]
+    def surface(self, soc, up, kt, wt):
+        """The surface SOC from u_diff ``up`` (the step's ecmrt_f32_surface, the accessor's
+        reading of it) and its derivatives by soc and by up (0 where clamped): (soc_s, ds,
+        du); (soc, None, None) without the surface SOC."""
+        if self.sv is None:
+            return soc, None, None
+        g = self.ocv_grid
         k, w = g.locate(soc)
-        inv = g.inv_at(k, soc) if slope else None
+        inv = g.inv_at(k, soc)
+        sv, dsv = self._vs(self.sv, kt, k, 0, w, wt, inv, True)
+        r = soc + sv * up
+        if not r >= ZERO:
+            return ZERO, ZERO, ZERO
+        if r > ONE:
+            return ONE, ZERO, ZERO
+        return r, ONE + dsv * up, sv
+
+    def values(self, d, soc, kt, wt, fields, slope: bool, soc_rc=None):
+        """{field: (value, slope)} of direction d at soc (the step's lookups; with slope:
+        the accessor ecmrt_est_f32_params); fields of ("r0", "rf", "tf", "rs", "ts") at
+        ``soc_rc`` (the surface SOC; None: soc), and "ocv" always at soc."""
+        g = self.grids[d]
+        soc_rc = soc if soc_rc is None else soc_rc
+        k, w = g.locate(soc_rc)
+        inv = g.inv_at(k, soc_rc) if slope else None
         off = self.off
         out = {f: self._vs(self.rows[d], kt, k, off[f], w, wt, inv, slope)
                for f in fields if f in off}
@@ -253,6 +275,7 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
     n, N = inp["i"].size, est.n
     nz = {k: F32(v) for k, v in est.noise.items()}
     diff, bv = spec.diff, spec.has_bv
+    surf = spec.surface is not None              # ECMRT_SURFACE (with the diffusion pair)
     # est_init: the model's init (SOC saturated to [-2, 2], NaN 0), then [0, 1]
     s0 = F32(soc0)
     s0 = ZERO if np.isnan(s0) else min(max(s0, F32(-SOC_LIM)), F32(SOC_LIM))
@@ -312,7 +335,8 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
         elif sn > shi:
             sn = shi
         soc = sn
-        pv = tab.values(d, soc, kt, wt, fields_all, False)
+        socr, sds, sdu = tab.surface(soc, u_prev[3], kt, wt) if surf else (soc, None, None)
+        pv = tab.values(d, soc, kt, wt, fields_all, False, socr)
         r0, rf, rs, ocv = pv["r0"][0], pv["rf"][0], pv["rs"][0], pv["ocv"][0]
         gc = cur["g_cdr"] if cdr else ONE
         fa = inp["f_arr"][t] if arr else ONE
@@ -323,7 +347,7 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
         if bv:
             rf = rf * cur["g_bv"]
         # the accessor (ecmrt_est_f32_params) at the same SOC
-        pa = tab.values(d, soc, kt, wt, fields_all, True)
+        pa = tab.values(d, soc, kt, wt, fields_all, True, socr)
         if tau_t:            # the state's coefficients kc = 1/tau(T), for step and filter
             cf, cs = omexp(dt * src["kc_f"][t]), omexp(dt * src["kc_s"][t])
             ja = (cf, cs)
@@ -385,6 +409,9 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
             (tf_, dtf) = pa["tf"]
             da = ((a[1] * dt) / (tf_ * tf_)) * dtf
         f[1] = da * u_prev[1] + ((drf * one_a - rf_ * da) * gf) * i
+        g = [ZERO] * N                        # F's u_diff column through the surface SOC
+        if surf:
+            g[1], f[1] = f[1] * sdu, f[1] * sds
         if off:
             o[1] = -((rbf * one_a) * dgf) - f[1] * ds_di
         rg = rf_ * gf
@@ -396,6 +423,8 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
             (ts_, dts) = pa["ts"]
             da = ((a[2] * dt) / (ts_ * ts_)) * dts
         f[2] = da * u_prev[2] + (drs * one_a - rs_ * da) * i
+        if surf:
+            g[2], f[2] = f[2] * sdu, f[2] * sds
         if off:
             o[2] = -(rs_ * one_a) - f[2] * ds_di
         e = (nz["pol"] * rs_) * i
@@ -436,15 +465,19 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
         fp = [[a[r] * P[r][c] + f[r] * P[0][c] for c in range(N)] for r in range(N)]
         if off:
             fp = [[fp[r][c] + o[r] * P[ib][c] for c in range(N)] for r in range(N)]
+        if surf:
+            fp = [[fp[r][c] + g[r] * P[3][c] for c in range(N)] for r in range(N)]
         for r in range(N):
             for c in range(r, N):
                 val = a[c] * fp[r][c] + f[c] * fp[r][0]
                 if off:
                     val = val + o[c] * fp[r][ib]
+                if surf:
+                    val = val + g[c] * fp[r][3]
                 if r == c:
                     val = val + q[r]
                 P[r][c] = P[c][r] = val
-        h = [pa["ocv"][1] + dr0a * i] + [ONE] * (N - 1)
+        h = [pa["ocv"][1] + (dr0a * sds if surf else dr0a) * i] + [ONE] * (N - 1)
         if hyst:
             h[ih] = h_m
         if off:
@@ -454,6 +487,8 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
             f_out[t, 1:, 0] = f[1:]
             if off:
                 f_out[t, :ib, ib] = o[:ib]
+            if surf:
+                f_out[t, 1:3, 3] = g[1:3]
             h_out[t] = h
         e = nz["model_error"] * (vp - pa["ocv"][0])
         R = nz["vn2"] + e * e
@@ -476,7 +511,9 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
                     xu[ih] = _clamp_h(xu[ih])
                 if _abs(xu[0] - x0[0]) < ITER_SOC:
                     break
-                pi = tab.values(d, xu[0], kt, wt, ("r0",), True)
+                socr, sds, _ = (tab.surface(xu[0], u_prev[3], kt, wt) if surf
+                                else (xu[0], None, None))
+                pi = tab.values(d, xu[0], kt, wt, ("r0",), True, socr)
                 (r0i, dr0i) = pi["r0"]
                 if off:
                     h[ib] = -((r0i * fa if arr else r0i) * dg0)
@@ -494,7 +531,7 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
                     vi = vi + vx
                 elif xrc:
                     vi = vi + xu[ix]
-                h[0] = pi["ocv"][1] + dr0i * i
+                h[0] = pi["ocv"][1] + (dr0i * sds if surf else dr0i) * i
                 e = vm - vi
                 for j in range(N):
                     e = e - h[j] * (x0[j] - xu[j])
