@@ -587,24 +587,20 @@ def model_from_json_dict(raw: Any, path=None) -> EcmModel:
     inputs = tuple(InputRecord(str(r["role"]), str(r["name"]), str(r["sha256"]))
                    for r in raw.get("inputs", []))
     seed = raw.get("seed")
-    gain = raw.get("surface_soc_gain", 0.0)
-    if isinstance(gain, bool) or not isinstance(gain, (int, float)) or \
-            not 0.0 <= gain <= SURFACE_SOC_GAIN_MAX:
-        raise InputError(path, f"surface_soc_gain must be a number in "
-                               f"0..{SURFACE_SOC_GAIN_MAX:g}, got {gain!r}")
-    if gain and not tables["discharge"].has_diffusion:
-        raise InputError(path, "surface_soc_gain needs the diffusion RC pair (rc.*.r_diff_ohm)")
-    return EcmModel(
-        capacity_ah=capacity,
-        ocv=ocv,
-        charge=tables["charge"],
-        discharge=tables["discharge"],
-        method=str(raw.get("method", "")),
-        seed=None if seed is None else int(seed),
-        inputs=inputs,
-        notes=tuple(str(n) for n in raw.get("notes", [])),
-        direction_deadband_a=float(raw.get("direction_deadband_a", 0.0)),
-        effects=effects,
-        tool_version=str(raw.get("tool_version", "")),
-        surface_soc_gain=float(gain),
-    )
+    try:     # EcmModel checks what the tables alone cannot (surface_soc_gain among it)
+        return EcmModel(
+            capacity_ah=capacity,
+            ocv=ocv,
+            charge=tables["charge"],
+            discharge=tables["discharge"],
+            method=str(raw.get("method", "")),
+            seed=None if seed is None else int(seed),
+            inputs=inputs,
+            notes=tuple(str(n) for n in raw.get("notes", [])),
+            direction_deadband_a=float(raw.get("direction_deadband_a", 0.0)),
+            effects=effects,
+            tool_version=str(raw.get("tool_version", "")),
+            surface_soc_gain=raw.get("surface_soc_gain", 0.0),
+        )
+    except ValueError as exc:
+        raise InputError(path, str(exc)) from None
