@@ -227,10 +227,10 @@ class StepModel:
                        for b in (tab.r_diff, tab.tau_diff, tab.i0))
         return vals, slopes, branch
 
-    def ocv(self, soc: float, tw) -> tuple[float, float]:
-        """OCV and dOCV/dsoc at (soc, T)."""
+    def _on_ocv_grid(self, rows, soc: float, tw) -> tuple[float, float]:
+        """A table on the OCV's grid (the OCV, the surface SOC's) and its SOC slope at
+        (soc, T), bilinear."""
         j, t, inv = _segment(self.ocv_soc, soc)
-        rows = self.ocv_rows
         if tw is None:
             return _ocv_row(rows[0], j, t, inv)
         k, w = tw
@@ -238,20 +238,17 @@ class StepModel:
         v1, s1 = _ocv_row(rows[k + 1], j, t, inv)
         return v0 + (v1 - v0) * w, s0 + (s1 - s0) * w
 
+    def ocv(self, soc: float, tw) -> tuple[float, float]:
+        """OCV and dOCV/dsoc at (soc, T)."""
+        return self._on_ocv_grid(self.ocv_rows, soc, tw)
+
     def surface_soc(self, soc: float, u_prev: float, tw_ocv) -> tuple[float, float, float]:
         """The SOC the RC tables are read at (ecmgen.model.simulate step 3') and its
         derivatives by soc and by u_prev: (soc, 1, 0) for a model without the surface SOC,
         (0 or 1, 0, 0) where it is clamped."""
         if self.sv_rows is None:
             return soc, 1.0, 0.0
-        j, t, inv = _segment(self.ocv_soc, soc)
-        if tw_ocv is None:
-            sv, dsv = _ocv_row(self.sv_rows[0], j, t, inv)
-        else:
-            k, w = tw_ocv
-            v0, s0 = _ocv_row(self.sv_rows[k], j, t, inv)
-            v1, s1 = _ocv_row(self.sv_rows[k + 1], j, t, inv)
-            sv, dsv = v0 + (v1 - v0) * w, s0 + (s1 - s0) * w
+        sv, dsv = self._on_ocv_grid(self.sv_rows, soc, tw_ocv)
         r = soc + sv * u_prev
         if r < 0.0 or r > 1.0:
             return min(max(r, 0.0), 1.0), 0.0, 0.0
