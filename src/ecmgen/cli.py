@@ -276,8 +276,7 @@ def cmd_codegen(args) -> int:
         from .config import EstimatorConfig
 
         estimator = EstimatorConfig()
-    model = load_model(args.model)
-    files = generate_c(model, Path(args.out), prefix=args.prefix,
+    files = generate_c(load_model(args.model), Path(args.out), prefix=args.prefix,
                        numeric=args.numeric, dt_s=args.dt_s, estimator=estimator)
     if not args.quiet:
         for f in files:
