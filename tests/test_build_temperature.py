@@ -6,6 +6,7 @@ processes; no warning escapes; per-temperature reporting."""
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from dataclasses import replace
@@ -88,7 +89,9 @@ def test_build_over_temperature_from_the_command_line(project):
     # as the truth (measured 2.2 and 3.6 mV)
     for name in ("warming.csv", "cold.csv"):
         assert cycles[name]["mae_v"] < 0.005, (name, cycles[name])
-    assert any("r0_ohm 25" in n and "derived warm row" in n for n in doc["notes"])
+    warm = [n for n in doc["notes"] if "derived warm row" in n]
+    ea = re.search(r"r0_ohm (\d+) K", warm[0]) if warm else None
+    assert ea and abs(int(ea.group(1)) / 2500.0 - 1.0) < 0.02, warm      # the truth's Ea/R
     for label in ("25.0degC", "5.0degC", "n10.0degC"):
         assert (out / f"dcir-{label}.csv").is_file()
     assert (out / "parameters-curve.png").stat().st_size > 10_000

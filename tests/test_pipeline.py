@@ -258,3 +258,24 @@ def test_build_notes_name_validation_cycles_as_the_table_does():
     assert _named("simulated SOC left [0, 1]", "/d/us06.mat", "x/us06.mat") == \
         "simulated SOC left [0, 1]"
     assert _named(w, None, "us06.mat") == w
+
+
+def test_build_reports_table_quality_and_strict_refuses_a_failing_model(synthetic_project,
+                                                                         monkeypatch):
+    from ecmgen.config import load_config
+    from ecmgen.errors import InputError
+    from ecmgen.fit import quality
+    from ecmgen.pipeline import build
+    from ecmgen.report import build_json
+
+    folder, cfg, _ = synthetic_project
+    result = build(load_config(cfg), folder / "out", plots=False, c_code=False, strict=True)
+    doc = build_json(result)
+    assert doc["quality"]["curve"]["passes"] and doc["quality"]["curve"]["non_positive"] == 0
+    assert doc["quality"]["curve"]["roughness"] < 0.35
+    assert "## Table quality" in (folder / "out" / "report.md").read_text()
+    # the same model judged against an impossible limit: --strict refuses, nothing written
+    monkeypatch.setattr(quality, "ROUGHNESS_LIMIT", -1.0)
+    with pytest.raises(InputError, match="build --strict: model 'curve' fails the table checks"):
+        build(load_config(cfg), folder / "strict", plots=False, c_code=False, strict=True)
+    assert not (folder / "strict").exists()

@@ -29,10 +29,15 @@ def cmd_build(args) -> int:
     cfg = load_config(args.config)
     out = Path(args.out) if args.out else cfg.path.parent / "ecmgen-out"
     result = build(cfg, out, _progress(not args.quiet), plots=not args.no_plots,
-                   c_code=not args.no_c)
+                   c_code=not args.no_c, strict=args.strict)
     if args.json:
         print(json.dumps(build_json(result), indent=1))
     else:
+        q = result.quality.get(result.best)
+        if q is not None and not q.passes:
+            from .fit.quality import quality_words
+
+            print(f"warning: {quality_words(result.best, q)} (build --strict makes this an error)")
         if result.tests:
             print(pulse_test_table(result))
             print()
@@ -329,6 +334,9 @@ def parser() -> argparse.ArgumentParser:
     b.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
     b.add_argument("--no-plots", action="store_true")
     b.add_argument("--no-c", action="store_true", help="skip C generation")
+    b.add_argument("--strict", action="store_true",
+                   help="fail (exit 2, nothing written) when the best model's tables are not "
+                        "smooth and positive")
     b.set_defaults(func=cmd_build)
 
     d = sub.add_parser("dcir", help="extract the DC-IR table of a pulse test")

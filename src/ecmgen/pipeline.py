@@ -74,6 +74,7 @@ class BuildResult:
     fit_flags: dict[str, list] = field(default_factory=dict)   # method -> [FitFlag]
     usage: dict[str, dict[str, dict]] = field(default_factory=dict)  # method -> cycle -> use
     notes: list[str] = field(default_factory=list)   # of the validation (SOC range, spans)
+    quality: dict = field(default_factory=dict)      # method -> fit.quality.ModelQuality
 
 
 def read_series(cfg: BuildConfig, path: Path, role: str = "") -> TimeSeries:
@@ -540,10 +541,13 @@ def validate_all(cfg: BuildConfig, models: dict[str, EcmModel], progress: Progre
 
 
 def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
-          plots: bool = True, c_code: bool = True, workers: int = 2) -> BuildResult:
+          plots: bool = True, c_code: bool = True, workers: int = 2,
+          strict: bool = False) -> BuildResult:
     """Run the whole chain and write the outputs into ``out_dir``. ``workers``: processes
     for a build over temperature (the pulse tests, the validation cycles and their plots;
-    1: all here, one after the other); see ecmgen.parallel for scripts."""
+    1: all here, one after the other); see ecmgen.parallel for scripts. ``strict``: a best
+    model that fails the table checks (:mod:`ecmgen.fit.quality`) is an InputError, raised
+    before anything is written."""
     import time
 
     clock = {"t": time.perf_counter()}
@@ -564,6 +568,12 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
                              point_fits=raw.get("point_fits", {}),
                              point_table=raw.get("point_table"), tests=tests,
                              timings=timings)
+        result.quality = _quality(models, raw.get("flags", {}))
+        if strict and not result.quality[cfg.best].passes:
+            from .fit.quality import quality_words
+
+            raise InputError(cfg.path, "build --strict: "
+                                       + quality_words(cfg.best, result.quality[cfg.best]))
         param_tasks = {}
         if plots:
             from .plots import parameters_png
@@ -613,6 +623,12 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
     result.files = files
     result.out_dir = out_dir
     return result
+
+
+def _quality(models: dict[str, EcmModel], flags: dict) -> dict:
+    from .fit.quality import model_quality
+
+    return {m: model_quality(model, flags.get(m, ())) for m, model in models.items()}
 
 
 def _usage(result: BuildResult) -> None:

@@ -6,6 +6,8 @@ cell temperature, and lists its pulse tests (temperature breakpoints)."""
 from __future__ import annotations
 
 import math
+
+import numpy as np
 from pathlib import Path
 
 from .files import write_atomic
@@ -92,6 +94,7 @@ def build_json(result) -> dict:
         "validation": validation,
         "notes": list(result.models[result.best].notes) + list(getattr(result, "notes", [])),
         "checks": checks_json(result),
+        "quality": {m: q.as_dict() for m, q in getattr(result, "quality", {}).items()},
     }
     if result.tests:
         best = result.models[result.best]
@@ -126,6 +129,36 @@ def checks_json(result) -> dict:
     return doc
 
 
+def quality_lines(result) -> list[str]:
+    """report.md's table-quality section: per method the worst roughness, the non-positive
+    values and the time constants on a bound; per table row of the best model the
+    roughness and where."""
+    from .fit.quality import ROUGHNESS_LIMIT
+
+    quality = getattr(result, "quality", {})
+    if not quality:
+        return []
+    lines = ["## Table quality", "",
+             "Roughness: the largest |ln p_k - interpolation of ln p at the neighbours| over "
+             f"the SOC nodes of any RC table (smooth: below {ROUGHNESS_LIMIT:g}); non-positive: "
+             "resistances and time constants <= 0.", "",
+             "| method | roughness | non-positive | time constants on a bound | checks |",
+             "|---|---|---|---|---|"]
+    for m, q in quality.items():
+        lines.append(f"| {m} | {q.roughness:.2f} | {q.non_positive} | "
+                     f"{', '.join(q.on_bound) or '-'} | {'pass' if q.passes else 'FAIL'} |")
+    q = quality.get(result.best)
+    if q is not None and q.tables:
+        lines += ["", f"Per table of `{result.best}` (the three roughest rows):", "",
+                  "| direction | table | degC | roughness | at SOC | <= 0 at SOC |", "|---|---|---|---|---|---|"]
+        for t in sorted(q.tables, key=lambda t: -t.roughness)[:3]:
+            temp = "-" if not np.isfinite(t.temperature_c) else f"{t.temperature_c:g}"
+            at = "-" if not np.isfinite(t.roughest_soc) else f"{t.roughest_soc:g}"
+            bad = ", ".join(f"{s:g}" for s in t.non_positive_soc) or "-"
+            lines.append(f"| {t.direction} | {t.name} | {temp} | {t.roughness:.2f} | {at} | {bad} |")
+    return lines + [""]
+
+
 def write_build_report(cfg, result, out_dir: Path) -> Path:
     best = result.models[result.best]
     lines = [
@@ -139,6 +172,11 @@ def write_build_report(cfg, result, out_dir: Path) -> Path:
                   "```", "", f"Tables over {grid.size} temperature rows "
                   f"({grid[0]:g}..{grid[-1]:g} degC), OCV over "
                   f"{best.ocv.n_temperatures} rows; see the notes.", ""]
+    q = getattr(result, "quality", {}).get(result.best)
+    if q is not None and not q.passes:
+        from .fit.quality import quality_words
+
+        lines += [f"**Warning: {quality_words(result.best, q)}** (see Table quality).", ""]
     if best.surface_soc_gain:
         lines += [f"Surface SOC (`[model] surface_soc_gain` = {best.surface_soc_gain:g}): r0, "
                   "r_fast, r_slow and their time constants are read at clamp(soc + "
@@ -155,6 +193,7 @@ def write_build_report(cfg, result, out_dir: Path) -> Path:
         which = ", ".join(f"`{c}` by {n} sample{'s' if n > 1 else ''}" for c, n in lagging.items())
         lines += [f"The measured voltage lags the current in {which} (see the notes): the "
                   "errors above include it, the data are not shifted.", ""]
+    lines += quality_lines(result)
     lines += ["## Notes", ""]
     notes = list(best.notes) + list(getattr(result, "notes", []))
     lines += [f"- {n}" for n in notes] or ["- none"]

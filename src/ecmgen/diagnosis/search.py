@@ -352,6 +352,16 @@ def _starts(name: str, sig: Signature, ctx: dict, specs: dict[str, _Spec]) -> li
 
 # -- the greedy search ----------------------------------------------------------------------
 
+def _on_bound(values: dict, specs: dict, rtol: float = 0.01) -> str:
+    """The first scale parameter (log-spaced search: a time constant, a decay, a current)
+    that ended on its search bound, as 'name = value', or ''."""
+    for k, sp in specs.items():
+        v = values.get(k)
+        if sp.log and v is not None and (v <= sp.lo * (1 + rtol) or v >= sp.hi / (1 + rtol)):
+            return f"{k} = {v:.4g}"
+    return ""
+
+
 def _mae(e: np.ndarray) -> float:
     e = e[np.isfinite(e)]
     return float(np.mean(np.abs(e))) if e.size else float("nan")
@@ -513,10 +523,14 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
             low = block_bootstrap_low(d, block, confidence, seed=seed + rnd)
             gain = mae_cur - mae1
             rel = gain / mae_cur if mae_cur > 0 else 0.0
+            bound = _on_bound(vals[-1], specs)
             ok = bool(np.isfinite(mae1) and rel >= min_rel_gain and low > 0.0
-                      and gain >= floor_v)
+                      and gain >= floor_v and not bound)
             if ok:
                 why = ""
+            elif bound:
+                why = (f"{bound} on its bound: the effect's best fit lies outside what it "
+                       "can be, so it does not explain the residual")
             elif not np.isfinite(mae1) or gain <= 0:
                 why = "held-out error did not fall"
             elif low <= 0.0:

@@ -7,20 +7,42 @@ one :mod:`ecmgen.model.simulate` runs, with the OCV fixed to the given table (th
 OCV) and, per sample k (current i_k held over (t_{k-1}, t_k], positive on charge)::
 
     y_k = v_k - ocv(soc_k) = sum_j phi_j(soc_k) [r0_j i_k + r_fast_j x_fast,j,k + r_slow_j x_slow,j,k]
-                             + r_diff x_diff,k
+                             + r_diff x_diff,k + sum_l psi_l,k c_l
     x_fast,j : RC with tau_fast driven by phi_j(soc) h(i),  h(i) = i0 asinh(i / i0)  (or i)
     x_slow,j : RC with tau_slow driven by phi_j(soc) i;     x_diff: RC with tau_diff driven by i
 
 (x_k = a_k x_{k-1} + (1 - a_k) u_k, a_k = exp(-dt_k / tau): the simulator's exact ZOH step;
-h is the Butler-Volmer input of the fast branch, r_fast g(i) i with g = asinh(x)/x.) phi_j are
-hat functions on SOC nodes (0, 0.05, .., 1), so r0, r_fast and r_slow are piecewise linear in
-SOC exactly as the model interpolates them; a node no loaded sample weighs at least
-``NODE_SUPPORT`` is not free but linear between its free neighbours. The time constants,
-r_diff and i0 are one value per test. With pulses in both directions each direction has its
-own resistances (shared time constants). After a gap the file does not cover (the SOC moves
-of a pulse test without its step file) the states restart from free values. Given the time
-constants the fit is linear: least squares on the normal equations, resistances >= 0, with a
-small second-difference penalty over SOC.
+h is the Butler-Volmer input of the fast branch, r_fast g(i) i with g = asinh(x)/x.)
+
+Where the tables are free: phi_j are hat functions on the SOC levels of that direction's
+complete pulses (the mean SOC half-way through them), so each resistance is piecewise linear
+between the levels it was measured at and flat beyond; a direction's tables are never free
+where only the other direction, or only a SOC move, passed. The tables are then written on
+the model's SOC grid (0, 0.05, .., 1) by that interpolation. A direction without pulses is
+said and takes the other's tables.
+
+Blind to the OCV's level: psi_l are hat functions on every pulse level (one set after a
+charge, one after a discharge when the test has both), with free coefficients c_l that the
+model does not keep. An OCV table a few mV off, a SOC that drifts with a wrong capacity, or a
+hysteresis offset is absorbed there instead of in r_slow and tau_slow, as if each pulse were
+referenced to the rest before it.
+
+Smooth by measurement: a second-difference penalty over each direction's levels (relative to
+the column scale); its weight is chosen by leaving one SOC level out (the rows from the rest
+before its first pulse to the end of its relaxation), fitting the others and measuring the
+left-out rows after refitting only the nuisance offsets there, over a log grid of weights
+(:func:`ecmgen.fit.curve_levels.choose_penalty`); the search then runs again at that weight.
+
+Time constants the test can show: tau_fast not shorter than the sampling in the pulses, the
+slow and diffusion ones not longer than the longest relaxation after a current change. A
+diffusion pair whose tau_diff ends on a bound is dropped and the rest refitted; a fast or
+slow pair on a bound is kept there and said (``fit.checks`` flags it).
+
+The time constants, r_diff and i0 are one value per test. With pulses in both directions
+each direction has its own resistances (shared time constants). After a gap the file does
+not cover (the SOC moves of a pulse test without its step file) the states restart from free
+values. Given the time constants the fit is linear: least squares on the normal equations,
+resistances >= 0, nuisance offsets and restart states free.
 
 Rows: every sample under current, every coarsely logged one (the SOC steps), and the rest
 up to ``relax_s`` after each current change at ``rows_per_decade`` rows per decade of the
@@ -62,22 +84,21 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import lapack
 
 from ..data.dcir import Pulse
-from ..data.measure import TimeSeries, charging_direction
+from ..data.measure import TimeSeries
 from ..data.ocv import OcvTable
-from ..data.steps import merge_soc_steps, pulse_test_gaps
+from ..data.steps import merge_soc_steps
 from ..errors import InputError
+from .curve_levels import choose_penalty, data_tau_ranges, level_nodes, level_windows
+from .curve_record import Record, W_SPAN_S, hats, pulse_record, rc_response, side_by_side
 from .lsq import log_grid, nelder_mead, solve_bounded
 
 SOC_NODES = np.round(np.linspace(0.0, 1.0, 21), 10)
 DIRECTIONS = ("charge", "discharge")
 PENALTY = 1e-3             # second-difference penalty, relative to each block's column scale
-W_SPAN_S = (1.0, 300.0)    # a row's weight is sqrt(the seconds it stands for), within these
 TIE = 1e-2                 # local minima within this (relative objective) are equally good
 SLOW_START = 0.02          # grid start favouring slow dynamics: objective tilt per ln(tau)
-NODE_SUPPORT = 0.25        # a node is free where a loaded sample puts this much hat weight
 NM_EVALS = 60              # exact evaluations per local refinement
 R0_MIN_RATES = 3           # a level pins r0 when its complete pulses span this many C-rates
 
@@ -144,155 +165,53 @@ class CurveFit:
         return out
 
 
-# ----------------------------------------------------------------------------- the record
-@dataclass(frozen=True)
-class _Record:
-    """The pulse test reduced to the samples the fit needs (see the module docstring)."""
-
-    t: np.ndarray        # (n,) s
-    dt: np.ndarray       # (n,) own ZOH interval
-    gap: np.ndarray      # (n,) rest folded in before the interval (no input there)
-    i: np.ndarray        # (n,) A (rest current zeroed)
-    soc: np.ndarray      # (n,)
-    y: np.ndarray        # (n,) v - ocv(soc)
-    v: np.ndarray        # (n,) measured voltage
-    row: np.ndarray      # (n,) bool: a row of the least squares
-    w: np.ndarray        # (n,) weight of the row (0 elsewhere)
-    dir_mask: dict       # direction -> (n,) bool, the samples run on that direction's table
-    restart: np.ndarray  # indices of the first samples after gaps the file does not cover
-    rest_used_s: float   # the longest stretch of rest after a change that has rows
-
-
-def _record(series: TimeSeries, soc0: float, ocv: OcvTable, capacity_ah: float, *,
-            directions: tuple[str, ...], deadband_a: float,
-            relax_s: float, rows_per_decade: float, min_weight_s: float = W_SPAN_S[0]) -> _Record:
-    t = series.time_s
-    i = series.current_a.copy()
-    dt = np.diff(t, prepend=t[0])
-    soc = soc0 + series.coulomb_ah() / capacity_ah
-    on_a = max(0.02 * capacity_ah, 1e-3)
-    i[np.abs(i) <= 1e-3 * capacity_ah] = 0.0              # rest: no input
-    on = np.abs(i) > on_a
-    gaps = pulse_test_gaps(series)
-    # a current change, or the end of an unlogged gap (the states restart there)
-    change = np.union1d(np.flatnonzero(np.abs(np.diff(i, prepend=0.0)) > on_a), gaps + 1)
-    last = np.full(t.size, -1)
-    last[change] = change
-    np.maximum.accumulate(last, out=last)
-    since = np.where(last >= 0, t - t[np.maximum(last, 0)], np.inf)
-    coarse = dt > 5.0            # a coarsely logged record (the SOC steps): every sample
-    rest = ~on & (since <= relax_s)
-    # rest rows log-spaced in the time since the change: the last sample of each bucket
-    # stands for the bucket; each sample counts clip(dt, 1 s, 300 s) seconds
-    bucket = np.floor(rows_per_decade * np.log10(np.maximum(since, 0.1) / 0.1))
-    bucket = np.where(np.isfinite(since), bucket, -1.0)
-    last_of_bucket = np.concatenate(((bucket[1:] != bucket[:-1]) | (last[1:] != last[:-1]),
-                                     [True]))
-    row = on | coarse | (rest & last_of_bucket)
-    row[0] = False
-    keep = row | (i != 0.0)
-    keep[0] = True
-    idx = np.flatnonzero(keep)
-    # the rest folded into each kept sample: time since the previous kept sample minus its dt
-    t_prev = np.concatenate(([t[0]], t[idx[:-1]]))
-    gap = np.maximum(t[idx] - t_prev - dt[idx], 0.0)
-    counts = np.where(on | coarse | rest, np.clip(dt, min_weight_s, W_SPAN_S[1]), 0.0)
-    cum = np.cumsum(counts)
-    rix = np.flatnonzero(row)
-    w2 = np.diff(cum[rix], prepend=0.0)
-    w2[on[rix]] = counts[rix][on[rix]]
-    w_all = np.zeros(t.size)
-    w_all[rix] = np.sqrt(w2)
-    w = w_all[idx]
-    # after a gap the file does not cover, the states are unknown: they restart from free
-    # values there (see _Problem), and the first sample, whose current stands for the gap,
-    # is no row
-    restart = np.searchsorted(idx, gaps + 1)
-    w[restart] = 0.0
-    charging = charging_direction(i, deadband_a)        # the simulator's rule
-    if len(directions) == 1:
-        masks = {directions[0]: np.ones(idx.size, bool)}
-    else:
-        masks = {"charge": charging[idx], "discharge": ~charging[idx]}
-    s = soc[idx]
-    return _Record(t[idx], dt[idx], gap, i[idx], s, series.voltage_v[idx] - ocv.ocv_at(s),
-                   series.voltage_v[idx], row[idx], w, masks, restart,
-                   float(np.max(since[row & rest], initial=0.0)))
-
-
-def _columns(blocks) -> np.ndarray:
-    """The blocks side by side in one Fortran-ordered array (no transposing copy)."""
-    out = np.empty((blocks[0].shape[0], sum(b.shape[1] for b in blocks)), order="F")
-    at = 0
-    for b in blocks:
-        out[:, at:at + b.shape[1]] = b
-        at += b.shape[1]
-    return out
-
-
-def _hats(soc: np.ndarray, nodes: np.ndarray) -> np.ndarray:
-    x = np.clip(soc, nodes[0], nodes[-1])
-    j = np.clip(np.searchsorted(nodes, x, side="right") - 1, 0, nodes.size - 2)
-    w = (x - nodes[j]) / (nodes[j + 1] - nodes[j])
-    h = np.zeros((soc.size, nodes.size))
-    h[np.arange(soc.size), j] = 1.0 - w
-    h[np.arange(soc.size), j + 1] += w
-    return h
-
-
-def _rc_response(rec: _Record, tau: float, u: np.ndarray) -> np.ndarray:
-    """x_k = exp(-(gap_k + dt_k)/tau) x_{k-1} + (1 - exp(-dt_k/tau)) u_k for every column
-    of u (n, m), plus one column per restart r: a unit state from sample r on (x_r = 1,
-    decaying). A unit-lower-bidiagonal solve (LAPACK tbtrs), exact and compiled."""
-    n = rec.t.size
-    ab = np.zeros((2, n))
-    ab[1, :-1] = -np.exp(-(rec.gap[1:] + rec.dt[1:]) / tau)
-    b = np.zeros((n, u.shape[1] + rec.restart.size), order="F")
-    np.multiply(u, -np.expm1(-rec.dt / tau)[:, None], out=b[:, :u.shape[1]])
-    b[rec.restart, u.shape[1] + np.arange(rec.restart.size)] = 1.0
-    x, info = lapack.dtbtrs(ab, b, uplo="L", diag="U", overwrite_b=1)
-    if info != 0:  # pragma: no cover - unit diagonal: never singular
-        raise RuntimeError(f"dtbtrs info {info}")
-    return x
-
-
 # ------------------------------------------------------------------- the linear problem
 class _Problem:
-    """The rows' weighted design blocks for any time constants, and the solve."""
+    """The rows' weighted design blocks for any time constants, and the solve.
 
-    def __init__(self, rec: _Record, nodes: np.ndarray, i0_a: float | None,
-                 r0_spans: dict | None = None):
+    Columns: [r0 per direction and level node | OCV correction per level | each branch's
+    resistances per direction and node, then its restart states]. Each direction's
+    resistances are hat functions on that direction's own pulse levels (``bases``); the
+    OCV correction (hats on every level, free sign) is a nuisance the model does not keep:
+    it makes the fit blind to the OCV's level and to SOC drift, as each pulse referenced
+    to the rest before it is."""
+
+    def __init__(self, rec: Record, bases: dict, ocv_nodes: np.ndarray, i0_a: float | None,
+                 r0_spans: dict | None = None, levels: np.ndarray | None = None,
+                 split_ocv: bool = False):
         self.rec = rec
-        self.nodes = nodes
-        self.ndir = len(rec.dir_mask)
-        # free nodes: those on which some current-carrying sample puts at least a quarter
-        # of its hat weight; the others follow linearly from their neighbours (no slope is
-        # extrapolated across SOC ranges the test never loaded)
-        on = np.abs(rec.i) > 0.0
-        weight = _hats(rec.soc[on], nodes).max(axis=0) if on.any() else np.ones(nodes.size)
-        free = weight >= NODE_SUPPORT
-        self.basis = nodes[free]
-        if self.basis.size < 2:
-            k = min(int(np.argmax(weight)), nodes.size - 2)
-            self.basis = nodes[k:k + 2]
-        self.J = self.basis.size
-        # r0 nodes held (fixed at their source node's value, see the module docstring)
-        self.r0_held, self.r0_source = _r0_holds(nodes, self.basis, list(rec.dir_mask),
+        self.dirs = list(rec.dir_mask)
+        self.ndir = len(self.dirs)
+        self.bases = [np.asarray(bases[d], dtype=np.float64) for d in self.dirs]
+        self.sizes = [b.size for b in self.bases]
+        self.offsets = [int(o) for o in np.cumsum([0] + self.sizes)[:-1]]
+        self.jd = int(sum(self.sizes))
+        ocv_cols = hats(rec.soc, ocv_nodes)
+        if self.ndir == 2 and split_ocv:
+            # one correction after charge, one after discharge: blind to hysteresis too
+            after_charge = _after_charge(rec.i)
+            ocv_cols = np.hstack([ocv_cols * after_charge[:, None],
+                                  ocv_cols * ~after_charge[:, None]])
+        self.n_ocv = int(ocv_cols.shape[1])
+        self.r0_held, self.r0_source = _r0_holds(self.bases, self.offsets, self.dirs,
                                                  r0_spans or {})
-        h = _hats(rec.soc, self.basis)
-        hd = np.hstack([h * m[:, None] for m in rec.dir_mask.values()])     # (n, J*ndir)
+        hd = np.hstack([hats(rec.soc, b) * m[:, None]
+                        for b, m in zip(self.bases, rec.dir_mask.values())])
         drive = rec.i if i0_a is None else i0_a * np.arcsinh(rec.i / i0_a)
         self.u_fast = np.multiply(hd, drive[:, None], order="F")
         self.u_slow = np.multiply(hd, rec.i[:, None], order="F")
         self.u_diff = np.asfortranarray(np.column_stack([m * rec.i for m in rec.dir_mask.values()]))
-        self.r0_full = self.u_slow                       # r0 * i on the node basis
+        # r0 * i on the node basis, then the OCV correction
+        self.r0_full = np.asfortranarray(np.hstack([self.u_slow, ocv_cols]))
         self.rows = np.flatnonzero(rec.row & (rec.w > 0))
         self.w = rec.w[self.rows]
         self.yw = rec.y[self.rows] * self.w
         self.yy = float(self.yw @ self.yw)
         self.r0w = np.asfortranarray((self.r0_full.T[:, self.rows] * self.w).T)
-        d2 = np.diff(np.eye(self.J), 2, axis=0)
-        self.dtd = d2.T @ d2
+        self.dtd = [d.T @ d for d in (second_difference(b) for b in self.bases)]
+        self.penalty = PENALTY
+        # the SOC level (index) each row belongs to, -1 between levels (leave-one-out)
+        self.level = np.full(self.rows.size, -1) if levels is None else levels[self.rows]
         self._cache: dict = {}
 
     def block(self, kind: str, tau: float, full: bool = False) -> np.ndarray:
@@ -302,7 +221,7 @@ class _Problem:
         if not full and key in self._cache:
             return self._cache[key]
         u = {"fast": self.u_fast, "slow": self.u_slow, "diff": self.u_diff}[kind]
-        x = _rc_response(self.rec, tau, u)
+        x = rc_response(self.rec, tau, u)
         if full:
             return x
         if len(self._cache) > 96:
@@ -312,36 +231,44 @@ class _Problem:
 
     def width(self, kind: str) -> int:
         """Columns of a branch block: its resistances, then one free restart state per gap."""
-        return (self.J if kind != "diff" else 1) * self.ndir + self.rec.restart.size
+        return (self.jd if kind != "diff" else self.ndir) + self.rec.restart.size
 
     def layout(self, kinds) -> dict:
-        """For the columns [r0 | block of each kind]: where each kind's resistances start,
-        the free (restart) columns, and the starts of the J-column blocks to smooth."""
-        jd = self.J * self.ndir
-        start, off = {"r0": 0}, jd
-        free = [np.zeros(jd, bool)]
+        """For the columns [r0 | OCV correction | block of each kind]: where each part
+        starts, the free columns (OCV correction, restart states), and the (start, size,
+        direction) of each resistance run to smooth over SOC."""
+        start, off = {"r0": 0, "ocv": self.jd}, self.jd + self.n_ocv
+        free = [np.zeros(self.jd, bool), np.ones(self.n_ocv, bool)]
         for k in kinds:
             start[k] = off
             nr = self.width(k) - self.rec.restart.size
             free.append(np.concatenate([np.zeros(nr, bool), np.ones(self.rec.restart.size, bool)]))
             off += self.width(k)
-        smooth = [start[k] + d * self.J for k in ("r0", "fast", "slow") if k in start
-                  for d in range(self.ndir)]
+        smooth = [(start[k] + self.offsets[d], self.sizes[d], d)
+                  for k in ("r0", "fast", "slow") if k in start for d in range(self.ndir)
+                  if self.sizes[d] >= 3]
         return dict(start=start, free=np.concatenate(free), smooth=smooth)
+
+    def regularised(self, gram: np.ndarray, lay: dict, penalty: float | None = None
+                    ) -> np.ndarray:
+        """gram + the second-difference penalty (relative to each run's column scale) + a
+        tiny ridge (columns no row sees, e.g. with a short relax_s, would be singular)."""
+        lam = self.penalty if penalty is None else penalty
+        m = gram.copy()
+        scale = np.sqrt(np.maximum(np.diag(gram), 0.0))
+        for a, n, d in lay["smooth"]:
+            sl = slice(a, a + n)
+            m[sl, sl] += lam * float(np.mean(scale[sl])) ** 2 * self.dtd[d]
+        m[np.diag_indices_from(m)] += 1e-12 * float(np.mean(np.diag(gram))) + 1e-300
+        return m
 
     def solve(self, gram: np.ndarray, g: np.ndarray, lay: dict, hold_r0: bool = False
               ) -> tuple[np.ndarray, float]:
-        """Penalised least squares, resistances >= 0, restart states free; returns the
-        solution and the objective (weighted SSE + second-difference penalty). With
+        """Penalised least squares, resistances >= 0, OCV correction and restart states
+        free; returns the solution and the objective (weighted SSE + penalty). With
         ``hold_r0`` the held r0 nodes and their sources are then fixed at the sources'
         values and the rest solved again."""
-        m = gram.copy()
-        scale = np.sqrt(np.maximum(np.diag(gram), 0.0))
-        for a in lay["smooth"]:
-            sl = slice(a, a + self.J)
-            m[sl, sl] += PENALTY * float(np.mean(scale[sl])) ** 2 * self.dtd
-        # a tiny ridge: columns that no row sees (short relax_s) would make m singular
-        m[np.diag_indices_from(m)] += 1e-12 * float(np.mean(np.diag(gram))) + 1e-300
+        m = self.regularised(gram, lay)
         x = solve_bounded(m, g, lay["free"])
         if hold_r0 and self.r0_held.size:
             fixed = np.zeros(x.size, bool)
@@ -353,6 +280,29 @@ class _Problem:
         return x, self.yy - 2.0 * float(g @ x) + float(x @ m @ x)
 
 
+def _after_charge(i: np.ndarray) -> np.ndarray:
+    """True where the last current (this sample's included) was a charge."""
+    k = np.where(i != 0.0, np.arange(i.size), -1)
+    np.maximum.accumulate(k, out=k)
+    return np.where(k >= 0, i[np.maximum(k, 0)] > 0, False)
+
+
+def second_difference(nodes: np.ndarray) -> np.ndarray:
+    """Second divided differences on (possibly uneven) nodes, scaled by the mean spacing
+    squared: [1, -2, 1] on an even grid; no rows for fewer than three nodes."""
+    n = nodes.size
+    if n < 3:
+        return np.zeros((0, n))
+    h = np.diff(nodes)
+    hbar = float(np.mean(h))
+    d = np.zeros((n - 2, n))
+    for k in range(1, n - 1):
+        h1, h2 = h[k - 1], h[k]
+        c = 2.0 / (h1 + h2) * hbar ** 2
+        d[k - 1, k - 1:k + 2] = (c / h1, -c * (1.0 / h1 + 1.0 / h2), c / h2)
+    return d
+
+
 # ---------------------------------------------------------------- the time constants
 def _search(prob: _Problem, ranges: dict, progress=None):
     """The time constants (module docstring): grid over cached unit responses, local
@@ -362,7 +312,7 @@ def _search(prob: _Problem, ranges: dict, progress=None):
     kinds = list(ranges)
     grids = {k: log_grid(*ranges[k]) for k in kinds}
     blocks = [prob.r0w] + [prob.block(k, tau) for k in kinds for tau in grids[k]]
-    z = _columns(blocks)
+    z = side_by_side(blocks)
     gram = z.T @ z
     g = z.T @ prob.yw
     width = {k: prob.width(k) for k in kinds}
@@ -392,7 +342,7 @@ def _search(prob: _Problem, ranges: dict, progress=None):
             if np.any(np.diff(logt) <= 0):
                 evals[key] = (None, np.inf)
             else:
-                zz = _columns([prob.r0w] + [prob.block(k, t) for k, t in zip(kinds, taus)])
+                zz = side_by_side([prob.r0w] + [prob.block(k, t) for k, t in zip(kinds, taus)])
                 evals[key] = prob.solve(zz.T @ zz, zz.T @ prob.yw, lay)
         return key, evals[key][1]
 
@@ -431,7 +381,7 @@ def _search(prob: _Problem, ranges: dict, progress=None):
                      f"{'the slower one is kept (within ' + f'{100 * TIE:g} %)' if key != found[0] else 'the better one is kept'}")
     x, cost = evals[key]
     if prob.r0_held.size:      # the chosen time constants' fit with r0 held
-        zz = _columns([prob.r0w] + [prob.block(k, t) for k, t in zip(kinds, np.exp(key))])
+        zz = side_by_side([prob.r0w] + [prob.block(k, t) for k, t in zip(kinds, np.exp(key))])
         x, cost = prob.solve(zz.T @ zz, zz.T @ prob.yw, lay, hold_r0=True)
     return dict(zip(kinds, np.exp(np.array(key)))), x, cost, len(evals), notes
 
@@ -482,25 +432,34 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
         notes.extend(n)
     directions = tuple(d for d in DIRECTIONS if any(p.direction == d for p in complete))
     deadband = 0.01 * capacity_ah if direction_deadband_a is None else direction_deadband_a
-    rec = _record(record, soc0, ocv, capacity_ah, directions=directions, deadband_a=deadband,
-                  relax_s=relax_s, rows_per_decade=rows_per_decade, min_weight_s=min_weight_s)
+    rec = pulse_record(record, soc0, ocv, capacity_ah, directions=directions,
+                       deadband_a=deadband, relax_s=relax_s, rows_per_decade=rows_per_decade,
+                       min_weight_s=min_weight_s)
+    ranges, n = data_tau_ranges(ranges, _pulse_sampling_s(series, complete), rec.rest_used_s)
+    notes.extend(n)
+    bases = {d: level_nodes(complete, d, capacity_ah) for d in directions}
+    ocv_nodes, levels = level_windows(complete, series.time_s, rec.t)
     spans = _r0_spans(complete, directions)
-    prob = _Problem(rec, nodes, i0_a, spans)
-    if prob.rows.size < 4 * prob.J:
+    # a correction per direction of the last current needs the current dependence (two
+    # C-rates at a level) to tell it from r0 i
+    split = all(len({p.c_rate for p in complete if p.direction == d}) >= 2 for d in directions)
+    prob = _Problem(rec, bases, ocv_nodes, i0_a, spans, levels, split_ocv=split)
+    if prob.rows.size < 4 * (prob.jd + prob.n_ocv):
         raise InputError(series.source, f"only {prob.rows.size} samples to fit the curve "
                                         "method on")
-    taus, x, cost, n_eval, search_notes = _search(prob, ranges, progress)
+    taus, x, cost, n_eval, search_notes, ranges = _fit_time_constants(prob, ranges, progress)
     notes.extend(search_notes)
+    kinds = list(ranges)
+    diffusion = "diff" in ranges
     rms = float(np.sqrt(max(cost, 0.0) / float(prob.w @ prob.w)))
     # the fitted voltage at every kept sample (plots, per-node errors)
-    kinds = list(ranges)
-    full = _columns([prob.r0_full] + [prob.block(k, taus[k], full=True) for k in kinds])
+    full = side_by_side([prob.r0_full] + [prob.block(k, taus[k], full=True) for k in kinds])
     fitted = rec.y - full @ x                            # residual, measured minus fitted
     at = prob.layout(kinds)["start"]
     fits = {}
     for n_d, d in enumerate(rec.dir_mask):
-        j0 = n_d * prob.J
-        r0, rf, rs = (np.interp(nodes, prob.basis, x[at[k] + j0:at[k] + j0 + prob.J])
+        a0, nb, basis = prob.offsets[n_d], prob.sizes[n_d], prob.bases[n_d]
+        r0, rf, rs = (np.interp(nodes, basis, x[at[k] + a0:at[k] + a0 + nb])
                       for k in ("r0", "fast", "slow"))
         rd = float(x[at["diff"] + n_d]) if diffusion else None
         low = min(p.soc for p in complete if p.direction == d)
@@ -511,14 +470,12 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
             notes.append(f"curve: {d} r0/r_fast/r_slow held flat at SOC "
                          f"{', '.join(f'{s:g}' for s in held)} (outside the SOC levels "
                          f"with a complete pulse, {low:.3f} .. {high:.3f})")
-        held = prob.basis[prob.r0_held[(prob.r0_held >= j0) & (prob.r0_held < j0 + prob.J)]
-                          - j0]
+        held = basis[prob.r0_held[(prob.r0_held >= a0) & (prob.r0_held < a0 + nb)] - a0]
         if held.size:
             lo, hi, _, _, need = spans[d]
-            notes.append(f"curve: {d} r0 held at SOC {', '.join(f'{s:g}' for s in held)} "
+            notes.append(f"curve: {d} r0 held at SOC {', '.join(f'{s:.3g}' for s in held)} "
                          f"(r0 is pinned by the levels with complete pulses at {need} "
                          f"or more C-rates, {lo:.3f} .. {hi:.3f})")
-        r0, rf, rs = (_hold(v, ident) for v in (r0, rf, rs))
         err = _node_error(rec, prob, fitted, nodes, rec.dir_mask[d], rms)
         fits[d] = DirectionFit(r0, rf, rs, rd, err, ident)
     if len(directions) == 1:
@@ -526,15 +483,12 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
         fits[other] = fits[directions[0]]
         notes.append(f"curve: the test has {directions[0]} pulses only: the {other} "
                      f"parameters are the {directions[0]} parameters")
-    for k in kinds:
-        lo, hi = ranges[k]
-        if taus[k] <= lo * 1.01 or taus[k] >= hi / 1.01:
-            notes.append(f"curve: tau_{k} {taus[k]:.3g} s is on its search bound "
-                         f"({lo:g} .. {hi:g} s): not resolved by the data")
     notes.append(
         f"curve: whole-test fit of {prob.rows.size} samples ({n_eval} time-constant "
         f"evaluations), rests used up to {rec.rest_used_s:.0f} s after "
-        f"each current change{', the SOC-step file merged' if steps is not None else ''}: "
+        f"each current change{', the SOC-step file merged' if steps is not None else ''}, "
+        f"tables free at the {' / '.join(f'{b.size} {d}' for d, b in zip(prob.dirs, prob.bases))} "
+        f"pulse levels, smoothing weight {prob.penalty:.2g} (leave one level out): "
         f"tau_fast {taus['fast']:.3g} s, tau_slow {taus['slow']:.3g} s"
         + (f", tau_diff {taus['diff']:.3g} s" if diffusion else "")
         + (f", Butler-Volmer i0 {i0_a:.3g} A on the fast branch" if i0_a else "")
@@ -545,6 +499,49 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
                     int(prob.rows.size), tuple(notes),
                     _windows(series, complete, rec, fitted), dict(ranges),
                     float(rec.rest_used_s))
+
+
+def _pulse_sampling_s(series: TimeSeries, complete) -> float:
+    """The median sampling interval inside the complete pulses."""
+    dt = np.concatenate([np.diff(series.time_s[p.start:p.stop]) for p in complete])
+    dt = dt[dt > 0]
+    return float(np.median(dt)) if dt.size else 0.0
+
+
+def _fit_time_constants(prob: _Problem, ranges: dict, progress=None):
+    """The time-constant search, the smoothing weight chosen by leaving one level out at
+    its result (and the search again if the weight changed), then what a time constant on
+    its bound means: the diffusion pair on a bound is dropped and the rest refitted; a fast
+    or slow one is kept fixed there, with a note. Returns (taus, x, objective, evaluations,
+    notes, ranges actually used)."""
+    taus, x, cost, n_eval, notes = _search(prob, ranges, progress)
+    for _ in range(2):
+        kinds = list(ranges)
+        z = side_by_side([prob.r0w] + [prob.block(k, taus[k]) for k in kinds])
+        lam, _ = choose_penalty(prob, z, prob.layout(kinds))
+        if lam == prob.penalty:
+            break
+        prob.penalty = lam
+        taus, x, cost, n2, notes = _search(prob, ranges)
+        n_eval += n2
+    on_bound = [k for k in ranges
+                if taus[k] <= ranges[k][0] * 1.01 or taus[k] >= ranges[k][1] / 1.01]
+    if "diff" in on_bound:
+        notes.append(f"curve: the diffusion pair's tau_diff {taus['diff']:.3g} s went to its "
+                     f"bound ({ranges['diff'][0]:.3g} .. {ranges['diff'][1]:.3g} s): the test "
+                     "does not resolve it; dropped, the two pairs refitted")
+        ranges = {k: v for k, v in ranges.items() if k != "diff"}
+        taus, x, cost, n2, more = _search(prob, ranges)
+        notes.extend(more)
+        n_eval += n2
+        on_bound = [k for k in ranges
+                    if taus[k] <= ranges[k][0] * 1.01 or taus[k] >= ranges[k][1] / 1.01]
+    for k in on_bound:
+        lo, hi = ranges[k]
+        notes.append(f"curve: tau_{k} {taus[k]:.3g} s is on its search bound ({lo:.3g} .. "
+                     f"{hi:.3g} s): {'shorter' if taus[k] <= lo * 1.01 else 'longer'} than "
+                     "the test resolves; kept fixed there")
+    return taus, x, cost, n_eval, notes, ranges
 
 
 def _r0_spans(complete, directions) -> dict:
@@ -568,24 +565,22 @@ def _r0_spans(complete, directions) -> dict:
     return out
 
 
-def _r0_holds(nodes, basis, directions, spans) -> tuple[np.ndarray, np.ndarray]:
-    """The r0 columns held and, for each, its source column: per direction, the basis
-    nodes the complete pulses identify (:func:`_identified`) beyond the nodes nearest to
-    the ends of the levels that pin r0 (the source: that nearest node). Nodes beyond the
-    complete pulses stay free here and are held flat with the other resistances."""
+def _r0_holds(bases, offsets, directions, spans) -> tuple[np.ndarray, np.ndarray]:
+    """The r0 columns held and, for each, its source column: per direction, the level
+    nodes beyond the nodes nearest to the ends of the levels that pin r0 (the source: that
+    nearest node)."""
     held, source = [], []
-    for n_d, d in enumerate(directions):
+    for basis, off, d in zip(bases, offsets, directions):
         if d not in spans:
             continue
         lo, hi, low, high, _ = spans[d]
-        ident = _identified(nodes, low, high)[np.searchsorted(nodes, basis)]
         k_lo = int(np.argmin(np.abs(basis - lo))) if lo > low else 0
         k_hi = int(np.argmin(np.abs(basis - hi))) if hi < high else basis.size - 1
         k_hi = max(k_hi, k_lo)
-        for k in np.flatnonzero(ident):
+        for k in range(basis.size):
             if k < k_lo or k > k_hi:
-                held.append(n_d * basis.size + k)
-                source.append(n_d * basis.size + (k_lo if k < k_lo else k_hi))
+                held.append(off + k)
+                source.append(off + (k_lo if k < k_lo else k_hi))
     return np.array(held, dtype=int), np.array(source, dtype=int)
 
 
@@ -598,17 +593,8 @@ def _identified(nodes, low, high):
     return (nodes >= lo) & (nodes <= hi)
 
 
-def _hold(v, ident):
-    """Values outside the identified nodes held at the nearest identified one."""
-    ix = np.flatnonzero(ident)
-    out = v.copy()
-    out[: ix[0]] = v[ix[0]]
-    out[ix[-1] + 1:] = v[ix[-1]]
-    return out
-
-
 def _node_error(rec, prob, resid, nodes, mask, default):
-    h = _hats(rec.soc[prob.rows], nodes) * mask[prob.rows][:, None]
+    h = hats(rec.soc[prob.rows], nodes) * mask[prob.rows][:, None]
     w2 = (prob.w ** 2)[:, None] * h
     tot = w2.sum(axis=0)
     e2 = (w2 * (resid[prob.rows] ** 2)[:, None]).sum(axis=0)

@@ -1,0 +1,114 @@
+"""The pulse levels of a pulse test as the whole-test fit sees them (:mod:`ecmgen.fit.curve`):
+the SOC nodes each direction's tables are free at, the levels rows belong to (for leaving one
+out), the time-constant ranges the record can show, and the choice of the smoothing weight by
+leaving one level out."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..data.dcir import Pulse
+from .lsq import solve_bounded
+from .points import SOC_LEVEL_GAP
+
+# candidate weights of the second-difference penalty (relative to the column scale)
+PENALTIES = tuple(10.0 ** np.arange(-6.0, 1.01, 0.5))
+CV_TIE = 0.01      # held-out errors this close (relative) are one: the smoother is kept
+
+
+def _clusters(socs: np.ndarray) -> list[np.ndarray]:
+    """Indices grouped by SOC (falling): a group takes what is within SOC_LEVEL_GAP of its
+    first member."""
+    order = np.argsort(-socs, kind="stable")
+    groups: list[list[int]] = []
+    for k in order:
+        if groups and abs(socs[groups[-1][0]] - socs[k]) <= SOC_LEVEL_GAP:
+            groups[-1].append(int(k))
+        else:
+            groups.append([int(k)])
+    return [np.array(g) for g in groups]
+
+
+def pulse_mid_soc(p: Pulse, capacity_ah: float) -> float:
+    """SOC half-way through the pulse (the level a pulse measures)."""
+    return float(p.soc + 0.5 * p.current_a * p.duration_s / 3600.0 / capacity_ah)
+
+
+def level_nodes(complete: list[Pulse], direction: str, capacity_ah: float) -> np.ndarray:
+    """The SOC nodes of one direction's table: the mean mid-pulse SOC of each of its levels
+    with a complete pulse, rising."""
+    ps = [p for p in complete if p.direction == direction]
+    if not ps:
+        return np.zeros(0)
+    mids = np.array([pulse_mid_soc(p, capacity_ah) for p in ps])
+    nodes = np.array([mids[g].mean() for g in _clusters(np.array([p.soc for p in ps]))])
+    return np.clip(np.sort(nodes), 0.0, 1.0)
+
+
+def level_windows(complete: list[Pulse], t: np.ndarray, t_rec: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """(SOC of each level of either direction, rising; the level each sample of ``t_rec``
+    belongs to, -1 between levels). A level's samples run from the rest before its first
+    pulse to the end of the relaxation after its last."""
+    socs = np.array([p.soc for p in complete])
+    groups = _clusters(socs)
+    order = np.argsort([socs[g].mean() for g in groups])
+    level = np.full(t_rec.size, -1)
+    nodes = []
+    for n, gi in enumerate(order):
+        g = groups[gi]
+        nodes.append(float(socs[g].mean()))
+        t0 = t[min(complete[k].rest_index for k in g)]
+        t1 = t[min(max(complete[k].next_start for k in g), t.size - 1)]
+        level[(t_rec >= t0) & (t_rec <= t1)] = n
+    return np.array(nodes), level
+
+
+def data_tau_ranges(ranges: dict, sampling_s: float, relaxation_s: float) -> tuple[dict, list]:
+    """The search ranges cut to what the record can show: no time constant shorter than the
+    sampling in the pulses, no slow or diffusion one longer than the longest relaxation
+    after a current change. Returns (ranges, notes)."""
+    out, notes = {}, []
+    for k, (lo, hi) in ranges.items():
+        lo2 = max(lo, sampling_s) if k == "fast" else lo
+        hi2 = min(hi, relaxation_s) if k in ("slow", "diff") and relaxation_s > 0 else hi
+        if hi2 <= lo2 * 1.5:          # nothing left to search: keep the configured range
+            lo2, hi2 = lo, hi
+        if lo2 > lo * 1.01 or hi2 < hi / 1.01:
+            notes.append(f"curve: tau_{k} searched in {lo2:.3g} .. {hi2:.3g} s (the "
+                         f"{'sampling' if lo2 > lo * 1.01 else 'longest relaxation'} of the "
+                         "test)")
+        out[k] = (float(lo2), float(hi2))
+    return out, notes
+
+
+def choose_penalty(prob, z: np.ndarray, lay: dict) -> tuple[float, dict]:
+    """The smoothing weight by leaving one SOC level out: for each candidate weight and
+    level, fit on the other rows and measure the left-out level's rows after refitting only
+    the free nuisance columns there (the OCV correction, restart states). Returns the weight
+    (the largest within CV_TIE of the best) and {weight: held-out SSE}."""
+    levels = [np.flatnonzero(prob.level == k) for k in range(int(prob.level.max()) + 1)]
+    levels = [r for r in levels if r.size]
+    if len(levels) < 3:
+        return prob.penalty, {}
+    gram = z.T @ z
+    g = z.T @ prob.yw
+    free = lay["free"]
+    folds = []
+    for r in levels:
+        zk, yk = z[r], prob.yw[r]
+        folds.append((zk, yk, gram - zk.T @ zk, g - zk.T @ yk))
+    errors = {}
+    for lam in PENALTIES:
+        e = 0.0
+        for zk, yk, gk, qk in folds:
+            x = solve_bounded(prob.regularised(gk, lay, lam), qk, free)
+            res = yk - zk @ x
+            f = zk[:, free]
+            if f.size:
+                res = res - f @ np.linalg.lstsq(f, res, rcond=None)[0]
+            e += float(res @ res)
+        errors[float(lam)] = e
+    best = min(errors.values())
+    lam = max(k for k, v in errors.items() if v <= (1.0 + CV_TIE) * best)
+    return lam, errors

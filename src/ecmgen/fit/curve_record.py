@@ -1,0 +1,132 @@
+"""The pulse test reduced to the samples the whole-test fit needs (:mod:`ecmgen.fit.curve`):
+rows, their weights, the folded rests, and the RC unit responses on that record."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import lapack
+
+from ..data.measure import TimeSeries, charging_direction
+from ..data.ocv import OcvTable
+from ..data.steps import pulse_test_gaps
+
+W_SPAN_S = (1.0, 300.0)    # a row's weight is sqrt(the seconds it stands for), within these
+
+
+@dataclass(frozen=True)
+class Record:
+    """The pulse test reduced to the samples the fit needs (see the module docstring)."""
+
+    t: np.ndarray        # (n,) s
+    dt: np.ndarray       # (n,) own ZOH interval
+    gap: np.ndarray      # (n,) rest folded in before the interval (no input there)
+    i: np.ndarray        # (n,) A (rest current zeroed)
+    soc: np.ndarray      # (n,)
+    y: np.ndarray        # (n,) v - ocv(soc)
+    v: np.ndarray        # (n,) measured voltage
+    row: np.ndarray      # (n,) bool: a row of the least squares
+    w: np.ndarray        # (n,) weight of the row (0 elsewhere)
+    dir_mask: dict       # direction -> (n,) bool, the samples run on that direction's table
+    restart: np.ndarray  # indices of the first samples after gaps the file does not cover
+    rest_used_s: float   # the longest stretch of rest after a change that has rows
+
+
+def pulse_record(series: TimeSeries, soc0: float, ocv: OcvTable, capacity_ah: float, *,
+            directions: tuple[str, ...], deadband_a: float,
+            relax_s: float, rows_per_decade: float, min_weight_s: float = W_SPAN_S[0]) -> Record:
+    t = series.time_s
+    i = series.current_a.copy()
+    dt = np.diff(t, prepend=t[0])
+    soc = soc0 + series.coulomb_ah() / capacity_ah
+    on_a = max(0.02 * capacity_ah, 1e-3)
+    i[np.abs(i) <= 1e-3 * capacity_ah] = 0.0              # rest: no input
+    on = np.abs(i) > on_a
+    gaps = pulse_test_gaps(series)
+    # a current change, or the end of an unlogged gap (the states restart there)
+    change = np.union1d(np.flatnonzero(np.abs(np.diff(i, prepend=0.0)) > on_a), gaps + 1)
+    last = np.full(t.size, -1)
+    last[change] = change
+    np.maximum.accumulate(last, out=last)
+    since = np.where(last >= 0, t - t[np.maximum(last, 0)], np.inf)
+    coarse = dt > 5.0            # a coarsely logged record (the SOC steps): every sample
+    rest = ~on & (since <= relax_s)
+    # rest rows log-spaced in the time since the change: the last sample of each bucket
+    # stands for the bucket; each sample counts clip(dt, 1 s, 300 s) seconds
+    bucket = np.floor(rows_per_decade * np.log10(np.maximum(since, 0.1) / 0.1))
+    bucket = np.where(np.isfinite(since), bucket, -1.0)
+    last_of_bucket = np.concatenate(((bucket[1:] != bucket[:-1]) | (last[1:] != last[:-1]),
+                                     [True]))
+    row = on | coarse | (rest & last_of_bucket)
+    row[0] = False
+    keep = row | (i != 0.0)
+    keep[0] = True
+    idx = np.flatnonzero(keep)
+    # the rest folded into each kept sample: time since the previous kept sample minus its dt
+    t_prev = np.concatenate(([t[0]], t[idx[:-1]]))
+    gap = np.maximum(t[idx] - t_prev - dt[idx], 0.0)
+    counts = np.where(on | coarse | rest, np.clip(dt, min_weight_s, W_SPAN_S[1]), 0.0)
+    cum = np.cumsum(counts)
+    rix = np.flatnonzero(row)
+    w2 = np.diff(cum[rix], prepend=0.0)
+    w2[on[rix]] = counts[rix][on[rix]]
+    w_all = np.zeros(t.size)
+    w_all[rix] = np.sqrt(w2)
+    w = w_all[idx]
+    # after a gap the file does not cover, the states are unknown: they restart from free
+    # values there (see _Problem), and the first sample, whose current stands for the gap,
+    # is no row
+    restart = np.searchsorted(idx, gaps + 1)
+    w[restart] = 0.0
+    charging = charging_direction(i, deadband_a)        # the simulator's rule
+    if len(directions) == 1:
+        masks = {directions[0]: np.ones(idx.size, bool)}
+    else:
+        masks = {"charge": charging[idx], "discharge": ~charging[idx]}
+    s = soc[idx]
+    return Record(t[idx], dt[idx], gap, i[idx], s, series.voltage_v[idx] - ocv.ocv_at(s),
+                   series.voltage_v[idx], row[idx], w, masks, restart,
+                   float(np.max(since[row & rest], initial=0.0)))
+
+
+def side_by_side(blocks) -> np.ndarray:
+    """The blocks side by side in one Fortran-ordered array (no transposing copy)."""
+    out = np.empty((blocks[0].shape[0], sum(b.shape[1] for b in blocks)), order="F")
+    at = 0
+    for b in blocks:
+        out[:, at:at + b.shape[1]] = b
+        at += b.shape[1]
+    return out
+
+
+def hats(soc: np.ndarray, nodes: np.ndarray) -> np.ndarray:
+    """Hat functions on ``nodes`` at ``soc`` (n, n_nodes), flat beyond the end nodes (one
+    node: a constant)."""
+    if nodes.size == 1:
+        return np.ones((soc.size, 1))
+    x = np.clip(soc, nodes[0], nodes[-1])
+    j = np.clip(np.searchsorted(nodes, x, side="right") - 1, 0, nodes.size - 2)
+    w = (x - nodes[j]) / (nodes[j + 1] - nodes[j])
+    h = np.zeros((soc.size, nodes.size))
+    h[np.arange(soc.size), j] = 1.0 - w
+    h[np.arange(soc.size), j + 1] += w
+    return h
+
+
+def rc_response(rec: Record, tau: float, u: np.ndarray) -> np.ndarray:
+    """x_k = exp(-(gap_k + dt_k)/tau) x_{k-1} + (1 - exp(-dt_k/tau)) u_k for every column
+    of u (n, m), plus one column per restart r: a unit state from sample r on (x_r = 1,
+    decaying). A unit-lower-bidiagonal solve (LAPACK tbtrs), exact and compiled."""
+    n = rec.t.size
+    ab = np.zeros((2, n))
+    ab[1, :-1] = -np.exp(-(rec.gap[1:] + rec.dt[1:]) / tau)
+    b = np.zeros((n, u.shape[1] + rec.restart.size), order="F")
+    np.multiply(u, -np.expm1(-rec.dt / tau)[:, None], out=b[:, :u.shape[1]])
+    b[rec.restart, u.shape[1] + np.arange(rec.restart.size)] = 1.0
+    x, info = lapack.dtbtrs(ab, b, uplo="L", diag="U", overwrite_b=1)
+    if info != 0:  # pragma: no cover - unit diagonal: never singular
+        raise RuntimeError(f"dtbtrs info {info}")
+    return x
+
+
