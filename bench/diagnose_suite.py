@@ -49,7 +49,8 @@ def run_case(folder: str) -> dict:
             "mae_before_mv": 1e3 * result.mae_before_v, "mae_after_mv": 1e3 * result.mae_after_v,
             "noise_mv": 1e3 * result.noise_v, "drop": drop,
             "roughness": q.roughness, "non_positive": q.non_positive,
-            "on_bound": list(q.on_bound),
+            "on_bound": list(q.on_bound), "unexplained": result.unexplained,
+            "verdict": result.verdict,
             "seconds": time.perf_counter() - t0}
 
 

@@ -40,7 +40,9 @@ def test_diagnose_suite_cell(cell):
     assert row["roughness"] <= 0.35, row
     assert row["non_positive"] == 0, row
     if truth == "none":
-        assert row["named"] == [], row
+        assert row["named"] == [] and not row["unexplained"], row
+    elif cell == "c08":     # missed, but said: the error left is 5 x the noise
+        assert row["unexplained"] and row["verdict"].startswith("unexplained: "), row
     elif cell not in KNOWN_MISSES:
         assert row["named"][:1] == [truth], row
         assert row["drop"] >= 0.4, row

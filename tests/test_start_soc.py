@@ -116,3 +116,23 @@ def test_a_simulated_soc_outside_0_1_is_warned_about():
     assert len(val.warnings) == 1 and "long.csv: simulated SOC runs" in val.warnings[0]
     assert "outside [0, 1]" in val.warnings[0]
     assert not validate(m, series.slice(0, 3000), soc0=1.0).warnings
+
+
+@pytest.mark.parametrize("scale", [0.88, 1.0, 1.14])
+def test_start_soc_and_capacity_from_the_rests_together(scale):
+    """A pulse test run on a cell whose capacity is not the nominal one: the rests fix the
+    start SOC and the capacity together; with the right capacity nothing moves."""
+    from dataclasses import replace
+
+    from conftest import make_pulse_test
+    from ecmgen.data.soc import pulse_test_start_soc_and_capacity
+
+    nominal = synthetic_nca_model()
+    truth = replace(nominal, capacity_ah=scale * nominal.capacity_ah)
+    series, soc0 = make_pulse_test(truth, soc_levels=(0.85, 0.7, 0.55, 0.4, 0.25),
+                                   c_rates=(1.0, 2.0), noise_v=0.0005, seed=2, log_moves=True)
+    rests = find_rests(series, 0.02 * nominal.capacity_ah, 300.0)
+    fit, q = pulse_test_start_soc_and_capacity(nominal.ocv, nominal.capacity_ah, rests, "p.csv")
+    assert q == pytest.approx(truth.capacity_ah, rel=0.01)
+    assert fit.soc0 == pytest.approx(soc0, abs=0.01)
+    assert ("the capacity the rests imply" in fit.note) == (scale != 1.0)

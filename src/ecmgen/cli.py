@@ -300,13 +300,10 @@ def cmd_diagnose(args) -> int:
     if args.json:
         print(json.dumps(result.to_json_dict(out_dir / "model.json"), indent=1))
     else:
-        if result.steps:
-            for s in result.steps:
-                print(f"added {s.name}: held-out MAE {s.mae_before_v * 1e3:.2f} -> "
-                      f"{s.mae_after_v * 1e3:.2f} mV")
-        else:
-            print("nothing is missing: no effect lowered the held-out error by more than "
-                  "noise can explain")
+        for s in result.steps:
+            print(f"added {s.name}: held-out MAE {s.mae_before_v * 1e3:.2f} -> "
+                  f"{s.mae_after_v * 1e3:.2f} mV")
+        print(result.verdict)
         print(f"held-out MAE {result.mae_before_v * 1e3:.2f} mV -> "
               f"{result.mae_after_v * 1e3:.2f} mV; wrote {len(files)} files to {out_dir}")
     return 0

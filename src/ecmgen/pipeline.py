@@ -55,6 +55,7 @@ class Inputs:
     notes: tuple[str, ...]
     steps: TimeSeries | None = None     # SOC steps the pulse test left out (curve fit)
     ocv_report: ocv_mod.OcvReport | None = None
+    soc_capacity_ah: float | None = None   # the pulse test's SOC axis (None: capacity_ah)
 
 
 @dataclass
@@ -100,17 +101,19 @@ def _ocv_file_curve(cfg: BuildConfig, path: Path, progress: Progress) -> ocv_mod
 
 
 def pulse_test_soc0(cfg: BuildConfig, series: TimeSeries, rests, reference: OcvTable | None,
-                    given: float | None) -> tuple[float, str]:
-    """Start SOC of one pulse test: ``given`` (data.pulses_soc0) wins; else fitted on
-    all its rests against ``reference`` (the OCV of the other sources); else 1.0."""
-    from .data.soc import pulse_test_start_soc
+                    given: float | None) -> tuple[float, str, float]:
+    """Start SOC of one pulse test and the capacity of its SOC axis: ``given``
+    (data.pulses_soc0) wins; else both fitted on all its rests against ``reference`` (the
+    OCV of the other sources); else 1.0. Returns (soc0, note, axis capacity in Ah)."""
+    from .data.soc import pulse_test_start_soc_and_capacity
 
+    q = cfg.capacity_ah
     if given is not None:
-        return given, ""
+        return given, "", q
     if reference is not None and len(rests) >= 2:
-        fit = pulse_test_start_soc(reference, cfg.capacity_ah, rests, series.source)
-        return fit.soc0, f"pulse test {fit.note} (set data.pulses_soc0 to override)"
-    return 1.0, "pulse test assumed to start at SOC 1.0 (set data.pulses_soc0)"
+        fit, q = pulse_test_start_soc_and_capacity(reference, q, rests, series.source)
+        return fit.soc0, f"pulse test {fit.note} (set data.pulses_soc0 to override)", q
+    return 1.0, "pulse test assumed to start at SOC 1.0 (set data.pulses_soc0)", q
 
 
 def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
@@ -130,16 +133,17 @@ def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
     if file_curves:
         reference = ocv_mod.merge_curves([file_curves[s] for s in sources if s != "pulses"])[0]
 
-    series, pulses, rests, soc0 = None, (), None, None
+    series, pulses, rests, soc0, q_axis = None, (), None, None, q
     if cfg.pulses is not None:
         progress(f"reading pulse test {cfg.pulses.name}")
         series = read_series(cfg, cfg.pulses, "pulses")
         records.append(InputRecord("pulses", cfg.pulses.name, file_sha256(cfg.pulses)))
         rests = find_rests(series, max(0.02 * q, 1e-3), ocv_mod.MIN_OCV_REST_S)
-        soc0, n = pulse_test_soc0(cfg, series, rests, reference, cfg.pulses_soc0)
+        soc0, n, q_axis = pulse_test_soc0(cfg, series, rests, reference, cfg.pulses_soc0)
         if n:
             notes.append(n)
-        pulses = tuple(dcir_mod.find_pulses(series, q, soc0=soc0, min_rest_s=cfg.min_rest_s,
+        pulses = tuple(dcir_mod.find_pulses(series, q_axis, soc0=soc0,
+                                            min_rest_s=cfg.min_rest_s,
                                             max_pulse_s=cfg.max_pulse_s))
         table = dcir_mod.extract_dcir(series, list(pulses), cfg.times_s)
         notes.extend(table.notes)
@@ -156,10 +160,11 @@ def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
         steps = read_series(cfg, steps_file, "pulses")      # the pulse test's cycler
         records.append(InputRecord("steps", steps_file.name, file_sha256(steps_file)))
     paths = {s: (cfg.pulses if s == "pulses" else s) for s in sources}
-    ocv, n, report = ocv_mod.assemble(sources, file_curves, paths, rests, soc0, q,
+    ocv, n, report = ocv_mod.assemble(sources, file_curves, paths, rests, soc0, q_axis,
                                       auto=cfg.ocv_branch == "auto")
     notes.extend(n)
-    return Inputs(q, ocv, table, series, pulses, tuple(records), tuple(notes), steps, report)
+    return Inputs(q, ocv, table, series, pulses, tuple(records), tuple(notes), steps, report,
+                  q_axis)
 
 
 def _rc_tables(soc, direction, cols: dict[str, np.ndarray], fit_error, converged,
@@ -242,7 +247,7 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
                  f"{_relax_words(relax, cfg.relax_s)}"
                  f"{', SOC steps merged' if inputs.steps is not None else ''})")
         cf = fit_pulse_curves(inputs.pulses_series, list(inputs.pulses), inputs.ocv,
-                              inputs.capacity_ah, i0_a=bv.i0_a if bv else None,
+                              inputs.soc_capacity_ah or inputs.capacity_ah, i0_a=bv.i0_a if bv else None,
                               diffusion=branches, steps=inputs.steps,
                               relax_s=cfg.relax_s,
                               direction_deadband_a=common["direction_deadband_a"])
@@ -706,6 +711,12 @@ def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _qu
     out_dir = Path(out_dir).resolve()
     given = _given(cfg) | ({judge_path.resolve()} if judge_path is not None else set())
     fit_cfg = cfg if cfg.methods == (cfg.best,) else _only_method(cfg, cfg.best)
+    if "curve_branches" not in (cfg.raw.get("fit") or {}):
+        # the base of a diagnosis is the plain 2RC: the diffusion pair and the Butler-Volmer
+        # branch are what extra_rc and current_dependent_resistance would name
+        fit_cfg = replace(fit_cfg, curve_branches=False)
+        progress("base model: the plain 2RC (no diffusion pair, no Butler-Volmer branch; "
+                 "[fit] curve_branches = true fits them into the base)")
     models, _, _, _ = fit_all(fit_cfg, progress)
     base = models[cfg.best]
     fit_series = read_series(cfg, cfg.cycle, "cycle")

@@ -23,7 +23,7 @@ gap (an upper bound: the cell rested for at most that long).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -159,17 +159,53 @@ def fit_start_soc(ocv, capacity_ah: float, rests: Rests, source="", *,
     return StartSoc(float(s0), rms, offsets, len(rests), note)
 
 
+CAPACITY_SCALES = np.round(np.arange(0.70, 1.4001, 0.005), 3)   # as capacity_error's range
+CAPACITY_RMS_GAIN = 0.5   # another capacity is taken when it halves the rests' RMS misfit
+
+
 def pulse_test_start_soc(ocv, capacity_ah: float, rests: Rests, source="") -> StartSoc:
     """Start SOC of a pulse test from its rests (``find_rests``): 1.0 when the rest it
     opens with sits at or above the top of the OCV (a full cell: nothing else is
     consistent with that voltage, and a fit would trade the OCV's offset for a shift in
     SOC), else :func:`fit_start_soc` over all of them."""
     if len(rests) and rests.after[0] == 0 and rests.charge_ah[0] == 0 and \
-            rests.voltage_v[0] >= float(ocv.ocv_v[-1]):
+            rests.voltage_v[0] >= float(np.ravel(ocv.ocv_v)[-1]):
         return StartSoc(1.0, float("nan"), {}, 1,
                         f"start SOC 1.0: its opening rest ({rests.voltage_v[0]:.4f} V) is at "
-                        f"or above the top of the OCV ({float(ocv.ocv_v[-1]):.4f} V)")
+                        f"or above the top of the OCV ({float(np.ravel(ocv.ocv_v)[-1]):.4f} V)")
     return fit_start_soc(ocv, capacity_ah, rests, source)
+
+
+def pulse_test_start_soc_and_capacity(ocv, capacity_ah: float, rests: Rests, source=""
+                                      ) -> tuple[StartSoc, float]:
+    """Start SOC and the capacity the rests imply, fitted together: a pulse test run by a
+    wrong nominal capacity moves the SOC by other steps than it says, and a start SOC fitted
+    with the nominal one spreads that error over every level. Returns (start SOC, capacity):
+    the configured capacity unless another (CAPACITY_SCALES) fits the rests with at most
+    CAPACITY_RMS_GAIN of the misfit (measured on the synthetic cells of
+    ../shared/diagnose-suite: the two with a capacity error 11.2 -> 1.8 mV and 17.2 -> 1.1 mV
+    at 0.880 / 1.140 of nominal, true 0.885 / 1.138; the ten others unchanged)."""
+    start = pulse_test_start_soc(ocv, capacity_ah, rests, source)
+    if len(rests) < 4:
+        return start, capacity_ah
+    # a full start (the opening rest at the top of the OCV) stays full
+    bounds = None if np.isfinite(start.rms_v) else (start.soc0, start.soc0)
+    nominal = fit_start_soc(ocv, capacity_ah, rests, source, bounds=bounds)
+    best, scale = nominal, 1.0
+    for k in CAPACITY_SCALES:
+        try:
+            fit = fit_start_soc(ocv, capacity_ah * float(k), rests, source, bounds=bounds)
+        except InputError:          # the rests move more charge than that capacity holds
+            continue
+        if fit.rms_v < best.rms_v:
+            best, scale = fit, float(k)
+    if scale == 1.0 or best.rms_v > CAPACITY_RMS_GAIN * nominal.rms_v:
+        return start, capacity_ah
+    q = capacity_ah * scale
+    note = (f"{best.note}, with the capacity the rests imply, {q:.4g} Ah = {scale:.3f} x "
+            f"cell.capacity_ah ({nominal.rms_v * 1e3:.1f} mV RMS with {capacity_ah:g} Ah): the "
+            f"pulse test's SOC axis uses it, the model keeps {capacity_ah:g} Ah")
+    return replace(best, note=note), q
 
 
 # --------------------------------------------------------------------------- records

@@ -203,10 +203,19 @@ def report_text(result: DiagnoseResult, model_name: str = "model.json") -> str:
                          f"99 % lower bound of the gain {mv(st.ci_low_v)}).")
         lines += ["", f"Held-out MAE of the base model {mv(result.mae_before_v)}, of the "
                       f"augmented model ({model_name}) {mv(result.mae_after_v)}."]
+    elif result.unexplained:
+        lines.append(f"Unexplained: the held-out MAE ({mv(result.mae_before_v)}) is "
+                     f"{result.mae_before_v / result.noise_v:.0f} x the voltage noise "
+                     f"({mv(result.noise_v)}), and no effect that diagnose knows lowered it by "
+                     f"more than noise explains. {model_name} is the base model unchanged.")
     else:
         lines.append(f"Nothing is missing that this data can show: no effect lowered the "
                      f"held-out MAE ({mv(result.mae_before_v)}) by more than noise explains. "
                      f"{model_name} is the base model unchanged.")
+    if result.steps and result.unexplained:
+        lines += ["", f"Unexplained: after them the held-out MAE ({mv(result.mae_after_v)}) is "
+                      f"still {result.mae_after_v / result.noise_v:.0f} x the voltage noise "
+                      f"({mv(result.noise_v)}): part of the error is nothing diagnose knows."]
     lines += ["", "## Signatures in the base residual (fit part)", "",
               "| effect | explains | what was regressed |", "|---|---|---|"]
     for name, sig in sorted(result.signatures.items(), key=lambda kv: -kv[1].r2):

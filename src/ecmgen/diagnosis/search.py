@@ -54,6 +54,11 @@ from .problems import _Problem, _Spec, _fit, _fixed, _neutral, _specs
 
 # -- results ------------------------------------------------------------------------------
 
+# held-out MAE over the noise std above which the error left is called unexplained: a model
+# that explains the data leaves about 0.8 x the std of white noise plus its own small misfit
+# (the control cells of ../shared/diagnose-suite end at 1.3-1.6 x)
+UNEXPLAINED_RATIO = 3.0
+
 @dataclass(frozen=True)
 class Signature:
     """How much of the base residual (fit part) one effect's signature explains."""
@@ -122,6 +127,24 @@ class DiagnoseResult:
     def effects(self) -> tuple[str, ...]:
         return tuple(s.name for s in self.steps)
 
+    @property
+    def unexplained(self) -> bool:
+        """The held-out error left is well above the noise (UNEXPLAINED_RATIO)."""
+        return bool(self.noise_v > 0 and self.mae_after_v > UNEXPLAINED_RATIO * self.noise_v)
+
+    @property
+    def verdict(self) -> str:
+        """One line: what was named, and whether the error left is noise."""
+        left = (f"held-out error {self.mae_after_v * 1e3:.2f} mV against "
+                f"{self.noise_v * 1e3:.2f} mV noise")
+        named = f"added {', '.join(self.effects)}; " if self.steps else ""
+        if self.unexplained:
+            return (f"{named}unexplained: {left}; no further effect that diagnose knows "
+                    "lowers it by more than noise explains")
+        if self.steps:
+            return f"{named}{left}"
+        return f"nothing is missing that this data can show: {left}"
+
     def to_json_dict(self, model_path: str | Path | None = None) -> dict:
         def f(x):
             return None if x is None or not math.isfinite(x) else float(x)
@@ -135,6 +158,8 @@ class DiagnoseResult:
             "fit_mae_before_v": f(self.fit_mae_before_v),
             "fit_mae_after_v": f(self.fit_mae_after_v),
             "noise_v": f(self.noise_v),
+            "unexplained": self.unexplained,
+            "verdict": self.verdict,
             "held_out": self.split,
             "signatures": {k: {"applicable": s.applicable, "r2": f(s.r2), "detail": s.detail}
                            for k, s in self.signatures.items()},
