@@ -64,10 +64,11 @@ def test_model_section(folder):
 def test_the_single_pulses_form_is_unchanged(folder):
     cfg = load_config(_write(folder, HEAD + 'pulses = "a.csv"\nocv = "pulses"\n'))
     assert cfg.pulse_tests == () and not cfg.over_temperature
-    assert cfg.pulses == folder / "a.csv" and not cfg.curve_branches
+    # the curve fit's branches default on however many pulse tests (set false to leave out)
+    assert cfg.pulses == folder / "a.csv" and cfg.curve_branches
     cfg = load_config(_write(folder, HEAD + 'pulses = "a.csv"\nocv = "pulses"\n'
-                                            '[fit]\ncurve_branches = true\n'))
-    assert cfg.curve_branches
+                                            '[fit]\ncurve_branches = false\n'))
+    assert not cfg.curve_branches
 
 
 BAD = [
