@@ -151,6 +151,8 @@ def plot_parameters(model, path, temperatures_c=None, derived_c=(), title: str =
     temps = list(table.temperature_c if temperatures_c is None else temperatures_c)
     fig, axes, cols = _panels(plt, len(keys) + 1)
     soc = np.linspace(0.0, 1.0, 101)
+    # nodes the fit measured (filled) or held / interpolated (open); values <= 0 red
+    measured = np.asarray(table.converged).any(axis=0)
     cmap = plt.get_cmap("coolwarm")
     finite = [t for t in temps if np.isfinite(t)]
     lo, hi = (min(finite), max(finite)) if finite else (0.0, 1.0)
@@ -161,9 +163,12 @@ def plot_parameters(model, path, temperatures_c=None, derived_c=(), title: str =
         label = "one temperature" if tt is None and not np.isfinite(t) else f"{t:.1f} °C" + (
             " (derived)" if t in derived_c else "")
         p = table.at(soc, tt)
+        nodes = table.at(table.soc, tt)
         for ax, (k, _, sc) in zip(axes, keys):
             ax.plot(soc * 100, np.broadcast_to(p[k], soc.shape) * sc, style, color=colour,
                     lw=1.2, label=label)
+            _mark_nodes(ax, table.soc, np.broadcast_to(nodes[k], table.soc.shape) * sc,
+                        measured, colour)
         ocv_t = tt if model.ocv.n_temperatures > 1 else None
         axes[len(keys)].plot(soc * 100, model.ocv.ocv_at(soc, ocv_t), style, color=colour,
                              lw=1.2)
@@ -174,11 +179,22 @@ def plot_parameters(model, path, temperatures_c=None, derived_c=(), title: str =
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7)
     fig.suptitle(title or f"{model.method} model: parameters over SOC per temperature "
-                          "(discharge)")
+                          "(discharge; filled: nodes the fit measured, open: held, red: <= 0)")
     _panel_layout(fig)
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return path
+
+
+def _mark_nodes(ax, soc, values, measured, colour):
+    """The table's SOC nodes on a parameter's line: filled where measured, open where
+    held flat or interpolated, a red cross where the value is not positive."""
+    x = soc * 100
+    ax.plot(x[measured], values[measured], "o", ms=3, color=colour)
+    ax.plot(x[~measured], values[~measured], "o", ms=3, mfc="none", color=colour)
+    bad = values <= 0
+    if bad.any():
+        ax.plot(x[bad], values[bad], "x", ms=6, color="red")
 
 
 def plot_ocv(inputs, path: Path) -> Path:

@@ -508,22 +508,32 @@ def _pulse_sampling_s(series: TimeSeries, complete) -> float:
     return float(np.median(dt)) if dt.size else 0.0
 
 
+def _solve_at(prob: _Problem, kinds, taus: dict):
+    """The resistances at given time constants (r0 held as after the search)."""
+    z = side_by_side([prob.r0w] + [prob.block(k, taus[k]) for k in kinds])
+    return prob.solve(z.T @ z, z.T @ prob.yw, prob.layout(kinds), hold_r0=True)
+
+
 def _fit_time_constants(prob: _Problem, ranges: dict, progress=None):
-    """The time-constant search, the smoothing weight chosen by leaving one level out at
-    its result (and the search again if the weight changed), then what a time constant on
-    its bound means: the diffusion pair on a bound is dropped and the rest refitted; a fast
-    or slow one is kept fixed there, with a note. Returns (taus, x, objective, evaluations,
-    notes, ranges actually used)."""
+    """The time-constant search (at the small default smoothing), then the smoothing weight
+    chosen by leaving one level out and the resistances solved again with it at the same
+    time constants, then what a time constant on its bound means: the diffusion pair on a
+    bound is dropped and the rest refitted; a fast or slow one is kept fixed there, with a
+    note. Returns (taus, x, objective, evaluations, notes, ranges actually used).
+
+    The search is not repeated at the chosen weight: a stronger penalty on the SOC shape
+    lets the time constants make up for it, and the tests' time constants then wander
+    between local minima from one temperature to the next (measured on the shared
+    Panasonic tests: tau_slow 33 / 85 / 40 / 23 s at 25.7 / 0.6 / -9.9 / -19.9 degC with the
+    search repeated, 36 / 35 / 14 / 19 s without; demo cycles mean MAE 29.3 vs 27.3 mV,
+    leave one temperature out 66.3 vs 56.9 mV)."""
     taus, x, cost, n_eval, notes = _search(prob, ranges, progress)
-    for _ in range(2):
-        kinds = list(ranges)
-        z = side_by_side([prob.r0w] + [prob.block(k, taus[k]) for k in kinds])
-        lam, _ = choose_penalty(prob, z, prob.layout(kinds))
-        if lam == prob.penalty:
-            break
+    kinds = list(ranges)
+    z = side_by_side([prob.r0w] + [prob.block(k, taus[k]) for k in kinds])
+    lam, _ = choose_penalty(prob, z, prob.layout(kinds))
+    if lam != prob.penalty:
         prob.penalty = lam
-        taus, x, cost, n2, notes = _search(prob, ranges)
-        n_eval += n2
+        x, cost = _solve_at(prob, kinds, taus)
     on_bound = [k for k in ranges
                 if taus[k] <= ranges[k][0] * 1.01 or taus[k] >= ranges[k][1] / 1.01]
     if "diff" in on_bound:
@@ -531,7 +541,10 @@ def _fit_time_constants(prob: _Problem, ranges: dict, progress=None):
                      f"bound ({ranges['diff'][0]:.3g} .. {ranges['diff'][1]:.3g} s): the test "
                      "does not resolve it; dropped, the two pairs refitted")
         ranges = {k: v for k, v in ranges.items() if k != "diff"}
+        prob.penalty, lam = PENALTY, prob.penalty
         taus, x, cost, n2, more = _search(prob, ranges)
+        prob.penalty = lam
+        x, cost = _solve_at(prob, list(ranges), taus)
         notes.extend(more)
         n_eval += n2
         on_bound = [k for k in ranges
