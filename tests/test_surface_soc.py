@@ -293,5 +293,4 @@ def test_build_passes_it_on(tmp_path):
         assert result.c_report[numeric]["bit_exact_vs_reference"], numeric
     mae = {name: v.overall.mae_v for name, v in result.validations["curve"].items()}
     cold = [v for name, v in mae.items() if name.startswith(("n10degC", "n20degC"))]
-    # measured 40.8 mV (54 mV without the surface SOC, README)
-    assert len(cold) == 4 and np.mean(cold) < 0.045
+    assert len(cold) == 4 and np.mean(cold) < 0.040     # 36.9 mV; 54.5 without (README)
