@@ -73,12 +73,13 @@
 from __future__ import annotations
 
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from .errors import InputError
+from .errors import InputError, reading
 
 SURFACE_SOC_GAIN_MAX = 10.0     # [model] surface_soc_gain's upper bound (0.5 measured)
 
@@ -128,6 +129,32 @@ class EstimatorConfig:
         for k in ("soc0_sigma", "drift_horizon_s", "error_correlation_s"):
             if getattr(self, k) <= 0:
                 raise ValueError(f"{k} must be positive, got {getattr(self, k)!r}")
+
+
+# [c] prefix: the generated symbols are <prefix>_init, <prefix>_step, <prefix>_state_t,
+# ...; the runtime headers' own symbols all begin with "ecmrt" (a test reads them all),
+# so a prefix beginning with it could define one of them twice. fullmatch: a "$" would
+# let a trailing newline through into file names and C.
+C_PREFIX_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,31}")
+C_RUNTIME_NAMESPACE = "ecmrt"
+C_RESERVED = {"int", "float", "double", "char", "void", "static", "const", "return", "long",
+              "short", "signed", "unsigned", "struct", "union", "enum", "typedef", "extern",
+              "if", "else", "for", "while", "do", "switch", "case", "default", "break",
+              "continue", "goto", "sizeof", "volatile", "register", "auto", "inline",
+              "restrict"}
+
+
+def c_prefix_problem(prefix) -> str | None:
+    """Why ``prefix`` cannot prefix the generated C's symbols, or None when it can."""
+    if not isinstance(prefix, str) or not C_PREFIX_RE.fullmatch(prefix):
+        return (f"prefix {prefix!r} is not usable: it must be a C identifier of 1-32 letters, "
+                "digits or '_' starting with a letter")
+    if prefix.lower().startswith(C_RUNTIME_NAMESPACE):
+        return (f"prefix {prefix!r} is not usable: names beginning with "
+                f"{C_RUNTIME_NAMESPACE!r} are the runtime headers' own symbols")
+    if prefix.lower() in C_RESERVED:
+        return f"prefix {prefix!r} is not usable: it is a C keyword"
+    return None
 
 
 ESTIMATOR_FILTERS = ("ekf", "ukf")
@@ -206,6 +233,20 @@ class BuildConfig:
         if isinstance(w, dict):
             return w.get(Path(path).resolve())
         return w
+
+    def input_files(self) -> set[Path]:
+        """Every file the config names, itself included, resolved (outputs must never
+        replace one)."""
+        files = [self.path, self.pulses, self.dcir, self.ocv, self.cycle, *self.extra_cycles,
+                 *(p for p in self.ocv_sources if p != "pulses"),
+                 *(self.cycle_window_s if isinstance(self.cycle_window_s, dict) else ())]
+        for t in self.pulse_tests:
+            files += [t.file, t.steps, t.ocv]
+        judge = (self.raw.get("diagnose") or {}).get("judge") if isinstance(
+            self.raw.get("diagnose"), dict) else None
+        if isinstance(judge, str) and judge:
+            files.append(self.path.resolve().parent / judge)
+        return {Path(p).resolve() for p in files if p is not None}
 
     @property
     def over_temperature(self) -> bool:
@@ -336,11 +377,21 @@ def _pulse_tests(data: dict, base: Path, path: Path, ocv: Path | None
 
 
 def load_config(path: str | Path) -> BuildConfig:
-    path = Path(path)
+    """Read and check a build config; any problem is an InputError naming the file."""
+    with reading(path):
+        return _load_config(Path(path))
+
+
+def _load_config(path: Path) -> BuildConfig:
+    if path.is_dir():
+        raise InputError(path, "is a folder; give the config file (a .toml)")
     try:
-        raw = tomllib.loads(path.read_text())
+        raw = tomllib.loads(path.read_bytes().decode("utf-8"))
     except FileNotFoundError:
         raise InputError(path, "no such config file") from None
+    except UnicodeDecodeError as exc:
+        raise InputError(path, f"not UTF-8 text (byte 0x{exc.object[exc.start]:02x} at offset "
+                               f"{exc.start}); TOML files are UTF-8") from None
     except tomllib.TOMLDecodeError as exc:
         raise InputError(path, f"not valid TOML ({exc})") from None
     base = path.resolve().parent
@@ -438,8 +489,9 @@ def load_config(path: str | Path) -> BuildConfig:
     if not isinstance(numeric, list) or any(n not in ("float", "fixed") for n in numeric):
         raise InputError(path, "c.numeric must be \"float\", \"fixed\" or a list of them")
     prefix = c.get("prefix", "ecm")
-    if not isinstance(prefix, str) or not prefix.isidentifier():
-        raise InputError(path, f"c.prefix must be a C identifier, got {prefix!r}")
+    problem = c_prefix_problem(prefix)
+    if problem:
+        raise InputError(path, f"c.{problem}")
     c_estimator = c.get("estimator", "none")
     if c_estimator not in C_ESTIMATORS:
         raise InputError(path, f"c.estimator must be one of {', '.join(map(repr, C_ESTIMATORS))}, "

@@ -16,7 +16,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, reading
 from ..files import write_atomic
 
 
@@ -294,6 +294,12 @@ def read_timeseries(path: str | Path, columns: ColumnMap | None = None, *,
     same fields at top level). ``capacity_ah`` (cell capacity) tightens the current check
     to 50 C. Every problem is an InputError ``<file>: <column>, <row>: <problem>``.
     """
+    with reading(path):
+        return _read_timeseries(path, columns, capacity_ah=capacity_ah)
+
+
+def _read_timeseries(path: str | Path, columns: ColumnMap | None = None, *,
+                     capacity_ah: float | None = None) -> TimeSeries:
     path = Path(path)
     if capacity_ah is not None and not (np.isfinite(capacity_ah) and capacity_ah > 0):
         raise ValueError(f"capacity_ah must be a positive number of Ah, got {capacity_ah!r}")

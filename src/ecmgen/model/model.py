@@ -36,7 +36,7 @@ import numpy as np
 
 from .._version import __version__
 from ..data.ocv import OcvTable, _f64, check_ocv
-from ..errors import InputError
+from ..errors import InputError, reading
 from ..files import write_atomic
 
 SCHEMA = "ecmgen.model"
@@ -474,6 +474,11 @@ def _effect_to_json(effect) -> dict:
 
 def load_model(path: str | Path) -> EcmModel:
     """Read and check a model.json; any problem is an InputError naming the file."""
+    with reading(path):
+        return _load_model(path)
+
+
+def _load_model(path: str | Path) -> EcmModel:
     path = Path(path)
     try:
         raw = json.loads(path.read_text())
