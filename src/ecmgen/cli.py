@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import math
 import signal
 import sys
@@ -16,6 +15,7 @@ import numpy as np
 
 from ._version import __version__
 from .errors import InputError, describe, reading, user_file_of
+from .files import json_text
 from .outputs import check_output_file, check_output_folder, refuse_inputs
 
 
@@ -65,7 +65,7 @@ def cmd_build(args) -> int:
     result = build(cfg, out, _progress(not args.quiet), plots=not args.no_plots,
                    c_code=not args.no_c)
     if args.json:
-        print(json.dumps(build_json(result), indent=1))
+        print(json_text(build_json(result), indent=1))
     else:
         if result.tests:
             print(pulse_test_table(result))
@@ -194,7 +194,7 @@ def cmd_validate(args) -> int:
         write_atomic(Path(args.plot), validation_png({"": val}, Path(args.cycle).name))
     if args.json:
         t_range = val.temperature_range_c
-        print(json.dumps(dict(val.overall.as_dict(), soc0=val.soc0, soc0_how=val.soc0_how,
+        print(json_text(dict(val.overall.as_dict(), soc0=val.soc0, soc0_how=val.soc0_how,
                               soc_above_10=val.soc_above_10.as_dict(),
                               warnings=list(val.warnings),
                               voltage_lag_samples=val.voltage_lag_samples,
@@ -260,7 +260,7 @@ def cmd_estimate(args) -> int:
         write_atomic(out, estimate_csv_text(run))
     f, cc = run.filter, run.coulomb_counting
     if args.json:
-        print(json.dumps(estimate_json(run, soc0=soc0, soc0_guess=guess,
+        print(json_text(estimate_json(run, soc0=soc0, soc0_guess=guess,
                                        current_offset_a=args.current_offset_a,
                                        current_gain=args.current_gain,
                                        filter=settings.filter,
@@ -335,7 +335,7 @@ def cmd_diagnose(args) -> int:
     result, out_dir, files = run_diagnose(cfg, out, _progress(not args.quiet),
                                           plots=not args.no_plots)
     if args.json:
-        print(json.dumps(result.to_json_dict(out_dir / "model.json"), indent=1))
+        print(json_text(result.to_json_dict(out_dir / "model.json"), indent=1))
     else:
         if result.steps:
             for s in result.steps:

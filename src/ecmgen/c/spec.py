@@ -30,6 +30,7 @@ import numpy as np
 from .._version import __version__
 from ..config import c_prefix_problem
 from ..errors import InputError
+from ..model.model_schema import check_model_ranges
 from ..model.model import DIRECTIONS, RC_FIELDS, EcmModel, _grid_weights, load_model
 from .qformat import Q_TEMP, quantize
 
@@ -382,6 +383,8 @@ def validate_for_c(model: EcmModel, path=None) -> None:
         if np.min(np.diff(quantize(tg, Q_TEMP))) < 1:
             raise InputError(path, "temperature breakpoints closer than 1/256 K (the fixed-point "
                                    "temperature resolution)")
+    # the physical ranges load_model applies: validate and codegen accept the same models
+    check_model_ranges(model, path)
 
 
 # --------------------------------------------------------------------------------------

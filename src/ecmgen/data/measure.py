@@ -18,6 +18,7 @@ import numpy as np
 
 from ..errors import InputError, reading
 from ..files import write_atomic
+from .plausible import check_current, check_temperature, check_voltage
 
 
 @dataclass(frozen=True)
@@ -93,11 +94,6 @@ CHARGE_UNITS_AH = {"Ah": 1.0, "mAh": 1e-3}
 CURRENT_SIGNS = {"charge_positive": "charge_positive", "discharge_negative": "charge_positive",
                  "discharge_positive": "discharge_positive",
                  "charge_negative": "discharge_positive"}
-
-# Plausibility limits for one cell; outside them the file is almost surely mislabelled.
-VOLTAGE_RANGE_V = (0.5, 6.0)
-MAX_C_RATE = 50.0            # used when the capacity is known
-MAX_CURRENT_A = 2000.0       # used when it is not
 
 # Canonical CSV column order; the names are also TimeSeries' field names.
 CANONICAL_HEADER = ("time_s", "current_a", "voltage_v", "temperature_c", "charge_ah")
@@ -321,12 +317,24 @@ def _is_mat(path: Path) -> bool:
         return fh.read(6) == b"MATLAB"
 
 
+_BARE_CR = re.compile(r"\r(?!\n)")
+# bytes no text export holds (all control characters but tab, LF, FF, CR)
+_BINARY = bytes(range(0, 9)) + bytes(range(14, 32))
+
+
 def _read_text(path: Path) -> str:
     data = path.read_bytes()
+    head = data[:65536]
+    if head and sum(head.count(b) for b in _BINARY) > max(1, len(head) // 1000):
+        raise InputError(path, "binary content (control bytes), not a CSV text file: "
+                               "export the measurement as CSV or .mat")
     try:
-        return data.decode("utf-8-sig")
+        text = data.decode("utf-8-sig")
     except UnicodeDecodeError:
-        return data.decode("latin-1")  # cycler exports in a Windows code page ("°C")
+        text = data.decode("latin-1")  # cycler exports in a Windows code page ("°C")
+    if _BARE_CR.search(text):          # classic Mac line ends: CR only
+        text = text.replace("\r\n", "\n").replace("\r", "\n")
+    return text
 
 
 def _choose_layout(path: Path, found: list[str], kind: str, layouts) -> tuple[ColumnMap, str]:
@@ -458,6 +466,11 @@ def _read_csv(path: Path, columns: ColumnMap | None) -> tuple[_Raw, ColumnMap]:
             values[role] = np.array(cells, dtype=np.float64)
         except ValueError:
             raise _non_numeric(path, labels[role], cells, where) from None
+        # Python's float() reads "1_0" as 10: a digit separator no cycler writes
+        k = next((k for k, c in enumerate(cells) if "_" in c), None)
+        if k is not None:
+            raise InputError(path, f"{labels[role]}, {where(k)}: {cells[k].strip()!r} is not "
+                                   "a number")
     return _Raw("column", labels, values, where, notes), colmap
 
 
@@ -605,49 +618,19 @@ def _finish(path: Path, raw: _Raw, colmap: ColumnMap, capacity_ah: float | None)
         raise InputError(path, f"{loc('time', i)}: time goes backwards, {time[i]:.6g} s "
                                f"after {time[i - 1]:.6g} s{hint}")
 
-    _check_voltage(path, values["voltage"], colmap, loc)
-    _check_current(path, values["current"], colmap, capacity_ah, loc)
+    if time[-1] <= time[0]:
+        raise InputError(path, f"time does not advance: all {time.size} rows at "
+                               f"{time[0]:.6g} s")
+    check_voltage(path, values["voltage"], colmap, loc)
+    check_current(path, values["current"], colmap, capacity_ah, loc)
+    if "temperature" in values:
+        check_temperature(path, values["temperature"], loc)
     if "charge" in values:
         _check_charge_sign(path, values, raw.names)
 
     return TimeSeries(time_s=time, current_a=values["current"], voltage_v=values["voltage"],
                       temperature_c=values.get("temperature"), charge_ah=values.get("charge"),
                       source=str(path), notes=tuple(notes))
-
-
-def _check_voltage(path, volts, colmap, loc) -> None:
-    lo, hi = VOLTAGE_RANGE_V
-    out = (volts < lo) | (volts > hi)
-    if not out.any():
-        return
-    i = int(np.argmax(out))
-    typical = float(np.median(np.abs(volts)))
-    if colmap.voltage_unit == "V" and lo <= typical / 1000.0 <= hi:
-        hint = ": mV declared as V? (voltage_unit = \"mV\")"
-    elif colmap.voltage_unit == "mV" and lo <= typical * 1000.0 <= hi:
-        hint = ": V declared as mV? (voltage_unit = \"V\")"
-    else:
-        hint = " (implausible for one cell)"
-    raise InputError(path, f"{loc('voltage', i)}: voltage {volts[i]:.6g} V is outside "
-                           f"{lo:g}..{hi:g} V{hint}")
-
-
-def _check_current(path, amps, colmap, capacity_ah, loc) -> None:
-    i = int(np.argmax(np.abs(amps)))
-    peak = abs(float(amps[i]))
-    limit = MAX_C_RATE * capacity_ah if capacity_ah is not None else MAX_CURRENT_A
-    if peak <= limit:
-        return
-    if capacity_ah is not None:
-        what = (f"current reaches {peak:.6g} A = {peak / capacity_ah:.4g} C for a "
-                f"{capacity_ah:g} Ah cell (limit {MAX_C_RATE:g} C)")
-    else:
-        what = f"current reaches {peak:.6g} A (limit {MAX_CURRENT_A:g} A for one cell)"
-    if colmap.current_unit == "A" and peak / 1000.0 <= limit:
-        hint = ": mA declared as A? (current_unit = \"mA\")"
-    else:
-        hint = ": check the current column and its unit"
-    raise InputError(path, f"{loc('current', i)}: {what}{hint}")
 
 
 def _check_charge_sign(path, values, names) -> None:

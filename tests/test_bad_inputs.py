@@ -1,0 +1,220 @@
+"""Every bad input is one line ``ecmgen: error: <file>: <what>``, exit 2, no traceback:
+the findings of an adversarial run (directories, line ends, binary and non-UTF-8 files,
+model.json of the wrong types or out of range, values the fixed point cannot hold,
+implausible measurements, non-finite options), and the boundary that makes it structural
+rather than a list of special cases."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ecmgen.cli import main
+from test_outputs import cell_files, one_line_error  # noqa: F401  (fixture)
+
+
+@pytest.fixture
+def folder(tmp_path, cell_files):  # noqa: F811
+    for f in cell_files.iterdir():
+        shutil.copy(f, tmp_path / f.name)
+    return tmp_path
+
+
+def edited_model(folder: Path, edit) -> Path:
+    doc = json.loads((folder / "model.json").read_text())
+    edit(doc)
+    path = folder / "bad-model.json"
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def cycle_lines(folder: Path) -> list[str]:
+    return (folder / "cycle.csv").read_text().splitlines()
+
+
+def _set(*keys_value):
+    *keys, value = keys_value
+
+    def edit(doc):
+        d = doc
+        for k in keys[:-1]:
+            d = d[k]
+        d[keys[-1]] = value
+    return edit
+
+
+def _del(*keys):
+    def edit(doc):
+        d = doc
+        for k in keys[:-1]:
+            d = d[k]
+        del d[keys[-1]]
+    return edit
+
+
+MODEL_CASES = {
+    "notes: 5": (_set("notes", 5), "notes"),
+    "inputs: [5]": (_set("inputs", [5]), "inputs[1]"),
+    "an input without its name": (_set("inputs", [{"role": "pulses", "sha256": "0"}]),
+                                  "inputs[1]"),
+    "seed: [1]": (_set("seed", [1]), "seed"),
+    "schema_version: true": (_set("schema_version", True), "schema_version"),
+    "capacity as a string": (_set("capacity_ah", "2.9"), "capacity_ah"),
+    "capacity as a boolean": (_set("capacity_ah", True), "capacity_ah"),
+    "r0 as a string": (_set("rc", "discharge", "r0_ohm", [["0.05"] * 11]), "r0_ohm"),
+    "r0 = 1e6 ohm": (_set("rc", "discharge", "r0_ohm", [[1e6] * 11]), "r0_ohm"),
+    "capacity 1e300": (_set("capacity_ah", 1e300), "capacity_ah"),
+    "dead band 1e300": (_set("direction_deadband_a", 1e300), "direction_deadband_a"),
+    "a temperature of 300 degC": (_set("ocv", "temperature_c", [300.0]), "temperature_c"),
+    "a misspelt key": (_set("methd", "lm"), "did you mean 'method'"),
+    "no rc tables": (_del("rc"), "rc"),
+    "converged as numbers": (_set("rc", "charge", "converged", [[1] * 11]), "converged"),
+}
+
+
+@pytest.mark.parametrize("case", list(MODEL_CASES))
+def test_model_json_of_the_wrong_type_or_range_is_one_line(folder, capsys, case):
+    """Before: tracebacks (TypeError, KeyError, ValueError, OverflowError) or silent
+    acceptance (true read as 1, "0.05" and booleans taken as numbers, r0 = 1e6 ohm
+    validated to an MAE of 2.7e9 mV); validate and codegen now refuse the same models."""
+    edit, words = MODEL_CASES[case]
+    bad = edited_model(folder, edit)
+    assert main(["validate", str(bad), str(folder / "cycle.csv")]) == 2
+    one_line_error(capsys, str(bad), words)
+    for numeric in ("float", "fixed"):
+        assert main(["codegen", str(bad), "--out", str(folder / "c"), "--numeric", numeric,
+                     "-q"]) == 2
+        one_line_error(capsys, str(bad), words)
+    assert not (folder / "c").exists()
+
+
+def test_model_json_nested_too_deeply_or_with_nan_is_one_line(folder, capsys):
+    deep = folder / "deep.json"
+    deep.write_text("[" * 100_000 + "]" * 100_000)
+    assert main(["validate", str(deep), str(folder / "cycle.csv")]) == 2
+    one_line_error(capsys, "deep.json", "nested too deeply")
+    text = (folder / "model.json").read_text().replace('"capacity_ah": 2.9', '"capacity_ah": NaN')
+    (folder / "nan.json").write_text(text)
+    assert main(["validate", str(folder / "nan.json"), str(folder / "cycle.csv")]) == 2
+    one_line_error(capsys, "nan.json", "capacity_ah")
+
+
+def test_a_folder_given_as_the_config_is_one_line(folder, capsys):
+    """Before: IsADirectoryError traceback."""
+    for command in ("build", "fit", "diagnose"):
+        assert main([command, str(folder), "-q"]) == 2
+        one_line_error(capsys, str(folder), "folder")
+
+
+def test_a_config_that_is_not_utf8_is_one_line(folder, capsys):
+    """Before: UnicodeDecodeError traceback."""
+    cfg = folder / "latin.toml"
+    cfg.write_bytes('[cell]\ncapacity_ah = 2.9   # 25 °C\n'.encode("latin-1"))
+    assert main(["build", str(cfg), "-q"]) == 2
+    one_line_error(capsys, "latin.toml", "UTF-8")
+
+
+def test_a_csv_with_cr_only_line_ends_reads_as_any_other(folder, capsys):
+    """Before: _csv.Error traceback ("new-line character seen in unquoted field")."""
+    (folder / "mac.csv").write_text("\r".join(cycle_lines(folder)) + "\r", newline="")
+    assert main(["validate", str(folder / "model.json"), str(folder / "mac.csv"), "--json"]) == 0
+    mac = json.loads(capsys.readouterr().out)
+    assert main(["validate", str(folder / "model.json"), str(folder / "cycle.csv"), "--json"]) == 0
+    assert mac["mae_v"] == json.loads(capsys.readouterr().out)["mae_v"]
+
+
+def test_a_binary_file_given_as_a_csv_is_one_line(folder, capsys):
+    data = np.random.default_rng(3).integers(0, 256, 4000, dtype=np.uint8).tobytes()
+    (folder / "bin.csv").write_bytes(data)
+    assert main(["validate", str(folder / "model.json"), str(folder / "bin.csv")]) == 2
+    one_line_error(capsys, "bin.csv", "binary")
+
+
+@pytest.mark.parametrize("change, words", [
+    (lambda ls: ls[:5] + [ls[5].replace(".", "_", 1)] + ls[6:], "not a number"),  # "1_0"
+    (lambda ls: [ls[0]] + ["5" + l[l.index(","):] for l in ls[1:40]], "does not advance"),
+    (lambda ls: [ls[0] + ",temperature_c"] + [l + ",1e30" for l in ls[1:]], "temperature"),
+    (lambda ls: [ls[0] + ",temperature_c"] + [l + ",-500" for l in ls[1:]], "temperature"),
+    (lambda ls: [ls[0] + ",temperature_c"] + [l + ",298.15" for l in ls[1:]], "kelvin"),
+])
+def test_implausible_measurements_are_one_line(folder, capsys, change, words):
+    """Before: "1_0" read as 10 A, all-equal time stamps and temperatures of 1e30 or
+    -500 degC passed."""
+    (folder / "odd.csv").write_text("\n".join(change(cycle_lines(folder))) + "\n")
+    assert main(["validate", str(folder / "model.json"), str(folder / "odd.csv")]) == 2
+    one_line_error(capsys, "odd.csv", words)
+
+
+@pytest.mark.parametrize("option", [["--soc0", "nan"], ["--soc0", "inf"], ["--soc0", "1.5"],
+                                    ["--temperature-c", "nan"], ["--temperature-c", "300"],
+                                    ["--window-s", "0", "inf"]])
+def test_numeric_options_are_range_checked(folder, capsys, option):
+    """Before: `validate --soc0 nan` printed "MAE nan mV", exit 0."""
+    assert main(["validate", str(folder / "model.json"), str(folder / "cycle.csv"),
+                 *option]) == 2
+    one_line_error(capsys, option[0])
+
+
+def test_validate_json_is_valid_json_when_a_figure_has_no_value(folder, capsys):
+    """Before: a cycle that never rises above 10 % SOC printed a bare NaN (invalid JSON)."""
+    from ecmgen.data.measure import TimeSeries, write_timeseries_csv
+    from ecmgen.model.model import load_model
+    from ecmgen.model.simulate import simulate
+
+    model = load_model(folder / "model.json")
+    t = np.arange(0.0, 600.0)
+    i = np.where(t < 60, 0.0, -0.5)
+    write_timeseries_csv(TimeSeries(t, i, simulate(model, t, i, 0.08).voltage_v),
+                         folder / "low.csv")
+    assert main(["validate", str(folder / "model.json"), str(folder / "low.csv"), "--json",
+                 "--soc0", "0.08"]) == 0
+    out = capsys.readouterr().out
+    doc = json.loads(out, parse_constant=lambda c: pytest.fail(f"{c} in the JSON"))
+    assert doc["soc_above_10"]["mae_v"] is None and math.isfinite(doc["mae_v"])
+
+
+def test_plot_into_a_missing_folder_makes_it(folder, capsys):
+    """Before: FileNotFoundError traceback after the validation."""
+    plot = folder / "plots" / "deeper" / "v.png"
+    assert main(["validate", str(folder / "model.json"), str(folder / "cycle.csv"),
+                 "--plot", str(plot)]) == 0
+    assert plot.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_fixed_point_codegen_of_tiny_resistances_is_not_a_traceback(folder, capsys):
+    """Before: R = 1e-300 or a capacity of 1e300 raised OverflowError in the fixed point."""
+    for field in ("r0_ohm", "r_fast_ohm", "r_slow_ohm"):
+        bad = edited_model(folder, _set("rc", "discharge", field, [[1e-300] * 11]))
+        code = main(["codegen", str(bad), "--out", str(folder / field), "--numeric", "fixed",
+                     "-q"])
+        err = capsys.readouterr().err
+        assert code in (0, 2) and "Traceback" not in err
+        if code == 2:
+            assert err.count("\n") == 1 and str(bad) in err
+
+
+def test_the_boundary_names_the_file_and_keeps_faults_of_ecmgen_apart(folder, capsys,
+                                                                     monkeypatch):
+    """An exception raised while a user's file is read becomes the one line naming the
+    file (with the exception's kind, so that it can be traced); one raised anywhere else
+    is a fault of ecmgen and keeps its traceback."""
+    import ecmgen.data.measure as measure
+
+    def broken(path, *a, **k):
+        raise KeyError("an unforeseen problem")
+
+    monkeypatch.setattr(measure, "_read_csv", broken)
+    assert main(["validate", str(folder / "model.json"), str(folder / "cycle.csv")]) == 2
+    one_line_error(capsys, "cycle.csv", "KeyError", "unforeseen")
+
+    import ecmgen.model.simulate as simulate
+
+    monkeypatch.undo()
+    monkeypatch.setattr(simulate, "validate", lambda *a, **k: {}["a fault"])
+    with pytest.raises(KeyError):
+        main(["validate", str(folder / "model.json"), str(folder / "cycle.csv")])
