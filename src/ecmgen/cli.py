@@ -349,11 +349,21 @@ def cmd_diagnose(args) -> int:
     return 0
 
 
+def cmd_config(args) -> int:
+    from .config_schema import reference
+
+    sys.stdout.write(reference())
+    return 0
+
+
 class _Parser(argparse.ArgumentParser):
     """Bad arguments are bad input too: one line ``ecmgen: error: ...``, exit 2."""
 
     def error(self, message):
         where = self.prog.removeprefix("ecmgen").strip()
+        if not where and "required: command" in message:     # `ecmgen` alone
+            names = ", ".join(self._subparsers._group_actions[0].choices)
+            message = f"give a command: {names} (ecmgen COMMAND --help)"
         print(f"ecmgen: error: {where + ': ' if where else ''}{' '.join(message.split())}",
               file=sys.stderr)
         sys.exit(2)
@@ -450,6 +460,11 @@ def parser() -> argparse.ArgumentParser:
     g.add_argument("-q", "--quiet", action="store_true")
     g.add_argument("--no-plots", action="store_true")
     g.set_defaults(func=cmd_diagnose)
+
+    k = sub.add_parser("config", help="print the config reference (every section and key)")
+    k.add_argument("--explain", action="store_true", help="every key: type, unit, range, "
+                   "default, meaning (markdown; the README's reference is this text)")
+    k.set_defaults(func=cmd_config)
     return p
 
 
