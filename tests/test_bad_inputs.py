@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 
 from ecmgen.cli import main
-from test_outputs import cell_files, one_line_error  # noqa: F401  (fixture)
+from test_outputs import one_line_error
 
 
 @pytest.fixture
-def folder(tmp_path, cell_files):  # noqa: F811
+def folder(tmp_path, cell_files):
     for f in cell_files.iterdir():
         shutil.copy(f, tmp_path / f.name)
     return tmp_path
@@ -218,3 +218,24 @@ def test_the_boundary_names_the_file_and_keeps_faults_of_ecmgen_apart(folder, ca
     monkeypatch.setattr(simulate, "validate", lambda *a, **k: {}["a fault"])
     with pytest.raises(KeyError):
         main(["validate", str(folder / "model.json"), str(folder / "cycle.csv")])
+
+
+def test_codegen_errors_name_the_model_file(folder, capsys):
+    """Before: a model the C cannot represent was refused without naming the file."""
+    def many_points(doc):
+        t = doc["rc"]["charge"]
+        n = 300
+        t["soc"] = list(np.linspace(0.0, 1.0, n))
+        for k in ("r0_ohm", "r_fast_ohm", "tau_fast_s", "r_slow_ohm", "tau_slow_s",
+                  "fit_error"):
+            t[k] = [[t[k][0][0]] * n]
+        t["converged"] = [[True] * n]
+
+    bad = edited_model(folder, many_points)
+    assert main(["validate", str(bad), str(folder / "cycle.csv")]) == 0   # a model, still
+    capsys.readouterr()
+    assert main(["codegen", str(bad), "--out", str(folder / "c"), "-q"]) == 2
+    one_line_error(capsys, str(bad), "at most 255")
+    assert main(["codegen", str(folder / "model.json"), "--out", str(folder / "c"),
+                 "--dt-s", "0", "-q"]) == 2
+    one_line_error(capsys, "--dt-s")

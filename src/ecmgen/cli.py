@@ -308,12 +308,19 @@ def cmd_codegen(args) -> int:
 
         estimator = EstimatorConfig()
     from .c.codegen import file_names, prepare
+    from .c.spec import check_options
 
     _check_numbers(args)
     out = check_output_folder(args.out, [args.model])
     model = load_model(args.model)
-    with reading(args.model):   # a value the C cannot hold is the model file's problem
-        spec = prepare(model, numeric=args.numeric, dt_s=args.dt_s, prefix=args.prefix)
+    check_options(args.prefix, args.numeric, args.dt_s, None)     # the options' own words
+    try:
+        with reading(args.model):   # a value the C cannot hold is the model file's problem
+            spec = prepare(model, numeric=args.numeric, dt_s=args.dt_s, prefix=args.prefix)
+    except InputError as exc:
+        if exc.path is not None:
+            raise
+        raise InputError(args.model, exc.message) from None
     names = file_names(spec.prefix, spec.numeric)
     for name in [v for v in names.values() if isinstance(v, str)] + names["runtime"]:
         refuse_inputs(out / name, [args.model])
