@@ -313,7 +313,10 @@ def _check_table(section: Section, table: Any, label: str, where: str) -> None:
 def check_config(raw: dict) -> None:
     """Check a parsed config against SECTIONS: SchemaError (one line) on the first
     unknown section or key, wrong type, or value out of range."""
-    _unknown(raw, TOP_SECTIONS, "config: section")
+    unknown = sorted(str(k) for k in raw if k not in TOP_SECTIONS)
+    if unknown:
+        raise SchemaError(f"unknown section(s) {unknown}{_did_you_mean(unknown[0], TOP_SECTIONS)}"
+                          f"; known: {', '.join(TOP_SECTIONS)}")
     for section in SECTIONS:
         parts = section.name.split(".")
         table: Any = raw

@@ -324,6 +324,11 @@ _BINARY = bytes(range(0, 9)) + bytes(range(14, 32))
 
 def _read_text(path: Path) -> str:
     data = path.read_bytes()
+    if data[:2] in (b"\xff\xfe", b"\xfe\xff"):    # UTF-16 with its BOM (Excel's "Unicode text")
+        try:
+            data = data.decode("utf-16").encode("utf-8")
+        except UnicodeDecodeError:
+            raise InputError(path, "starts as UTF-16 text but is not") from None
     head = data[:65536]
     if head and sum(head.count(b) for b in _BINARY) > max(1, len(head) // 1000):
         raise InputError(path, "binary content (control bytes), not a CSV text file: "
