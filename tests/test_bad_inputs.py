@@ -239,3 +239,40 @@ def test_codegen_errors_name_the_model_file(folder, capsys):
     assert main(["codegen", str(folder / "model.json"), "--out", str(folder / "c"),
                  "--dt-s", "0", "-q"]) == 2
     one_line_error(capsys, "--dt-s")
+
+
+def test_a_flipped_current_sign_is_named_as_the_cause(folder, capsys):
+    """Before: the only notes blamed the start SOC and cell.capacity_ah (a SOC running to
+    1.42) and reported a 2-sample "lag"."""
+    lines = cycle_lines(folder)
+    rows = [lines[0]] + [f"{t},{-float(i)!r},{v}" for t, i, v in (r.split(",") for r in lines[1:])]
+    (folder / "flip.csv").write_text("\n".join(rows) + "\n")
+    assert main(["validate", str(folder / "model.json"), str(folder / "flip.csv"), "--json"]) == 0
+    warns = json.loads(capsys.readouterr().out)["warnings"]
+    assert len(warns) == 1 and "sign looks flipped" in warns[0]
+    assert "current_sign" in warns[0] and "capacity_ah" not in warns[0]
+    assert main(["validate", str(folder / "model.json"), str(folder / "cycle.csv"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["warnings"] == []
+
+
+def test_a_record_of_another_cell_is_said_to_be_one(folder, capsys):
+    """Before: a model of another cell validated with exit 0 and only an indirect SOC
+    warning. Here the record is of a cell with half the capacity and an OCV 0.3 V lower."""
+    from dataclasses import replace
+
+    from ecmgen.data.measure import TimeSeries, write_timeseries_csv
+    from ecmgen.model.model import OcvTable, load_model
+    from ecmgen.model.simulate import simulate
+
+    model = load_model(folder / "model.json")
+    other = replace(model, capacity_ah=model.capacity_ah / 2,
+                    ocv=OcvTable(model.ocv.soc, model.ocv.ocv_v[0] - 0.3))
+    t = np.arange(0.0, 2400.0)
+    i = np.where((t > 60) & (t % 120 < 90), -2.0, 0.0)
+    write_timeseries_csv(TimeSeries(t, i, simulate(other, t, i, 0.95).voltage_v),
+                         folder / "other.csv")
+    assert main(["validate", str(folder / "model.json"), str(folder / "other.csv"),
+                 "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["mae_v"] > 0.15
+    assert any("another cell" in w for w in doc["warnings"]), doc["warnings"]

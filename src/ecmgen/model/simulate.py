@@ -208,6 +208,22 @@ def start_soc(model: EcmModel, series: TimeSeries) -> tuple[float, str]:
 
 
 SOC_RANGE_TOLERANCE = 0.005   # simulated SOC this far outside [0, 1] is warned about
+# a current step moves a cell's voltage the same way (charge positive: up) at once; steps
+# of the record's current and voltage correlating below this at once, with none positive
+# beyond its opposite at a later lag (a logger that samples the voltage late), say the
+# current column counts the other way (measured at lag 0: +0.99 as recorded, -0.99 with
+# the sign flipped, on the synthetic cycle of the tests)
+FLIPPED_SIGN_CORRELATION = -0.5
+# an MAE above this is not a model's error on its own cell (the bundled cell: 11-76 mV
+# from 25 to -20 degC) but a record it does not describe
+FOREIGN_MAE_V = 0.15
+
+
+def flipped_sign_warning(name: str, correlation: float) -> str:
+    return (f"{name}: the current's sign looks flipped: the voltage steps the other way "
+            f"from the current (correlation of their steps {correlation:.2f}); ecmgen "
+            "counts charge positive: set current_sign = \"discharge_positive\" in "
+            "[data.columns] (the error and the SOC range follow from it) (warning)")
 
 
 def soc_range_warning(soc: np.ndarray, source: str = "") -> str | None:
@@ -286,11 +302,21 @@ def validate(model: EcmModel, series: TimeSeries, soc0: float | None = None,
     sim = simulate(model, series.time_s, series.current_a, float(soc0), temps)
     err = sim.voltage_v - series.voltage_v
     name = Path(series.source).name if series.source else ""
-    warns = [soc_range_warning(sim.soc, name)]
     lag = voltage_lag(series)
     lag_samples = 0 if lag is None else lag.samples
-    if lag_samples:
-        warns.append(lag.note(series.source))
-    return Validation(series.source, float(soc0), from_ocv, Metrics.of(err),
+    overall = Metrics.of(err)
+    if lag is not None and lag.correlation[0] < FLIPPED_SIGN_CORRELATION and \
+            max(lag.correlation) < -FLIPPED_SIGN_CORRELATION:    # and no lagging logger
+        # the cause, not its consequences (a SOC out of range, a "lag", a large error)
+        warns = [flipped_sign_warning(name, lag.correlation[0])]
+    else:
+        warns = [soc_range_warning(sim.soc, name)]
+        if lag_samples:
+            warns.append(lag.note(series.source))
+        if overall.mae_v > FOREIGN_MAE_V:
+            warns.append(f"{name}: MAE {overall.mae_v * 1e3:.0f} mV is far beyond a model's "
+                         f"error on the cell it was fitted on (tens of mV): a record of "
+                         f"another cell, or in other units? (warning)")
+    return Validation(series.source, float(soc0), from_ocv, overall,
                       Metrics.of(err[sim.soc > 0.10]), sim, series.voltage_v, temps, how,
                       tuple(w for w in warns if w), lag_samples)
