@@ -144,6 +144,17 @@ def sample_temperatures(model: EcmModel, n: int, temperature_c=None, source=None
     return t
 
 
+def _rc_state(dt, tau_s, r_ohm, current_a) -> np.ndarray:
+    """One RC pair's voltage: u_k = a_k u_{k-1} + r_k (1 - a_k) i_k, a_k = exp(-dt_k /
+    tau_k), the products formed in place (the same operations, in the same order, as
+    r (1 - a) i)."""
+    a = np.exp(-dt / tau_s)
+    drive = 1.0 - a
+    np.multiply(r_ohm, drive, out=drive)
+    drive *= current_a
+    return rc_recurrence(a, drive)
+
+
 def simulate(model: EcmModel, time_s, current_a, soc0: float,
              temperature_c=None) -> SimResult:
     """Simulate the model over a current profile (A, positive = charge) from ``soc0``.
@@ -164,15 +175,18 @@ def simulate(model: EcmModel, time_s, current_a, soc0: float,
     if model.surface_soc_gain:
         soc_s = surface_soc(model, dt, current_a, soc, p, temperature_c)
         p = at_surface(model, soc_s, charging, current_a, p, temperature_c)
-    a_fast = np.exp(-dt / p["tau_fast_s"])
-    a_slow = np.exp(-dt / p["tau_slow_s"])
     r_fast = p["r_fast_ohm"]
     if "i0_a" in p:
         r_fast = r_fast * butler_volmer_factor(current_a, p["i0_a"])
-    u_fast = rc_recurrence(a_fast, r_fast * (1.0 - a_fast) * current_a)
-    u_slow = rc_recurrence(a_slow, p["r_slow_ohm"] * (1.0 - a_slow) * current_a)
+    u_fast = _rc_state(dt, p["tau_fast_s"], r_fast, current_a)
+    u_slow = _rc_state(dt, p["tau_slow_s"], p["r_slow_ohm"], current_a)
     ocv = model.ocv.ocv_at(soc, temperature_c)
-    v = ocv + p["r0_ohm"] * current_a + u_fast + u_slow
+    # ocv + r0 i + u_fast + u_slow, summed in that order in place (a long record holds
+    # one array for it, not four)
+    v = p["r0_ohm"] * current_a
+    v += ocv
+    v += u_fast
+    v += u_slow
     u_diff = None
     if "r_diff_ohm" in p:
         a_diff = np.exp(-dt / p["tau_diff_s"])
