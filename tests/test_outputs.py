@@ -242,3 +242,32 @@ def test_no_compiler_still_skips_the_check(project, capsys, monkeypatch):
                  "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert "no C compiler" in doc["c"]["float"]["skipped"]
+
+
+def test_two_commits_into_one_folder_take_turns(tmp_path):
+    """A second build committing into the same --out waits for the first: the files and
+    the manifest of the two never interleave."""
+    import fcntl
+    import threading
+
+    from ecmgen.outputs import staged
+
+    out = tmp_path / "out"
+    out.mkdir()
+    order = []
+    fd = os.open(out, os.O_RDONLY)
+    fcntl.flock(fd, fcntl.LOCK_EX)          # a first build in the middle of its commit
+
+    def second():
+        with staged(out, set()) as (staging, files):
+            (staging / "model.json").write_text("second")
+        order.append("second")
+
+    worker = threading.Thread(target=second)
+    worker.start()
+    worker.join(timeout=0.2)
+    assert worker.is_alive() and order == []        # waiting for the lock
+    order.append("first")
+    os.close(fd)
+    worker.join()
+    assert order == ["first", "second"] and (out / "model.json").read_text() == "second"

@@ -152,15 +152,33 @@ def commit(staging: Path, out_dir: Path, given: set[Path]) -> list[Path]:
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(out_dir, "--out is an existing file; give a folder")
     hashes = {r: file_sha256(p) for r, p in zip(rel, staged_files)}
-    previous = read_manifest(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    for src, dst in zip(staged_files, targets):
-        dst.parent.mkdir(parents=True, exist_ok=True)
-        shutil.move(str(src), str(dst))
-    kept = _remove_leftovers(out_dir, previous, hashes, given)
-    write_atomic(out_dir / MANIFEST, json.dumps(
-        {"written_by": "ecmgen", "files": hashes, "kept_changed": kept}, indent=1) + "\n")
+    with _locked(out_dir):      # two builds into one folder: one after the other
+        previous = read_manifest(out_dir)
+        for src, dst in zip(staged_files, targets):
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            shutil.move(str(src), str(dst))
+        kept = _remove_leftovers(out_dir, previous, hashes, given)
+        write_atomic(out_dir / MANIFEST, json.dumps(
+            {"written_by": "ecmgen", "files": hashes, "kept_changed": kept}, indent=1) + "\n")
     return targets
+
+
+@contextmanager
+def _locked(folder: Path):
+    """An exclusive lock on the folder itself (flock on its descriptor: no lock file to
+    leave behind), so that the files and the manifest of two commits never interleave."""
+    try:
+        import fcntl
+    except ImportError:         # not POSIX: no lock
+        yield
+        return
+    fd = os.open(folder, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)            # closing releases the lock
 
 
 def read_manifest(out_dir: Path) -> dict[str, str]:
