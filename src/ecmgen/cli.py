@@ -298,34 +298,32 @@ def _settings_from_validation(cfg, model, settings, cycle: Path):
 
 
 def cmd_codegen(args) -> int:
-    from .c.codegen import generate_c
+    from .c.codegen import file_names, generate_c, prepare
+    from .c.spec import check_options
     from .model.model import load_model
 
-    # the files are named <prefix>_ecm.* and ecmrt*.h, never a model.json
+    _check_numbers(args)
+    check_options(args.prefix, args.numeric, args.dt_s, None)     # the options' own words
+    out = check_output_folder(args.out, [args.model])
     estimator = None
     if args.estimator != "none":
         from .config import EstimatorConfig
 
         estimator = EstimatorConfig()
-    from .c.codegen import file_names, prepare
-    from .c.spec import check_options
-
-    _check_numbers(args)
-    out = check_output_folder(args.out, [args.model])
     model = load_model(args.model)
-    check_options(args.prefix, args.numeric, args.dt_s, None)     # the options' own words
-    try:
-        with reading(args.model):   # a value the C cannot hold is the model file's problem
+    try:        # what the C cannot represent (or hold: an overflow) is the model's problem
+        with reading(args.model):
             spec = prepare(model, numeric=args.numeric, dt_s=args.dt_s, prefix=args.prefix)
+        # the files are <prefix>_ecm.* and ecmrt*.h: never the model.json read
+        names = file_names(spec.prefix, spec.numeric)
+        for name in [v for v in names.values() if isinstance(v, str)] + names["runtime"]:
+            refuse_inputs(out / name, [args.model])
+        files = generate_c(model, out, prefix=args.prefix, numeric=args.numeric,
+                           dt_s=args.dt_s, estimator=estimator)
     except InputError as exc:
         if exc.path is not None:
             raise
         raise InputError(args.model, exc.message) from None
-    names = file_names(spec.prefix, spec.numeric)
-    for name in [v for v in names.values() if isinstance(v, str)] + names["runtime"]:
-        refuse_inputs(out / name, [args.model])
-    files = generate_c(model, out, prefix=args.prefix, numeric=args.numeric,
-                       dt_s=args.dt_s, estimator=estimator)
     if not args.quiet:
         for f in files:
             print(f)

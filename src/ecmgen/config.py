@@ -269,7 +269,6 @@ def _cycle_windows(data: dict, base: Path, path: Path):
     return windows
 
 
-PULSE_TEST_KEYS = ("file", "soc0", "temperature_c", "steps", "ocv")
 
 
 def _pulse_tests(data: dict, base: Path, path: Path, ocv: Path | None
@@ -282,10 +281,6 @@ def _pulse_tests(data: dict, base: Path, path: Path, ocv: Path | None
     tests: list[PulseTest] = []
     for n, entry in enumerate(raw, 1):
         where = f"data.pulse_tests[{n}]"
-        unknown = sorted(set(entry) - set(PULSE_TEST_KEYS))
-        if unknown:
-            raise InputError(path, f"{where}: unknown key(s) {unknown}; known: "
-                                   f"{', '.join(PULSE_TEST_KEYS)}")
         if "file" not in entry:
             raise InputError(path, f"{where}: missing file (the pulse test)")
         file = _file(base, entry, "file", path, where)
@@ -458,10 +453,6 @@ def _load_config(path: Path) -> BuildConfig:
     if not 0.0 <= gain <= SURFACE_SOC_GAIN_MAX:
         raise InputError(path, f"model.surface_soc_gain must lie in 0..{SURFACE_SOC_GAIN_MAX:g} "
                                f"(0: off), got {gain:g}")
-    unknown = sorted(set(model_t) - {"temperature_step_c", "warm_row_c", "surface_soc_gain"})
-    if unknown:
-        raise InputError(path, f"[model]: unknown key(s) {unknown}; known: "
-                               "temperature_step_c, warm_row_c, surface_soc_gain")
 
     return BuildConfig(
         path=path, capacity_ah=capacity, pulses=pulses, dcir=dcir,
