@@ -187,15 +187,18 @@ def test_plot_into_a_missing_folder_makes_it(folder, capsys):
 
 
 def test_fixed_point_codegen_of_tiny_resistances_is_not_a_traceback(folder, capsys):
-    """Before: R = 1e-300 or a capacity of 1e300 raised OverflowError in the fixed point."""
+    """Before: R = 1e-300 in both tables' r0 (or r_fast, r_slow) raised OverflowError
+    choosing the fixed-point format (log2 of an infinite ratio); validate took the model.
+    Such a column is zero in the fixed point now: validate and codegen both take it."""
     for field in ("r0_ohm", "r_fast_ohm", "r_slow_ohm"):
-        bad = edited_model(folder, _set("rc", "discharge", field, [[1e-300] * 11]))
-        code = main(["codegen", str(bad), "--out", str(folder / field), "--numeric", "fixed",
-                     "-q"])
-        err = capsys.readouterr().err
-        assert code in (0, 2) and "Traceback" not in err
-        if code == 2:
-            assert err.count("\n") == 1 and str(bad) in err
+        def tiny(doc, field=field):
+            for d in ("charge", "discharge"):
+                doc["rc"][d][field] = [[1e-300] * 11]
+
+        bad = edited_model(folder, tiny)
+        assert main(["codegen", str(bad), "--out", str(folder / field), "--numeric", "fixed",
+                     "-q"]) == 0, capsys.readouterr().err
+        assert main(["validate", str(bad), str(folder / "cycle.csv")]) == 0
 
 
 def test_the_boundary_names_the_file_and_keeps_faults_of_ecmgen_apart(folder, capsys,
