@@ -170,14 +170,18 @@ def test_next_run_removes_staging_left_by_a_killed_process(project):
     folder, cfg = project
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
                           capture_output=True, text=True).stdout.strip()
-    left = folder / f"{STAGING_PREFIX}{dead}-abc"
+    from ecmgen.outputs import _host
+
+    left = folder / f"{STAGING_PREFIX}{dead}@{_host()}-abc"
     (left / "c").mkdir(parents=True)
     (left / "model.json").write_text("{}")
-    alive = folder / f"{STAGING_PREFIX}{os.getppid()}-def"      # a running process's
+    alive = folder / f"{STAGING_PREFIX}{os.getppid()}@{_host()}-def"   # a running process's
     alive.mkdir()
+    elsewhere = folder / f"{STAGING_PREFIX}{dead}@another.host-ghi"    # not ours to judge
+    elsewhere.mkdir()
     assert main(["build", str(cfg), "--out", str(folder / "out"), "-q", "--no-plots",
                  "--no-c"]) == 0
-    assert staging_folders(folder) == [alive]
+    assert staging_folders(folder) == [alive, elsewhere]
 
 
 # --------------------------------------------------------------------------- C prefix

@@ -4,10 +4,10 @@
   output is checked against every file the command reads, and its kind (file or folder)
   before any work, so a long fit never ends in "File exists".
 - :func:`staged`: a build's or a diagnosis's files are written into a staging folder
-  beside ``--out`` (``.ecmgen-staging-<pid>-*``) and moved into place only when all of them
-  are there. The folder goes on any exception (the command line turns SIGTERM into one);
-  a folder left by a killed process (SIGKILL, power loss) is found and removed by the next
-  run that stages beside it, once its process is gone.
+  beside ``--out`` (``.ecmgen-staging-<pid>@<host>-*``) and moved into place only when
+  all of them are there. The folder goes on any exception (the command line turns SIGTERM
+  into one); a folder left by a killed process (SIGKILL, power loss) is found and removed
+  by the next run that stages beside it, once its process is gone.
 - A manifest (``ecmgen-manifest.json``) lists what ecmgen wrote into ``--out`` with each
   file's SHA-256. A later build into the same folder removes the files of the earlier one
   it does not write again (c/fixed, PNGs, per-method models), so that what is in the
@@ -30,8 +30,9 @@ from .files import file_sha256, write_atomic
 
 MANIFEST = "ecmgen-manifest.json"
 STAGING_PREFIX = ".ecmgen-staging-"
-# a staging folder without a process id in its name (written by an older ecmgen) is
-# removed once nothing has touched it for this long: no build runs that long unnoticed
+# a staging folder without a process id of this machine in its name (written by an older
+# ecmgen, or by another machine on a shared disk) is removed once nothing has touched it
+# for this long: no build runs that long unnoticed
 STALE_UNNAMED_S = 24 * 3600.0
 
 
@@ -85,9 +86,23 @@ def check_output_folder(out: str | Path, inputs: Iterable, option: str = "--out"
 
 # --------------------------------------------------------------------------- staging
 
+def _host() -> str:
+    """This machine's name as it goes into a staging folder's name (no '-' or '@')."""
+    import socket
+
+    return "".join(c for c in socket.gethostname() if c.isalnum() or c == ".") or "host"
+
+
+def _staging_name() -> str:
+    return f"{STAGING_PREFIX}{os.getpid()}@{_host()}-"
+
+
 def _staging_pid(folder: Path) -> int | None:
-    head = folder.name[len(STAGING_PREFIX):].split("-", 1)[0]
-    return int(head) if head.isdigit() else None
+    """The process id in a staging folder's name when that process ran on this machine
+    (a folder on a shared disk may be another machine's, whose process ids say nothing
+    here); None otherwise."""
+    pid, _, host = folder.name[len(STAGING_PREFIX):].split("-", 1)[0].partition("@")
+    return int(pid) if pid.isdigit() and host == _host() else None
 
 
 def _alive(pid: int) -> bool:
@@ -129,8 +144,7 @@ def staged(out_dir: Path, given: set[Path]):
     interruption nothing reaches out_dir and the staging folder is removed."""
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_staging(out_dir.parent)
-    staging = Path(tempfile.mkdtemp(prefix=f"{STAGING_PREFIX}{os.getpid()}-",
-                                    dir=out_dir.parent))
+    staging = Path(tempfile.mkdtemp(prefix=_staging_name(), dir=out_dir.parent))
     files: list[Path] = []
     try:
         yield staging, files
