@@ -24,7 +24,8 @@ MAX_LINES = 800
 # the stages, lowest first; a unit may import only units of a lower level (and itself)
 LEVELS = [
     {"base": ("ecmgen._version", "ecmgen.errors", "ecmgen.files", "ecmgen.config",
-              "ecmgen.plotting", "ecmgen.parallel")},
+              "ecmgen.plotting", "ecmgen.parallel", "ecmgen.outputs",
+              "ecmgen.config_schema")},
     {"data": ("ecmgen.data",)},
     {"fit": ("ecmgen.fit",)},
     {"model": ("ecmgen.model",)},

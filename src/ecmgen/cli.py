@@ -4,15 +4,48 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
+import math
+import signal
 import sys
+import threading
 import warnings
 from pathlib import Path
 
 import numpy as np
 
 from ._version import __version__
-from .errors import InputError
+from .errors import InputError, describe, reading, user_file_of
+from .files import json_text
+from .outputs import check_output_file, check_output_folder, refuse_inputs
+
+
+def _given(cfg) -> set[Path]:
+    return cfg.input_files()
+
+
+# numeric options: (lowest, highest) accepted; NaN and infinities never are. The SOC
+# options are fractions; a temperature outside the cell's life is a typo (degF? K?)
+NUMBER_OPTIONS = {"soc0": (0.0, 1.0), "soc0_guess": (0.0, 1.0),
+                  "temperature_c": (-60.0, 100.0), "capacity_ah": (1e-6, 1e5),
+                  "current_gain": (1e-3, 1e3), "current_offset_a": (-1e5, 1e5),
+                  "dt_s": (1e-6, 3600.0), "times": (1e-6, 1e6), "window_s": (-1e12, 1e12)}
+
+
+def _check_numbers(args) -> None:
+    """Every numeric option given: finite and within its range (one line, exit 2)."""
+    for name, (lo, hi) in NUMBER_OPTIONS.items():
+        value = getattr(args, name, None)
+        if value is None:
+            continue
+        for v in value if isinstance(value, list) else [value]:
+            if not (math.isfinite(v) and lo <= v <= hi):
+                raise InputError(None, f"--{name.replace('_', '-')} must be a finite number "
+                                       f"in [{lo:g}, {hi:g}], got {v!r}")
+    if getattr(args, "current_gain", None) is not None and args.current_gain <= 0:
+        raise InputError(None, "--current-gain must be positive")
+    times = getattr(args, "times", None)
+    if times and any(b <= a for a, b in zip(times, times[1:])):
+        raise InputError(None, f"--times must be increasing, got {times}")
 
 
 def _progress(enabled: bool):
@@ -28,10 +61,11 @@ def cmd_build(args) -> int:
 
     cfg = load_config(args.config)
     out = Path(args.out) if args.out else cfg.path.parent / "ecmgen-out"
+    check_output_folder(out, _given(cfg))
     result = build(cfg, out, _progress(not args.quiet), plots=not args.no_plots,
                    c_code=not args.no_c, strict=args.strict)
     if args.json:
-        print(json.dumps(build_json(result), indent=1))
+        print(json_text(build_json(result), indent=1))
     else:
         q = result.quality.get(result.best)
         if q is not None and not q.passes:
@@ -81,6 +115,8 @@ def _dcir_with_config(args):
     if args.times is not None:
         over["times_s"] = tuple(args.times)
     cfg = replace(cfg, **over)
+    if args.out:            # before the work: every file the config names is an input
+        check_output_file(args.out, [*_given(cfg), cfg.pulses])
     return cfg.pulses, prepare(cfg).dcir
 
 
@@ -88,6 +124,7 @@ def cmd_dcir(args) -> int:
     from .data.dcir import DEFAULT_TIMES_S, extract_dcir, find_pulses
     from .data.measure import read_timeseries
 
+    _check_numbers(args)
     if args.config:
         pulses_path, table = _dcir_with_config(args)
     else:
@@ -102,9 +139,7 @@ def cmd_dcir(args) -> int:
     for n in () if args.quiet else table.notes:
         print(f"note: {n}", file=sys.stderr)
     if args.out:
-        out = Path(args.out)
-        if out.resolve() == Path(pulses_path).resolve():
-            raise InputError(out, "output would overwrite the input")
+        out = check_output_file(args.out, [pulses_path] + ([args.config] if args.config else []))
         table.write_csv(out)
         print(f"wrote {len(table)} pulses x {len(table.t_s)} times to {out}", file=sys.stderr)
     else:
@@ -116,14 +151,12 @@ def cmd_fit(args) -> int:
     from dataclasses import replace
 
     from .config import load_config
-    from .pipeline import _given, fit_all
+    from .pipeline import fit_all
 
     cfg = load_config(args.config)
     if args.method:
         cfg = replace(cfg, methods=(args.method,), best=args.method)
-    out = Path(args.out)
-    if out.resolve() in _given(cfg):
-        raise InputError(out, "output would overwrite an input file")
+    out = check_output_file(args.out, _given(cfg))
     progress = _progress(not args.quiet)
     models, _, _, _ = fit_all(cfg, progress)
     models[cfg.best].save(out)
@@ -136,6 +169,10 @@ def cmd_validate(args) -> int:
     from .model.model import load_model
     from .model.simulate import validate
 
+    _check_numbers(args)
+    inputs = [args.model, args.cycle, args.config]
+    if args.plot:
+        check_output_file(args.plot, inputs, "--plot")
     model = load_model(args.model)
     if args.config:
         # a CSV from another cycler: the config's [data.columns] (or [data.columns.cycle])
@@ -143,6 +180,8 @@ def cmd_validate(args) -> int:
         from .pipeline import read_series
 
         cfg = load_config(args.config)
+        if args.plot:
+            check_output_file(args.plot, _given(cfg), "--plot")
         if args.window_s is not None:   # the option wins over data.cycle_window_s
             from dataclasses import replace
 
@@ -154,12 +193,13 @@ def cmd_validate(args) -> int:
         series = series.window(*args.window_s)
     val = validate(model, series, args.soc0, args.temperature_c)
     if args.plot:
-        from .plots import plot_validation
+        from .files import write_atomic
+        from .plots import validation_png
 
-        plot_validation(val, Path(args.plot))
+        write_atomic(Path(args.plot), validation_png({"": val}, Path(args.cycle).name))
     if args.json:
         t_range = val.temperature_range_c
-        print(json.dumps(dict(val.overall.as_dict(), soc0=val.soc0, soc0_how=val.soc0_how,
+        print(json_text(dict(val.overall.as_dict(), soc0=val.soc0, soc0_how=val.soc0_how,
                               soc_above_10=val.soc_above_10.as_dict(),
                               warnings=list(val.warnings),
                               voltage_lag_samples=val.voltage_lag_samples,
@@ -188,27 +228,18 @@ def cmd_estimate(args) -> int:
     from .model.model import load_model
     from .model.simulate import initial_soc
 
-    inputs = [Path(args.model), Path(args.cycle)] + ([Path(args.config)] if args.config else [])
-    out = Path(args.out) if args.out else None
-    if out is not None:
-        if any(out.resolve() == p.resolve() for p in inputs):
-            raise InputError(out, "output would overwrite an input file")
-        if out.is_dir():
-            raise InputError(out, "is a directory; give a file name for the CSV")
-    for name in ("soc0", "soc0_guess"):
-        v = getattr(args, name)
-        if v is not None and not 0.0 <= v <= 1.0:
-            raise InputError(None, f"--{name.replace('_', '-')} must be a SOC in [0, 1], "
-                                   f"got {v!r}")
-    if not (args.current_gain > 0 and abs(args.current_offset_a) < 1e6):
-        raise InputError(None, "--current-gain must be positive and --current-offset-a a "
-                               "finite current in A")
+    out = None
+    if args.out:
+        out = check_output_file(args.out, [args.model, args.cycle, args.config])
+    _check_numbers(args)
     model = load_model(args.model)
     settings = EstimatorConfig()
     if args.config:
         from .pipeline import read_series
 
         cfg = load_config(args.config)
+        if out is not None:
+            check_output_file(out, _given(cfg))
         settings = cfg.estimator
         series = read_series(cfg, Path(args.cycle), "cycle")
         settings = _settings_from_validation(cfg, model, settings, Path(args.cycle))
@@ -234,7 +265,7 @@ def cmd_estimate(args) -> int:
         write_atomic(out, estimate_csv_text(run))
     f, cc = run.filter, run.coulomb_counting
     if args.json:
-        print(json.dumps(estimate_json(run, soc0=soc0, soc0_guess=guess,
+        print(json_text(estimate_json(run, soc0=soc0, soc0_guess=guess,
                                        current_offset_a=args.current_offset_a,
                                        current_gain=args.current_gain,
                                        filter=settings.filter,
@@ -272,17 +303,32 @@ def _settings_from_validation(cfg, model, settings, cycle: Path):
 
 
 def cmd_codegen(args) -> int:
-    from .c.codegen import generate_c
+    from .c.codegen import file_names, generate_c, prepare
+    from .c.spec import check_options
     from .model.model import load_model
 
-    # the files are named <prefix>_ecm.* and ecmrt*.h, never a model.json
+    _check_numbers(args)
+    check_options(args.prefix, args.numeric, args.dt_s, None)     # the options' own words
+    out = check_output_folder(args.out, [args.model])
     estimator = None
     if args.estimator != "none":
         from .config import EstimatorConfig
 
         estimator = EstimatorConfig()
-    files = generate_c(load_model(args.model), Path(args.out), prefix=args.prefix,
-                       numeric=args.numeric, dt_s=args.dt_s, estimator=estimator)
+    model = load_model(args.model)
+    try:        # what the C cannot represent (or hold: an overflow) is the model's problem
+        with reading(args.model):
+            spec = prepare(model, numeric=args.numeric, dt_s=args.dt_s, prefix=args.prefix)
+        # the files are <prefix>_ecm.* and ecmrt*.h: never the model.json read
+        names = file_names(spec.prefix, spec.numeric)
+        for name in [v for v in names.values() if isinstance(v, str)] + names["runtime"]:
+            refuse_inputs(out / name, [args.model])
+        files = generate_c(model, out, prefix=args.prefix, numeric=args.numeric,
+                           dt_s=args.dt_s, estimator=estimator)
+    except InputError as exc:
+        if exc.path is not None:
+            raise
+        raise InputError(args.model, exc.message) from None
     if not args.quiet:
         for f in files:
             print(f)
@@ -295,10 +341,11 @@ def cmd_diagnose(args) -> int:
 
     cfg = load_config(args.config)
     out = Path(args.out) if args.out else cfg.path.parent / "ecmgen-diagnose"
+    check_output_folder(out, _given(cfg))
     result, out_dir, files = run_diagnose(cfg, out, _progress(not args.quiet),
                                           plots=not args.no_plots)
     if args.json:
-        print(json.dumps(result.to_json_dict(out_dir / "model.json"), indent=1))
+        print(json_text(result.to_json_dict(out_dir / "model.json"), indent=1))
     else:
         for s in result.steps:
             print(f"added {s.name}: held-out MAE {s.mae_before_v * 1e3:.2f} -> "
@@ -309,11 +356,21 @@ def cmd_diagnose(args) -> int:
     return 0
 
 
+def cmd_config(args) -> int:
+    from .config_schema import reference
+
+    sys.stdout.write(reference())
+    return 0
+
+
 class _Parser(argparse.ArgumentParser):
     """Bad arguments are bad input too: one line ``ecmgen: error: ...``, exit 2."""
 
     def error(self, message):
         where = self.prog.removeprefix("ecmgen").strip()
+        if not where and "required: command" in message:     # `ecmgen` alone
+            names = ", ".join(self._subparsers._group_actions[0].choices)
+            message = f"give a command: {names} (ecmgen COMMAND --help)"
         print(f"ecmgen: error: {where + ': ' if where else ''}{' '.join(message.split())}",
               file=sys.stderr)
         sys.exit(2)
@@ -413,19 +470,64 @@ def parser() -> argparse.ArgumentParser:
     g.add_argument("-q", "--quiet", action="store_true")
     g.add_argument("--no-plots", action="store_true")
     g.set_defaults(func=cmd_diagnose)
+
+    k = sub.add_parser("config", help="print the config reference (every section and key)")
+    k.add_argument("--explain", action="store_true", help="every key: type, unit, range, "
+                   "default, meaning (markdown; the README's reference is this text)")
+    k.set_defaults(func=cmd_config)
     return p
 
 
 def main(argv=None) -> int:
     args = parser().parse_args(argv)
     try:
-        with _no_stray_warnings():
+        with _no_stray_warnings(), _sigterm_unwinds():
             return int(args.func(args) or 0)
     except InputError as exc:
-        print(f"ecmgen: error: {exc}", file=sys.stderr)
-        return 2
+        return _error(str(exc))
     except KeyboardInterrupt:
         return 130
+    except Terminated:
+        return 143
+    except Exception as exc:
+        # the one boundary: an exception raised while reading a user's file (marked by
+        # ecmgen.errors.reading), or the system refusing a path (an output folder under
+        # /proc, a full disk), is bad input or a bad place: one line, exit 2. Anything
+        # else is a fault of ecmgen and keeps its traceback (exit 1).
+        where = user_file_of(exc)
+        if where is None and isinstance(exc, OSError) and exc.filename is not None:
+            where = exc.filename
+        if where is None:
+            raise
+        return _error(f"{where}: {describe(exc)}")
+
+
+def _error(message: str) -> int:
+    print(f"ecmgen: error: {' '.join(message.split())}", file=sys.stderr)
+    return 2
+
+
+class Terminated(BaseException):
+    """SIGTERM, raised where the program is, like KeyboardInterrupt for SIGINT (not an
+    Exception: no ``except Exception`` on the way may swallow it)."""
+
+
+@contextlib.contextmanager
+def _sigterm_unwinds():
+    """SIGTERM (a CI timeout, ``kill``) unwinds the stack as Ctrl-C does, so that the
+    staging folder and temporary files are removed on the way out (exit 143)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def terminate(signum, frame):
+        raise Terminated()
+
+    previous = signal.signal(signal.SIGTERM, terminate)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 @contextlib.contextmanager

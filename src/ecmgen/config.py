@@ -1,92 +1,31 @@
-"""The build configuration (one TOML file); paths are relative to the file.
+"""The build configuration (one TOML file; paths are relative to it): the loader.
 
-    [cell]
-    capacity_ah = 2.9
-    [data]
-    pulses = "hppc.mat"        # a pulse/HPPC test, or: dcir = "dcir.csv"
-    pulses_soc0 = 1.0          # SOC at the start of the pulse test (default: 1.0 if it
-                               # opens at or above the top of the OCV of the other sources,
-                               # else fitted so that all its rested voltages match that OCV,
-                               # with a hysteresis offset; 1.0 with "pulses" only)
-    ocv = "ocv-c20.mat"        # a soc,ocv_v table, a low-rate test, or "pulses" (the rests
-                               # of the pulse test), or a list of them merged in order:
-                               # ocv = ["pulses", "ocv-c20.mat"]: the first source over its
-                               # SOC span, each next one only beyond what is covered (shifted
-                               # to meet it); flat beyond all spans. Checked against the
-                               # pulse test's rests (a warning above 10 mV RMS); an OCV
-                               # flat over half the SOC range is an error
-    ocv_cycle = 2              # the cycle of a low-rate test holding several (1-based;
-                               # default the last complete discharge + charge pair)
-    ocv_branch = "auto"        # "both" (the average), "charge", "discharge", or "auto"
-                               # (default): with a pulse test, the one of the three
-                               # closest to its rested voltages, else "both"
-    ocv_soc0 = 1.0             # optional: SOC at the low-rate test's first sample; SOC is
-                               # then counted with cell.capacity_ah instead of normalising
-                               # each branch to its own charge
-    cycle = "us06.mat"         # validation drive cycle
-    soc0 = 1.0                 # optional; when absent from the cycle's rests (1.0 after a
-                               # constant-voltage charge it opens with; else the last sample
-                               # of the rest it opens with; on a flat OCV a fit over its rests)
-    extra_cycles = ["hwfet-a.mat"]   # optional further validation cycles
-    cycle_window_s = [t0, t1]  # optional: validate on this time window of each cycle file
-                               # (or a table: file name -> [t0, t1])
-
-  or, for a model over temperature, one table per pulse test instead of data.pulses:
-
-    [[data.pulse_tests]]
-    file = "25degC/hppc.mat"   # the pulse test
-    soc0 = 1.0                 # optional, as data.pulses_soc0
-    temperature_c = 25         # optional: default the median cell temperature during
-                               # its pulses (the file's temperature column)
-    steps = "25degC/hppc-soc-steps.mat"   # optional: the SOC steps between its pulse sets
-    ocv = "pulses"             # optional: this test's OCV (default: data.ocv, which
-                               # defaults to "pulses" here: each test's own rests)
-    [[data.pulse_tests]]
-    file = "0degC/hppc.mat"
-    ...
-    (every test is fitted on its own, in parallel, and the tables are joined over
-    temperature, see ecmgen.model.temperature; the validation cycles may be at any
-    temperature, each simulated on its own cell temperature column)
-    [model]  temperature_step_c = 5   (the uniform temperature grid of the tables; 0 keeps
-             the measured breakpoints, linear between them)   warm_row_c = 45 (a derived
-             row at this temperature, Arrhenius-extrapolated; false: none)
-             surface_soc_gain = 0.5 (lam: the RC tables read at the surface SOC
-             soc + lam u_diff / max(dOCV/dSOC, 0.3 V), ecmgen.model.simulate; models with
-             the diffusion pair only; default 0 = off)
-    [data.columns]             # optional column mapping for CSV files from other cyclers
-    time = "Test_Time(s)"  current = "Current(A)"  voltage = "Voltage(V)"
-    header = false; time = 2 ...   (no header line: columns by 1-based position)
-    [data.columns.pulses]      # per file role (see COLUMN_ROLES): extends [data.columns]
-    [dcir]   times_s = [0.1, 1, 3, 6, 10]   c_rate = "max" | "all" | 2.0
-             min_rest_s = 30   max_pulse_s = 120   (what counts as a pulse from rest)
-    [fit]    methods = ["ga", "lm", "curve"]   seed = 0   relax_s = 1800   best = "curve"
-             curve_branches = true | false   (the curve method's diffusion RC pair and
-             Butler-Volmer fast branch; default true however many pulse tests: measured on
-             one-temperature models, mean cycle MAE 25 degC 18.8 -> 18.1 mV, 0 degC 47.5 ->
-             37.7, -20 degC 137.0 -> 121.9; `diagnose` fits its base without them unless set)
-    [c]      prefix = "ecm"   numeric = ["float", "fixed"]   dt_s = 0.1
-             estimator = "none" | "ekf"   (the SOC filter next to the float step:
-             <prefix>_est_init / <prefix>_est_step, settings from [estimator])
-    [estimator]   filter = "ekf"   current_offset_a = 0.029   current_gain_error = 0.01
-             voltage_noise_v = 0.005 ... (see EstimatorConfig; every key optional)
+What each section and key means, its type, unit, range and default are the rows of
+ecmgen.config_schema (``ecmgen config --explain`` prints them; the README's reference is
+that text). :func:`load_config` checks a config against the schema first (unknown keys,
+types, ranges), then what ties keys together: exactly one of data.pulses, data.dcir or
+[[data.pulse_tests]]; fit.best among fit.methods; the files it names exist; the C
+estimator with the float numeric and a variable step. A key added to the config is a row
+of the schema and its use here.
 """
 
 from __future__ import annotations
 
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from .errors import InputError
+from .config_schema import COLUMN_ROLES, METHODS, SchemaError, check_config
+from .config_schema import TEMPERATURE_C as TEMPERATURE_RANGE_C
+from .errors import InputError, reading
 
 SURFACE_SOC_GAIN_MAX = 10.0     # [model] surface_soc_gain's upper bound (0.5 measured)
 
-METHODS = ("ga", "lm", "curve")
 # [data.columns.<role>] maps the CSV columns of one file of the config (it extends the
 # global [data.columns]); a role without its own table takes its fallback's
-COLUMN_ROLES = ("pulses", "ocv", "cycle", "extra_cycles", "judge")
 COLUMN_ROLE_FALLBACK = {"extra_cycles": "cycle", "judge": "cycle"}
 # the validation files, which data.cycle_window_s cuts
 WINDOW_ROLES = ("cycle", "extra_cycles", "judge")
@@ -129,6 +68,32 @@ class EstimatorConfig:
         for k in ("soc0_sigma", "drift_horizon_s", "error_correlation_s"):
             if getattr(self, k) <= 0:
                 raise ValueError(f"{k} must be positive, got {getattr(self, k)!r}")
+
+
+# [c] prefix: the generated symbols are <prefix>_init, <prefix>_step, <prefix>_state_t,
+# ...; the runtime headers' own symbols all begin with "ecmrt" (a test reads them all),
+# so a prefix beginning with it could define one of them twice. fullmatch: a "$" would
+# let a trailing newline through into file names and C.
+C_PREFIX_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,31}")
+C_RUNTIME_NAMESPACE = "ecmrt"
+C_RESERVED = {"int", "float", "double", "char", "void", "static", "const", "return", "long",
+              "short", "signed", "unsigned", "struct", "union", "enum", "typedef", "extern",
+              "if", "else", "for", "while", "do", "switch", "case", "default", "break",
+              "continue", "goto", "sizeof", "volatile", "register", "auto", "inline",
+              "restrict"}
+
+
+def c_prefix_problem(prefix) -> str | None:
+    """Why ``prefix`` cannot prefix the generated C's symbols, or None when it can."""
+    if not isinstance(prefix, str) or not C_PREFIX_RE.fullmatch(prefix):
+        return (f"prefix {prefix!r} is not usable: it must be a C identifier of 1-32 letters, "
+                "digits or '_' starting with a letter")
+    if prefix.lower().startswith(C_RUNTIME_NAMESPACE):
+        return (f"prefix {prefix!r} is not usable: names beginning with "
+                f"{C_RUNTIME_NAMESPACE!r} are the runtime headers' own symbols")
+    if prefix.lower() in C_RESERVED:
+        return f"prefix {prefix!r} is not usable: it is a C keyword"
+    return None
 
 
 ESTIMATOR_FILTERS = ("ekf", "ukf")
@@ -207,6 +172,20 @@ class BuildConfig:
         if isinstance(w, dict):
             return w.get(Path(path).resolve())
         return w
+
+    def input_files(self) -> set[Path]:
+        """Every file the config names, itself included, resolved (outputs must never
+        replace one)."""
+        files = [self.path, self.pulses, self.dcir, self.ocv, self.cycle, *self.extra_cycles,
+                 *(p for p in self.ocv_sources if p != "pulses"),
+                 *(self.cycle_window_s if isinstance(self.cycle_window_s, dict) else ())]
+        for t in self.pulse_tests:
+            files += [t.file, t.steps, t.ocv]
+        judge = (self.raw.get("diagnose") or {}).get("judge") if isinstance(
+            self.raw.get("diagnose"), dict) else None
+        if isinstance(judge, str) and judge:
+            files.append(self.path.resolve().parent / judge)
+        return {Path(p).resolve() for p in files if p is not None}
 
     @property
     def over_temperature(self) -> bool:
@@ -290,8 +269,6 @@ def _cycle_windows(data: dict, base: Path, path: Path):
     return windows
 
 
-PULSE_TEST_KEYS = ("file", "soc0", "temperature_c", "steps", "ocv")
-TEMPERATURE_RANGE_C = (-60.0, 100.0)     # what a pulse test's temperature may be
 
 
 def _pulse_tests(data: dict, base: Path, path: Path, ocv: Path | None
@@ -304,10 +281,6 @@ def _pulse_tests(data: dict, base: Path, path: Path, ocv: Path | None
     tests: list[PulseTest] = []
     for n, entry in enumerate(raw, 1):
         where = f"data.pulse_tests[{n}]"
-        unknown = sorted(set(entry) - set(PULSE_TEST_KEYS))
-        if unknown:
-            raise InputError(path, f"{where}: unknown key(s) {unknown}; known: "
-                                   f"{', '.join(PULSE_TEST_KEYS)}")
         if "file" not in entry:
             raise InputError(path, f"{where}: missing file (the pulse test)")
         file = _file(base, entry, "file", path, where)
@@ -337,18 +310,28 @@ def _pulse_tests(data: dict, base: Path, path: Path, ocv: Path | None
 
 
 def load_config(path: str | Path) -> BuildConfig:
-    path = Path(path)
+    """Read and check a build config; any problem is an InputError naming the file."""
+    with reading(path):
+        return _load_config(Path(path))
+
+
+def _load_config(path: Path) -> BuildConfig:
+    if path.is_dir():
+        raise InputError(path, "is a folder; give the config file (a .toml)")
     try:
-        raw = tomllib.loads(path.read_text())
+        raw = tomllib.loads(path.read_bytes().decode("utf-8"))
     except FileNotFoundError:
         raise InputError(path, "no such config file") from None
+    except UnicodeDecodeError as exc:
+        raise InputError(path, f"not UTF-8 text (byte 0x{exc.object[exc.start]:02x} at offset "
+                               f"{exc.start}); TOML files are UTF-8") from None
     except tomllib.TOMLDecodeError as exc:
         raise InputError(path, f"not valid TOML ({exc})") from None
     base = path.resolve().parent
-    known = {"cell", "data", "dcir", "fit", "c", "diagnose", "model", "estimator"}
-    unknown = set(raw) - known
-    if unknown:
-        raise InputError(path, f"unknown section(s) {sorted(unknown)}; known: {sorted(known)}")
+    try:        # every section and key known, of its type and in its range
+        check_config(raw)
+    except SchemaError as exc:
+        raise InputError(path, str(exc)) from None
     cell, data = _table(raw, "cell", path), _table(raw, "data", path)
     dcir_t, fit, c = _table(raw, "dcir", path), _table(raw, "fit", path), _table(raw, "c", path)
     model_t = _table(raw, "model", path)
@@ -439,8 +422,9 @@ def load_config(path: str | Path) -> BuildConfig:
     if not isinstance(numeric, list) or any(n not in ("float", "fixed") for n in numeric):
         raise InputError(path, "c.numeric must be \"float\", \"fixed\" or a list of them")
     prefix = c.get("prefix", "ecm")
-    if not isinstance(prefix, str) or not prefix.isidentifier():
-        raise InputError(path, f"c.prefix must be a C identifier, got {prefix!r}")
+    problem = c_prefix_problem(prefix)
+    if problem:
+        raise InputError(path, f"c.{problem}")
     c_estimator = c.get("estimator", "none")
     if c_estimator not in C_ESTIMATORS:
         raise InputError(path, f"c.estimator must be one of {', '.join(map(repr, C_ESTIMATORS))}, "
@@ -469,10 +453,6 @@ def load_config(path: str | Path) -> BuildConfig:
     if not 0.0 <= gain <= SURFACE_SOC_GAIN_MAX:
         raise InputError(path, f"model.surface_soc_gain must lie in 0..{SURFACE_SOC_GAIN_MAX:g} "
                                f"(0: off), got {gain:g}")
-    unknown = sorted(set(model_t) - {"temperature_step_c", "warm_row_c", "surface_soc_gain"})
-    if unknown:
-        raise InputError(path, f"[model]: unknown key(s) {unknown}; known: "
-                               "temperature_step_c, warm_row_c, surface_soc_gain")
 
     return BuildConfig(
         path=path, capacity_ah=capacity, pulses=pulses, dcir=dcir,

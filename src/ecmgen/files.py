@@ -7,15 +7,24 @@ leaves half a file; :func:`file_sha256` names an input file in a model's provena
 from __future__ import annotations
 
 import hashlib
+import json
+import math
 import os
 import tempfile
 from pathlib import Path
 
+from .errors import InputError
+
 
 def write_atomic(path: Path, text: str | bytes) -> None:
-    """Write via a temporary file + rename, so a failure never leaves half a file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    """Write via a temporary file + rename, so a failure never leaves half a file. A
+    folder the system refuses (under /proc, read-only, full) is an InputError naming
+    ``path``, not the temporary file."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as exc:
+        raise InputError(path, f"cannot be written ({exc.strerror or exc})") from None
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(text.encode() if isinstance(text, str) else text)
@@ -26,6 +35,26 @@ def write_atomic(path: Path, text: str | bytes) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def json_safe(obj):
+    """``obj`` with every non-finite float (NaN: a figure that has no value, e.g. the MAE
+    above 10 % SOC of a cycle that never gets there) as None, so the JSON is valid: JSON
+    has no NaN, and json.dumps would write a bare ``NaN`` that strict readers refuse."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if hasattr(obj, "dtype") and getattr(obj, "shape", None) == ():   # numpy scalars
+        return json_safe(obj.item())
+    return obj
+
+
+def json_text(obj, indent: int | None = None) -> str:
+    """Valid JSON always: non-finite floats as null (json_safe), never NaN."""
+    return json.dumps(json_safe(obj), indent=indent, allow_nan=False)
 
 
 def file_sha256(path: str | Path) -> str:

@@ -11,10 +11,7 @@ succeeded, so a failure leaves no half-written output.
 
 from __future__ import annotations
 
-import shutil
 import sys
-import tempfile
-from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
@@ -30,6 +27,7 @@ from .errors import InputError
 from .files import file_sha256
 from .model.model import RC_FIELDS, EcmModel, InputRecord, RcTable
 from .model.simulate import Validation, validate
+from .outputs import check_output_folder, staged
 from .parallel import Workers
 
 Progress = Callable[[str], None]
@@ -565,6 +563,7 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
 
     out_dir = Path(out_dir).resolve()
     given = _given(cfg)
+    check_output_folder(out_dir, given)     # before the fit, not after it
     with _workers_for(cfg, workers) as pool:
         models, raw, inputs, tests = fit_all(cfg, progress, workers=pool, plots=plots)
         lap("fit")
@@ -593,7 +592,7 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
         _usage(result)
         lap("validate" + (" + plots" if plots else ""))
 
-        with _staged(out_dir, given) as (staging, files):
+        with staged(out_dir, given) as (staging, files):
             if tests:
                 for t in tests:
                     t.inputs.dcir.write_csv(staging / f"dcir-{t.label}.csv")
@@ -663,34 +662,6 @@ def _write_c(cfg: BuildConfig, result: BuildResult, staging: Path, progress: Pro
     return build_c_outputs(cfg, result, staging, progress)
 
 
-@contextmanager
-def _staged(out_dir: Path, given: set[Path]):
-    """Yield (staging folder, list of final paths); on success the staged files move into
-    out_dir (the list is filled), on any error nothing reaches out_dir."""
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=".ecmgen-staging-", dir=out_dir.parent))
-    files: list[Path] = []
-    try:
-        yield staging, files
-        files.extend(_commit(staging, out_dir, given))
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
-
-
-def _commit(staging: Path, out_dir: Path, given: set[Path]) -> list[Path]:
-    """Move the staged files into out_dir; refuse to replace any file the user gave."""
-    staged = [p for p in sorted(staging.rglob("*")) if p.is_file()]
-    targets = [out_dir / p.relative_to(staging) for p in staged]
-    for t in targets:
-        if t.resolve() in given:
-            raise InputError(t, "output would overwrite an input file; choose another --out")
-    out_dir.mkdir(parents=True, exist_ok=True)
-    for src, dst in zip(staged, targets):
-        dst.parent.mkdir(parents=True, exist_ok=True)
-        shutil.move(str(src), str(dst))
-    return targets
-
-
 def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
                  plots: bool = True):
     """`diagnose` from a build config: fit the base model (method ``fit.best``), look for
@@ -710,6 +681,7 @@ def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _qu
             raise InputError(cfg.path, f"diagnose.judge names a missing file: {judge_name}")
     out_dir = Path(out_dir).resolve()
     given = _given(cfg) | ({judge_path.resolve()} if judge_path is not None else set())
+    check_output_folder(out_dir, given)
     fit_cfg = cfg if cfg.methods == (cfg.best,) else _only_method(cfg, cfg.best)
     if "curve_branches" not in (cfg.raw.get("fit") or {}):
         # the base of a diagnosis is the plain 2RC: the diffusion pair and the Butler-Volmer
@@ -723,7 +695,7 @@ def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _qu
     judge = read_series(cfg, judge_path, "judge") if judge_path is not None else None
     result = diagnose(base, fit_series, judge, soc0=cfg.soc0, progress=progress, **options)
 
-    with _staged(out_dir, given) as (staging, files):
+    with staged(out_dir, given) as (staging, files):
         base.save(staging / "model-base.json")
         write_diagnose_outputs(result, staging, plots=plots)
     return result, out_dir, files
@@ -735,8 +707,4 @@ def _only_method(cfg: BuildConfig, method: str) -> BuildConfig:
 
 def _given(cfg: BuildConfig) -> set[Path]:
     """Every file the config names (outputs must never replace one)."""
-    files = [cfg.path, cfg.pulses, cfg.dcir, cfg.ocv, cfg.cycle, *cfg.extra_cycles,
-             *(p for p in cfg.ocv_sources if p != "pulses")]
-    for t in cfg.pulse_tests:
-        files += [t.file, t.steps, t.ocv]
-    return {p.resolve() for p in files if p is not None}
+    return cfg.input_files()

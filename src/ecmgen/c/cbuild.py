@@ -42,6 +42,11 @@ class CBuildError(RuntimeError):
     """The C could not be compiled or run (message carries the compiler output)."""
 
 
+class CToolchainMissing(CBuildError):
+    """No usable host compiler (or cffi cannot build a module here): the C cannot be
+    checked on this machine, which says nothing about the C itself."""
+
+
 def cache_dir() -> Path:
     env = os.environ.get("ECMGEN_CACHE")
     if env:
@@ -59,7 +64,7 @@ def host_cc() -> list[str]:
     if not shutil.which(cmd[0]):
         cmd = ["cc"]
     if not shutil.which(cmd[0]):
-        raise CBuildError("no C compiler found (set CC, or install gcc: apt-get install gcc)")
+        raise CToolchainMissing("no C compiler found (set CC, or install gcc: apt-get install gcc)")
     return cmd
 
 
@@ -68,7 +73,7 @@ def _cc_identity(cc: tuple[str, ...]) -> str:
     try:
         out = subprocess.run([*cc, "--version"], capture_output=True, text=True, timeout=30).stdout
     except OSError as exc:
-        raise CBuildError(f"cannot run the C compiler {cc[0]}: {exc}") from None
+        raise CToolchainMissing(f"cannot run the C compiler {cc[0]}: {exc}") from None
     return out.splitlines()[0] if out else cc[0]
 
 
@@ -331,7 +336,7 @@ def compile_spec(spec: CSpec, cache: Path | None = None, opt=HOST_OPT,
             try:
                 built = Path(ffi.compile(tmpdir=str(build), verbose=False))
             except Exception as exc:  # distutils/setuptools errors
-                raise CBuildError(f"cffi could not build the module: {exc}") from None
+                raise CToolchainMissing(f"cffi could not build the module: {exc}") from None
             os.replace(built, so)
         finally:
             shutil.rmtree(build, ignore_errors=True)

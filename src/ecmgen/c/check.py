@@ -10,7 +10,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..data.measure import TimeSeries
-from .cbuild import CBuildError, c_equivalence
+from ..errors import InputError
+from .cbuild import CBuildError, CToolchainMissing, c_equivalence
 from .codegen import describe, generate_c, prepare
 
 
@@ -51,9 +52,15 @@ def build_c_outputs(cfg, result, out_dir, progress=lambda msg: None) -> dict:
                 progress("checking the C estimator against its references")
                 est_eq = _estimator_block(model, specs["float"], est, series, val.soc0)
                 est_eq["settings_from"] = est_from
-        except CBuildError as exc:
+        except CToolchainMissing as exc:
             eq = {n: {"skipped": str(exc).strip().splitlines()[0]} for n in numerics}
             est_eq = None if est is None else {"skipped": eq["float"]["skipped"]}
+        except CBuildError as exc:
+            # the C ecmgen generated does not compile or run: never a build that exits 0
+            lines = [ln for ln in str(exc).splitlines() if "error" in ln] or str(exc).splitlines()
+            raise InputError(getattr(cfg, "path", None),
+                             f"the generated C failed its compile check ({lines[0][:300]}); "
+                             "nothing was written") from None
         for r in eq.values():
             r["cycle"] = Path(val.source).name
     out_dir = Path(out_dir)

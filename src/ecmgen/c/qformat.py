@@ -25,9 +25,10 @@ INT32_MAX = 2**31 - 1
 def _q_fit(vmax: float, bits: int = 31, cap: int = 62) -> int:
     """Largest Q (<= cap) with round(vmax * 2^Q) <= 2^bits - 1."""
     limit = 2**bits - 1
-    if vmax <= 0:
+    ratio = limit / vmax if vmax > 0 else math.inf
+    if ratio >= 2.0**cap:       # 0, or so small (1e-300) that limit / vmax overflows
         return cap
-    q = min(cap, math.floor(math.log2(limit / vmax)))
+    q = min(cap, math.floor(math.log2(ratio)))
     while math.floor(math.ldexp(vmax, q) + 0.5) > limit:
         q -= 1
     return q

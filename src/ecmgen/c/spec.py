@@ -28,7 +28,9 @@ from types import SimpleNamespace
 import numpy as np
 
 from .._version import __version__
+from ..config import c_prefix_problem
 from ..errors import InputError
+from ..model.model_schema import check_model_ranges
 from ..model.model import DIRECTIONS, RC_FIELDS, EcmModel, _grid_weights, load_model
 from .qformat import Q_TEMP, quantize
 
@@ -44,8 +46,6 @@ DEFAULT_I_MAX_C = 32.0      # default current range: 32 C, rounded up to a power
 ARR_T_RANGE_C = (-40.0, 85.0)   # temperature_dependence: the C saturates T to this range
 KELVIN = 273.15
 
-_PREFIX_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_]{0,31}$")
-_RESERVED = {"ecmrt", "int", "float", "double", "char", "void", "static", "const", "return"}
 
 
 @dataclass(frozen=True)
@@ -291,9 +291,9 @@ def _as_model(model) -> EcmModel:
 
 
 def check_options(prefix: str, numeric: str, dt_s, i_max_a) -> None:
-    if not isinstance(prefix, str) or not _PREFIX_RE.match(prefix) or prefix.lower() in _RESERVED:
-        raise InputError(None, f"[c] prefix {prefix!r} is not usable: it must be a C identifier "
-                               "of 1-32 letters, digits or '_' starting with a letter")
+    problem = c_prefix_problem(prefix)
+    if problem:
+        raise InputError(None, f"[c] {problem}")
     if numeric not in NUMERICS:
         raise InputError(None, f"[c] numeric must be \"float\" or \"fixed\", got {numeric!r}")
     if dt_s is not None:
@@ -383,6 +383,8 @@ def validate_for_c(model: EcmModel, path=None) -> None:
         if np.min(np.diff(quantize(tg, Q_TEMP))) < 1:
             raise InputError(path, "temperature breakpoints closer than 1/256 K (the fixed-point "
                                    "temperature resolution)")
+    # the physical ranges load_model applies: validate and codegen accept the same models
+    check_model_ranges(model, path)
 
 
 # --------------------------------------------------------------------------------------

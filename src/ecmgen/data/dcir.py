@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, reading
 from ..files import write_atomic
 from .measure import TimeSeries
 
@@ -86,6 +86,11 @@ class DcirTable:
 def read_dcir_csv(path: str | Path) -> DcirTable:
     """Read a ``soc,direction,c_rate,t_s,r_ohm`` table (c_rate optional). SOC may be given
     in percent (values above 1.5 are divided by 100)."""
+    with reading(path):
+        return _read_dcir_csv(path)
+
+
+def _read_dcir_csv(path: str | Path) -> DcirTable:
     path = Path(path)
     if not path.exists():
         raise InputError(path, "no such file")

@@ -7,8 +7,7 @@ time in seconds, voltage in volts, temperature in degC, cumulative charge in Ah
 
 from __future__ import annotations
 
-import csv
-import io
+import itertools
 import re
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -16,8 +15,10 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, reading
 from ..files import write_atomic
+from .csvtext import CsvRows, blocks, csv_encoding
+from .plausible import check_current, check_temperature, check_voltage
 
 
 @dataclass(frozen=True)
@@ -93,11 +94,6 @@ CHARGE_UNITS_AH = {"Ah": 1.0, "mAh": 1e-3}
 CURRENT_SIGNS = {"charge_positive": "charge_positive", "discharge_negative": "charge_positive",
                  "discharge_positive": "discharge_positive",
                  "charge_negative": "discharge_positive"}
-
-# Plausibility limits for one cell; outside them the file is almost surely mislabelled.
-VOLTAGE_RANGE_V = (0.5, 6.0)
-MAX_C_RATE = 50.0            # used when the capacity is known
-MAX_CURRENT_A = 2000.0       # used when it is not
 
 # Canonical CSV column order; the names are also TimeSeries' field names.
 CANONICAL_HEADER = ("time_s", "current_a", "voltage_v", "temperature_c", "charge_ah")
@@ -294,6 +290,12 @@ def read_timeseries(path: str | Path, columns: ColumnMap | None = None, *,
     same fields at top level). ``capacity_ah`` (cell capacity) tightens the current check
     to 50 C. Every problem is an InputError ``<file>: <column>, <row>: <problem>``.
     """
+    with reading(path):
+        return _read_timeseries(path, columns, capacity_ah=capacity_ah)
+
+
+def _read_timeseries(path: str | Path, columns: ColumnMap | None = None, *,
+                     capacity_ah: float | None = None) -> TimeSeries:
     path = Path(path)
     if capacity_ah is not None and not (np.isfinite(capacity_ah) and capacity_ah > 0):
         raise ValueError(f"capacity_ah must be a positive number of Ah, got {capacity_ah!r}")
@@ -313,14 +315,6 @@ def _is_mat(path: Path) -> bool:
         return True
     with open(path, "rb") as fh:
         return fh.read(6) == b"MATLAB"
-
-
-def _read_text(path: Path) -> str:
-    data = path.read_bytes()
-    try:
-        return data.decode("utf-8-sig")
-    except UnicodeDecodeError:
-        return data.decode("latin-1")  # cycler exports in a Windows code page ("°C")
 
 
 def _choose_layout(path: Path, found: list[str], kind: str, layouts) -> tuple[ColumnMap, str]:
@@ -390,34 +384,43 @@ def _headerless(path: Path, row: list[str], line: int) -> InputError:
 
 
 def _read_csv(path: Path, columns: ColumnMap | None) -> tuple[_Raw, ColumnMap]:
-    text = _read_text(path)
-    first = text.split("\n", 1)[0]
-    delimiter = max((",", ";", "\t"), key=first.count)
-    reader = csv.reader(io.StringIO(text), delimiter=delimiter)
+    encoding = csv_encoding(path)
+    try:
+        return _read_csv_as(path, columns, encoding)
+    except UnicodeDecodeError:
+        if encoding != "utf-8-sig":
+            raise InputError(path, "starts as UTF-16 text (its BOM) but is not") from None
+        return _read_csv_as(path, columns, "latin-1")   # a Windows code page ("°C")
+
+
+def _read_csv_as(path: Path, columns: ColumnMap | None, encoding: str
+                 ) -> tuple[_Raw, ColumnMap]:
+    """The CSV's mapped columns as float64, converted a block of rows at a time (the
+    text is never in memory whole: ecmgen.data.csvtext)."""
+    source = CsvRows(path, encoding)
+    rows = iter(source)
     has_header = columns is None or columns.header
-    header = None
-    rows: list[list[str]] = []
-    lines: list[int] = []
-    for row in reader:
-        if not row or (len(row) == 1 and not row[0].strip()):
-            continue  # blank line
-        if has_header and header is None:
-            if _numbers_only(row):
-                raise _headerless(path, row, reader.line_num)
-            header = [name.strip() for name in row]
-            continue
-        rows.append(row)
-        lines.append(reader.line_num)
-    if has_header and header is None:
-        raise InputError(path, "empty file (no header line)")
-    if not has_header:
-        if not rows:
+    pending: list[tuple[int, list[str]]] = []
+    if has_header:
+        line, row = next(rows, (0, None))
+        if row is None:
+            raise InputError(path, "empty file (no header line)")
+        if _numbers_only(row):
+            raise _headerless(path, row, line)
+        header = [name.strip() for name in row]
+        against = "the header has"
+    else:
+        first = next(rows, None)
+        if first is None:
             raise InputError(path, "empty file (no data lines)")
-        if not _numbers_only(rows[0]):
-            raise InputError(path, f"header = false in [data.columns], but line {lines[0]} "
-                                   f"holds names ({', '.join(c.strip() for c in rows[0][:4])}"
-                                   f"{', ...' if len(rows[0]) > 4 else ''}): a header line?")
-        header = [str(k) for k in range(1, len(rows[0]) + 1)]  # the positions
+        line, row = first
+        if not _numbers_only(row):
+            raise InputError(path, f"header = false in [data.columns], but line {line} "
+                                   f"holds names ({', '.join(c.strip() for c in row[:4])}"
+                                   f"{', ...' if len(row) > 4 else ''}): a header line?")
+        header = [str(k) for k in range(1, len(row) + 1)]  # the positions
+        against = f"line {line} has"
+        pending = [first]
 
     notes = []
     if columns is None:
@@ -427,32 +430,58 @@ def _read_csv(path: Path, columns: ColumnMap | None) -> tuple[_Raw, ColumnMap]:
     else:
         colmap = columns
         _check_named(path, colmap, header, "column")
-
     for role, name in colmap.names().items():
         if isinstance(name, str) and header.count(name) > 1:
             raise InputError(path, f"column {name!r} appears {header.count(name)} times "
                                    f"in the header")
 
-    width = len(header)
-    if any(len(r) != width for r in rows):
-        i = next(i for i, r in enumerate(rows) if len(r) != width)
-        against = "the header has" if has_header else f"line {lines[0]} has"
+    labels = {role: _label("column", name) for role, name in colmap.names().items()}
+    position = {role: name - 1 if isinstance(name, int) else header.index(name)
+                for role, name in colmap.names().items()}
+    parts: dict[str, list[np.ndarray]] = {role: [] for role in position}
+    line_parts: list[np.ndarray] = []
+    done = 0
+    for block in blocks(itertools.chain(pending, rows)):
+        lines = np.fromiter((ln for ln, _ in block), dtype=np.int64, count=len(block))
+        cells_of = [r for _, r in block]
+        _check_width(path, cells_of, lines, len(header), against, source.delimiter)
+
+        def where(i: int, done=done, lines=lines) -> str:
+            return f"row {done + i + 1} (line {lines[i]})"
+
+        for role, j in position.items():
+            parts[role].append(_column(path, labels[role], [r[j] for r in cells_of], where))
+        line_parts.append(lines)
+        done += len(block)
+    values = {role: np.concatenate(p) if p else np.empty(0) for role, p in parts.items()}
+    all_lines = np.concatenate(line_parts) if line_parts else np.empty(0, np.int64)
+
+    def where(i: int) -> str:
+        return f"row {i + 1} (line {all_lines[i]})"
+
+    return _Raw("column", labels, values, where, notes), colmap
+
+
+def _check_width(path: Path, rows: list[list[str]], lines, width: int, against: str,
+                 delimiter: str) -> None:
+    i = next((i for i, r in enumerate(rows) if len(r) != width), None)
+    if i is not None:
         raise InputError(path, f"line {lines[i]} has {len(rows[i])} fields but {against} "
                                f"{width} (a truncated row or a stray {delimiter!r}?)")
 
-    def where(i: int) -> str:
-        return f"row {i + 1} (line {lines[i]})"
 
-    values = {}
-    labels = {role: _label("column", name) for role, name in colmap.names().items()}
-    for role, name in colmap.names().items():
-        j = name - 1 if isinstance(name, int) else header.index(name)
-        cells = [r[j] for r in rows]
-        try:
-            values[role] = np.array(cells, dtype=np.float64)
-        except ValueError:
-            raise _non_numeric(path, labels[role], cells, where) from None
-    return _Raw("column", labels, values, where, notes), colmap
+def _column(path: Path, label: str, cells: list[str], where) -> np.ndarray:
+    """One column of a block of rows as float64; a cell that is not a number is an
+    InputError naming its row and line."""
+    try:
+        values = np.array(cells, dtype=np.float64)
+    except ValueError:
+        raise _non_numeric(path, label, cells, where) from None
+    # Python's float() reads "1_0" as 10: a digit separator no cycler writes
+    if "_" in "".join(cells):
+        k = next(k for k, c in enumerate(cells) if "_" in c)
+        raise InputError(path, f"{label}, {where(k)}: {cells[k].strip()!r} is not a number")
+    return values
 
 
 _DECIMAL_COMMA = re.compile(r"^\s*[-+]?\d+,\d+\s*$")
@@ -599,49 +628,19 @@ def _finish(path: Path, raw: _Raw, colmap: ColumnMap, capacity_ah: float | None)
         raise InputError(path, f"{loc('time', i)}: time goes backwards, {time[i]:.6g} s "
                                f"after {time[i - 1]:.6g} s{hint}")
 
-    _check_voltage(path, values["voltage"], colmap, loc)
-    _check_current(path, values["current"], colmap, capacity_ah, loc)
+    if time[-1] <= time[0]:
+        raise InputError(path, f"time does not advance: all {time.size} rows at "
+                               f"{time[0]:.6g} s")
+    check_voltage(path, values["voltage"], colmap, loc)
+    check_current(path, values["current"], colmap, capacity_ah, loc)
+    if "temperature" in values:
+        check_temperature(path, values["temperature"], loc)
     if "charge" in values:
         _check_charge_sign(path, values, raw.names)
 
     return TimeSeries(time_s=time, current_a=values["current"], voltage_v=values["voltage"],
                       temperature_c=values.get("temperature"), charge_ah=values.get("charge"),
                       source=str(path), notes=tuple(notes))
-
-
-def _check_voltage(path, volts, colmap, loc) -> None:
-    lo, hi = VOLTAGE_RANGE_V
-    out = (volts < lo) | (volts > hi)
-    if not out.any():
-        return
-    i = int(np.argmax(out))
-    typical = float(np.median(np.abs(volts)))
-    if colmap.voltage_unit == "V" and lo <= typical / 1000.0 <= hi:
-        hint = ": mV declared as V? (voltage_unit = \"mV\")"
-    elif colmap.voltage_unit == "mV" and lo <= typical * 1000.0 <= hi:
-        hint = ": V declared as mV? (voltage_unit = \"V\")"
-    else:
-        hint = " (implausible for one cell)"
-    raise InputError(path, f"{loc('voltage', i)}: voltage {volts[i]:.6g} V is outside "
-                           f"{lo:g}..{hi:g} V{hint}")
-
-
-def _check_current(path, amps, colmap, capacity_ah, loc) -> None:
-    i = int(np.argmax(np.abs(amps)))
-    peak = abs(float(amps[i]))
-    limit = MAX_C_RATE * capacity_ah if capacity_ah is not None else MAX_CURRENT_A
-    if peak <= limit:
-        return
-    if capacity_ah is not None:
-        what = (f"current reaches {peak:.6g} A = {peak / capacity_ah:.4g} C for a "
-                f"{capacity_ah:g} Ah cell (limit {MAX_C_RATE:g} C)")
-    else:
-        what = f"current reaches {peak:.6g} A (limit {MAX_CURRENT_A:g} A for one cell)"
-    if colmap.current_unit == "A" and peak / 1000.0 <= limit:
-        hint = ": mA declared as A? (current_unit = \"mA\")"
-    else:
-        hint = ": check the current column and its unit"
-    raise InputError(path, f"{loc('current', i)}: {what}{hint}")
 
 
 def _check_charge_sign(path, values, names) -> None:

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, reading
 from .measure import TimeSeries
 
 GRID = np.linspace(0.0, 1.0, 101)
@@ -119,6 +119,11 @@ def check_ocv(soc, ocv_v, path) -> None:
 
 def read_ocv_table(path: str | Path) -> OcvTable:
     """Read a CSV with columns ``soc,ocv_v`` (SOC in 0..1 or percent)."""
+    with reading(path):
+        return _read_ocv_table(path)
+
+
+def _read_ocv_table(path: str | Path) -> OcvTable:
     path = Path(path)
     if not path.exists():
         raise InputError(path, "no such file")
@@ -152,7 +157,7 @@ def looks_like_ocv_table(path: str | Path) -> bool:
     path = Path(path)
     if path.suffix.lower() != ".csv":
         return False
-    with open(path, newline="") as fh:
+    with reading(path), open(path, newline="", errors="replace") as fh:
         first = fh.readline().strip().lower().replace(" ", "")
     cols = first.split(",")
     return "soc" in cols and "ocv_v" in cols

@@ -5,13 +5,12 @@ augmented voltage on the held-out part).
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 
-from ..files import write_atomic
+from ..files import json_text, write_atomic
 from ..model import effects as fx
 from ..model.rc import rc_recurrence
 from ..plotting import _plt
@@ -254,7 +253,7 @@ def write_diagnose_outputs(result: DiagnoseResult, out_dir: str | Path, *, plots
     write_atomic(report, report_text(result, model_name))
     files.append(report)
     js = out / "diagnose.json"
-    write_atomic(js, json.dumps(result.to_json_dict(out / model_name), indent=1) + "\n")
+    write_atomic(js, json_text(result.to_json_dict(out / model_name), indent=1) + "\n")
     files.append(js)
     if plots:
         files.append(plot_signatures(result, out / "diagnose-signatures.png"))

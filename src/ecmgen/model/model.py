@@ -36,8 +36,9 @@ import numpy as np
 
 from .._version import __version__
 from ..data.ocv import OcvTable, _f64, check_ocv
-from ..errors import InputError
+from ..errors import InputError, reading
 from ..files import write_atomic
+from .model_schema import check_model_json, check_model_ranges
 
 SCHEMA = "ecmgen.model"
 SCHEMA_VERSION = 2          # 2: tables over (temperature, SOC); version 1 files still load
@@ -474,6 +475,11 @@ def _effect_to_json(effect) -> dict:
 
 def load_model(path: str | Path) -> EcmModel:
     """Read and check a model.json; any problem is an InputError naming the file."""
+    with reading(path):
+        return _load_model(path)
+
+
+def _load_model(path: str | Path) -> EcmModel:
     path = Path(path)
     try:
         raw = json.loads(path.read_text())
@@ -489,10 +495,21 @@ def model_from_json_dict(raw: Any, path=None) -> EcmModel:
     if not isinstance(raw, dict) or raw.get("schema") != SCHEMA:
         raise InputError(path, f"not an ecmgen model (missing \"schema\": \"{SCHEMA}\")")
     version = raw.get("schema_version")
-    if version not in READS_VERSIONS:
+    if isinstance(version, bool) or version not in READS_VERSIONS:   # true == 1 in Python
         raise InputError(path, f"schema_version {version!r} is not supported "
                                f"(this ecmgen reads versions {', '.join(map(str, READS_VERSIONS))})")
 
+    check_model_json(raw, path)
+    try:     # the tables' own checks (temperature range, ...) name the file too
+        model = _model_from_checked_json(raw, path, version)
+    except ValueError as exc:
+        raise InputError(path, str(exc)) from None
+    check_model_ranges(model, path)
+    return model
+
+
+def _model_from_checked_json(raw: dict, path, version: int) -> EcmModel:
+    """model_from_json_dict once the types and keys are known to be right."""
     def need(d, key, where):
         if not isinstance(d, dict) or key not in d:
             raise InputError(path, f"missing {where}{key}")

@@ -144,6 +144,17 @@ def sample_temperatures(model: EcmModel, n: int, temperature_c=None, source=None
     return t
 
 
+def _rc_state(dt, tau_s, r_ohm, current_a) -> np.ndarray:
+    """One RC pair's voltage: u_k = a_k u_{k-1} + r_k (1 - a_k) i_k, a_k = exp(-dt_k /
+    tau_k), the products formed in place (the same operations, in the same order, as
+    r (1 - a) i)."""
+    a = np.exp(-dt / tau_s)
+    drive = 1.0 - a
+    np.multiply(r_ohm, drive, out=drive)
+    drive *= current_a
+    return rc_recurrence(a, drive)
+
+
 def simulate(model: EcmModel, time_s, current_a, soc0: float,
              temperature_c=None) -> SimResult:
     """Simulate the model over a current profile (A, positive = charge) from ``soc0``.
@@ -164,15 +175,18 @@ def simulate(model: EcmModel, time_s, current_a, soc0: float,
     if model.surface_soc_gain:
         soc_s = surface_soc(model, dt, current_a, soc, p, temperature_c)
         p = at_surface(model, soc_s, charging, current_a, p, temperature_c)
-    a_fast = np.exp(-dt / p["tau_fast_s"])
-    a_slow = np.exp(-dt / p["tau_slow_s"])
     r_fast = p["r_fast_ohm"]
     if "i0_a" in p:
         r_fast = r_fast * butler_volmer_factor(current_a, p["i0_a"])
-    u_fast = rc_recurrence(a_fast, r_fast * (1.0 - a_fast) * current_a)
-    u_slow = rc_recurrence(a_slow, p["r_slow_ohm"] * (1.0 - a_slow) * current_a)
+    u_fast = _rc_state(dt, p["tau_fast_s"], r_fast, current_a)
+    u_slow = _rc_state(dt, p["tau_slow_s"], p["r_slow_ohm"], current_a)
     ocv = model.ocv.ocv_at(soc, temperature_c)
-    v = ocv + p["r0_ohm"] * current_a + u_fast + u_slow
+    # ocv + r0 i + u_fast + u_slow, summed in that order in place (a long record holds
+    # one array for it, not four)
+    v = p["r0_ohm"] * current_a
+    v += ocv
+    v += u_fast
+    v += u_slow
     u_diff = None
     if "r_diff_ohm" in p:
         a_diff = np.exp(-dt / p["tau_diff_s"])
@@ -208,6 +222,22 @@ def start_soc(model: EcmModel, series: TimeSeries) -> tuple[float, str]:
 
 
 SOC_RANGE_TOLERANCE = 0.005   # simulated SOC this far outside [0, 1] is warned about
+# a current step moves a cell's voltage the same way (charge positive: up) at once; steps
+# of the record's current and voltage correlating below this at once, with none positive
+# beyond its opposite at a later lag (a logger that samples the voltage late), say the
+# current column counts the other way (measured at lag 0: +0.99 as recorded, -0.99 with
+# the sign flipped, on the synthetic cycle of the tests)
+FLIPPED_SIGN_CORRELATION = -0.5
+# an MAE above this is not a model's error on its own cell (the bundled cell: 11-76 mV
+# from 25 to -20 degC) but a record it does not describe
+FOREIGN_MAE_V = 0.15
+
+
+def flipped_sign_warning(name: str, correlation: float) -> str:
+    return (f"{name}: the current's sign looks flipped: the voltage steps the other way "
+            f"from the current (correlation of their steps {correlation:.2f}); ecmgen "
+            "counts charge positive: set current_sign = \"discharge_positive\" in "
+            "[data.columns] (the error and the SOC range follow from it) (warning)")
 
 
 def soc_range_warning(soc: np.ndarray, source: str = "") -> str | None:
@@ -286,11 +316,21 @@ def validate(model: EcmModel, series: TimeSeries, soc0: float | None = None,
     sim = simulate(model, series.time_s, series.current_a, float(soc0), temps)
     err = sim.voltage_v - series.voltage_v
     name = Path(series.source).name if series.source else ""
-    warns = [soc_range_warning(sim.soc, name)]
     lag = voltage_lag(series)
     lag_samples = 0 if lag is None else lag.samples
-    if lag_samples:
-        warns.append(lag.note(series.source))
-    return Validation(series.source, float(soc0), from_ocv, Metrics.of(err),
+    overall = Metrics.of(err)
+    if lag is not None and lag.correlation[0] < FLIPPED_SIGN_CORRELATION and \
+            max(lag.correlation) < -FLIPPED_SIGN_CORRELATION:    # and no lagging logger
+        # the cause, not its consequences (a SOC out of range, a "lag", a large error)
+        warns = [flipped_sign_warning(name, lag.correlation[0])]
+    else:
+        warns = [soc_range_warning(sim.soc, name)]
+        if lag_samples:
+            warns.append(lag.note(series.source))
+        if overall.mae_v > FOREIGN_MAE_V:
+            warns.append(f"{name}: MAE {overall.mae_v * 1e3:.0f} mV is far beyond a model's "
+                         f"error on the cell it was fitted on (tens of mV): a record of "
+                         f"another cell, or in other units? (warning)")
+    return Validation(series.source, float(soc0), from_ocv, overall,
                       Metrics.of(err[sim.soc > 0.10]), sim, series.voltage_v, temps, how,
                       tuple(w for w in warns if w), lag_samples)
