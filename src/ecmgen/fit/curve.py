@@ -25,7 +25,10 @@ Blind to the OCV's level: psi_l are hat functions on every pulse level (one set 
 charge, one after a discharge when the test has both), with free coefficients c_l that the
 model does not keep. An OCV table a few mV off, a SOC that drifts with a wrong capacity, or a
 hysteresis offset is absorbed there instead of in r_slow and tau_slow, as if each pulse were
-referenced to the rest before it.
+referenced to the rest before it. The offsets sit at the levels or, where that predicts a
+left-out level better (a SOC move through a curved stretch of an OCV interpolated between
+the rests), also half-way between them. Rows count only over the SOC the pulses reached
+(``SPAN_MARGIN`` beyond): past it the tables are held flat and the OCV extrapolated.
 
 Smooth by measurement: a second-difference penalty over each direction's levels (relative to
 the column scale); its weight is chosen by leaving one SOC level out (the rows from the rest
@@ -100,6 +103,7 @@ PENALTY = 1e-3             # second-difference penalty, relative to each block's
 TIE = 1e-2                 # local minima within this (relative objective) are equally good
 SLOW_START = 0.02          # grid start favouring slow dynamics: objective tilt per ln(tau)
 NM_EVALS = 60              # exact evaluations per local refinement
+SPAN_MARGIN = 0.01         # rows this far (SOC) beyond the pulses' own SOC still count
 R0_MIN_RATES = 3           # a level pins r0 when its complete pulses span this many C-rates
 
 
@@ -178,7 +182,7 @@ class _Problem:
 
     def __init__(self, rec: Record, bases: dict, ocv_nodes: np.ndarray, i0_a: float | None,
                  r0_spans: dict | None = None, levels: np.ndarray | None = None,
-                 split_ocv: bool = False):
+                 split_ocv: bool = False, soc_span: tuple | None = None):
         self.rec = rec
         self.dirs = list(rec.dir_mask)
         self.ndir = len(self.dirs)
@@ -203,13 +207,16 @@ class _Problem:
         self.u_diff = np.asfortranarray(np.column_stack([m * rec.i for m in rec.dir_mask.values()]))
         # r0 * i on the node basis, then the OCV correction
         self.r0_full = np.asfortranarray(np.hstack([self.u_slow, ocv_cols]))
-        self.rows = np.flatnonzero(rec.row & (rec.w > 0))
+        inside = np.ones(rec.t.size, bool) if soc_span is None else \
+            (rec.soc >= soc_span[0]) & (rec.soc <= soc_span[1])
+        self.rows = np.flatnonzero(rec.row & (rec.w > 0) & inside)
         self.w = rec.w[self.rows]
         self.yw = rec.y[self.rows] * self.w
         self.yy = float(self.yw @ self.yw)
         self.r0w = np.asfortranarray((self.r0_full.T[:, self.rows] * self.w).T)
         self.dtd = [d.T @ d for d in (second_difference(b) for b in self.bases)]
         self.penalty = PENALTY
+        self.cv_sse = float("inf")      # held-out error leaving one level out (the fit's)
         # the SOC level (index) each row belongs to, -1 between levels (leave-one-out)
         self.level = np.full(self.rows.size, -1) if levels is None else levels[self.rows]
         self._cache: dict = {}
@@ -439,15 +446,38 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
     notes.extend(n)
     bases = {d: level_nodes(complete, d, capacity_ah) for d in directions}
     ocv_nodes, levels = level_windows(complete, series.time_s, rec.t)
+    # rows only over the SOC the pulses measured: beyond it the tables are held flat and the
+    # OCV is extrapolated (the discharge to the cut-off after the last level)
+    ends = [p.soc + p.current_a * p.duration_s / 3600.0 / capacity_ah for p in complete]
+    span = (min(min(ends), min(p.soc for p in complete)) - SPAN_MARGIN,
+            max(max(ends), max(p.soc for p in complete)) + SPAN_MARGIN)
     spans = _r0_spans(complete, directions)
     # a correction per direction of the last current needs the current dependence (two
     # C-rates at a level) to tell it from r0 i
     split = all(len({p.c_rate for p in complete if p.direction == d}) >= 2 for d in directions)
-    prob = _Problem(rec, bases, ocv_nodes, i0_a, spans, levels, split_ocv=split)
-    if prob.rows.size < 4 * (prob.jd + prob.n_ocv):
-        raise InputError(series.source, f"only {prob.rows.size} samples to fit the curve "
-                                        "method on")
-    taus, x, cost, n_eval, search_notes, ranges = _fit_time_constants(prob, ranges, progress)
+    fits = []
+    # the OCV correction at the levels, or also half-way between them (a SOC move passes
+    # where the OCV table is interpolated between the rests, and its curvature there must
+    # not go into r(soc)): the one that predicts a left-out level better
+    for nodes_ocv in _ocv_node_sets(ocv_nodes):
+        prob = _Problem(rec, bases, nodes_ocv, i0_a, spans, levels, split_ocv=split,
+                        soc_span=span)
+        if prob.rows.size < 4 * (prob.jd + prob.n_ocv):
+            raise InputError(series.source, f"only {prob.rows.size} samples to fit the curve "
+                                            "method on")
+        fits.append((prob, _fit_time_constants(prob, ranges, progress if not fits else None)))
+    if len(fits) > 1:
+        (p0, f0), (p1, f1) = fits
+        use_mid = p1.cv_sse < p0.cv_sse
+        prob, got = fits[1] if use_mid else fits[0]
+        if np.isfinite(p0.cv_sse) and p0.cv_sse > 0:
+            notes.append(f"curve: OCV offsets {'also half-way between' if use_mid else 'at'} the "
+                         f"levels (leaving one level out: {p1.cv_sse / p0.cv_sse:.3g} x the "
+                         "error of offsets at the levels only)")
+        got = got[:3] + (f0[3] + f1[3],) + got[4:]
+    else:
+        prob, got = fits[0]
+    taus, x, cost, n_eval, search_notes, ranges = got
     notes.extend(search_notes)
     kinds = list(ranges)
     diffusion = "diff" in ranges
@@ -501,6 +531,13 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
                     float(rec.rest_used_s))
 
 
+def _ocv_node_sets(nodes: np.ndarray) -> list[np.ndarray]:
+    """The OCV correction's nodes: the levels, and the levels with their midpoints."""
+    if nodes.size < 2:
+        return [nodes]
+    return [nodes, np.sort(np.concatenate([nodes, 0.5 * (nodes[1:] + nodes[:-1])]))]
+
+
 def _pulse_sampling_s(series: TimeSeries, complete) -> float:
     """The median sampling interval inside the complete pulses."""
     dt = np.concatenate([np.diff(series.time_s[p.start:p.stop]) for p in complete])
@@ -530,7 +567,8 @@ def _fit_time_constants(prob: _Problem, ranges: dict, progress=None):
     taus, x, cost, n_eval, notes = _search(prob, ranges, progress)
     kinds = list(ranges)
     z = side_by_side([prob.r0w] + [prob.block(k, taus[k]) for k in kinds])
-    lam, _ = choose_penalty(prob, z, prob.layout(kinds))
+    lam, errors = choose_penalty(prob, z, prob.layout(kinds))
+    prob.cv_sse = errors.get(lam, float("inf")) if errors else float("inf")
     if lam != prob.penalty:
         prob.penalty = lam
         x, cost = _solve_at(prob, kinds, taus)
