@@ -107,7 +107,10 @@ SECTIONS: tuple[Section, ...] = (
         Key("current", COLUMN, "current column", default='"current_a"'),
         Key("voltage", COLUMN, "voltage column", default='"voltage_v"'),
         Key("temperature", COLUMN, "cell temperature column (degC)"),
-        Key("charge", COLUMN, "cumulative charge column"),
+        Key("charge", COLUMN, "the cycler's Ah counter: cumulative, or restarting per step "
+            "or cycle (joined on reading); with discharge: its charge counter"),
+        Key("discharge", COLUMN, "a discharge counter counting up beside charge (Arbin "
+            "Discharge_Capacity, disAh)"),
         Key("time_unit", CHOICE, "unit of the time column", choices=("s", "min", "h"),
             default='"s"'),
         Key("current_unit", CHOICE, "unit of the current column", choices=("A", "mA"),
