@@ -98,12 +98,18 @@ def _ocv_file_curve(cfg: BuildConfig, path: Path, progress: Progress) -> ocv_mod
 
 def pulse_test_soc0(cfg: BuildConfig, series: TimeSeries, rests, reference: OcvTable | None,
                     given: float | None) -> tuple[float, str]:
-    """Start SOC of one pulse test: ``given`` (data.pulses_soc0) wins; else fitted on
-    all its rests against ``reference`` (the OCV of the other sources); else 1.0."""
-    from .data.soc import pulse_test_start_soc
+    """Start SOC of one pulse test: ``given`` (data.pulses_soc0) wins; else SOC 1.0 at
+    the end of a constant-voltage charge it opens with; else fitted on all its rests
+    against ``reference`` (the OCV of the other sources); else 1.0."""
+    from .data.soc import opening_cv_charge, pulse_test_start_soc
 
     if given is not None:
         return given, ""
+    cv = opening_cv_charge(series, cfg.capacity_ah, max(0.02 * cfg.capacity_ah, 1e-3),
+                           after_discharge=True)
+    if cv is not None:
+        return cv[0], (f"pulse test start SOC {cv[0]:.3f}: {cv[1]} (set data.pulses_soc0 "
+                       f"to override)")
     if reference is not None and len(rests) >= 2:
         fit = pulse_test_start_soc(reference, cfg.capacity_ah, rests, series.source)
         return fit.soc0, f"pulse test {fit.note} (set data.pulses_soc0 to override)"

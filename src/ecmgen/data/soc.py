@@ -159,6 +159,49 @@ def fit_start_soc(ocv, capacity_ah: float, rests: Rests, source="", *,
     return StartSoc(float(s0), rms, offsets, len(rests), note)
 
 
+def opening_cv_charge(series: TimeSeries, capacity_ah: float, rest_a: float,
+                      min_rest_s: float = 60.0, *, after_discharge: bool = False
+                      ) -> tuple[float, str] | None:
+    """The start SOC of a record that opens with a charge ending in a constant-voltage
+    phase (SOC 1.0 at its end, the charge before it counted back), and how it was found;
+    None for any other record. A charge logged from an empty cell (the Leaf's HPPC files)
+    tells the start SOC better than any rest: no OCV is needed.
+
+    ``after_discharge``: the first charge that moves at least CV_CHARGE_SHARE of the
+    capacity counts even after a discharge (a pulse test that first empties the cell,
+    as the Leaf's 40 degC file does); a drive cycle's regen pulses never do."""
+    i = series.current_a
+    q = series.coulomb_ah()
+    k = 0
+    while True:
+        moving = np.flatnonzero(np.abs(i[k:]) > rest_a)
+        if moving.size == 0:
+            return None
+        first = k + int(moving[0])
+        if i[first] < 0:
+            if not after_discharge:
+                return None
+            up = np.flatnonzero(i[first:] > rest_a)
+            if up.size == 0:
+                return None
+            first += int(up[0])
+        b = _charge_end(series, first, rest_a, min_rest_s)
+        charged = float(q[b - 1] - q[first])
+        if not after_discharge or charged >= CV_CHARGE_SHARE * capacity_ah:
+            break
+        k = b                      # a charge pulse: look on
+    if not _cv_end(series, first, b):
+        return None
+    end = float(q[b - 1])
+    return 1.0 - end / capacity_ah, (f"SOC 1.0 at the end of the constant-voltage charge "
+                                     f"the record opens with ({charged:.4g} Ah, ending "
+                                     f"{series.time_s[b - 1] - series.time_s[0]:.0f} s after "
+                                     f"its start)")
+
+
+CV_CHARGE_SHARE = 0.05
+
+
 def pulse_test_start_soc(ocv, capacity_ah: float, rests: Rests, source="") -> StartSoc:
     """Start SOC of a pulse test from its rests (``find_rests``): 1.0 when the rest it
     opens with sits at or above the top of the OCV (a full cell: nothing else is
@@ -245,11 +288,11 @@ def record_start_soc(ocv, capacity_ah: float, series: TimeSeries, rest_a: float,
         return at(len(i) - 1, "the OCV of its last sample (the record never moves)")
     first = int(moving[0])
     opens_with_charge = bool(i[first] > 0)
+    cv = opening_cv_charge(series, capacity_ah, rest_a, min_rest_s)
+    if cv is not None:
+        return cv
     if opens_with_charge:
         b = _charge_end(series, first, rest_a, min_rest_s)
-        if _cv_end(series, first, b):
-            return 1.0 - float(q[b - 1]) / capacity_ah, (
-                "SOC 1.0 at the end of the constant-voltage charge the record opens with")
     opening = first - 1 if np.abs(i[0]) <= rest_a else None
     # one rested voltage tells the SOC to REST_VOLTAGE_V / slope; where the OCV is that
     # flat (an LFP plateau), all the record's rests are fitted together instead
