@@ -82,6 +82,12 @@ def read_series(cfg: BuildConfig, path: Path, role: str = "") -> TimeSeries:
     roles = (role, COLUMN_ROLE_FALLBACK[role]) if role in COLUMN_ROLE_FALLBACK else (role,)
     columns = ColumnMap.for_file(cfg.columns, roles, cfg.path, path)
     series = read_timeseries(path, columns, capacity_ah=cfg.capacity_ah)
+    temp = cfg.temperature_for(path) if series.temperature_c is None else None
+    if temp is not None:
+        series = replace(series, temperature_c=np.full(len(series), temp),
+                         notes=series.notes + (f"no temperature column: the cell taken to "
+                                               f"be at {temp:g} degC (the config's "
+                                               f"temperature_c)",))
     window = cfg.window_for(path) if role in WINDOW_ROLES else None
     return series if window is None else series.window(*window)
 
@@ -144,7 +150,7 @@ def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
             notes.append(n)
         pulses = tuple(dcir_mod.find_pulses(series, q, soc0=soc0, min_rest_s=cfg.min_rest_s,
                                             max_pulse_s=cfg.max_pulse_s))
-        table = dcir_mod.extract_dcir(series, list(pulses), cfg.times_s)
+        table = dcir_mod.extract_dcir(series, list(pulses), cfg.times_s).measured_times()
         notes.extend(table.notes)
         progress(f"{len(pulses)} pulses, {len(table)} DC-IR rows")
     else:
@@ -478,8 +484,8 @@ def validate_cycle(cfg: BuildConfig, path: Path, role: str, label: str,
     if series.temperature_c is None and any(m.needs_temperature for m in models.values()):
         raise InputError(path, "no cell temperature column: the model has tables over "
                                "temperature and each validation cycle needs its cell "
-                               "temperature (a temperature_c column, or a mapped one "
-                               "in [data.columns])")
+                               "temperature (a temperature_c column, a mapped one in "
+                               "[data.columns], or data.temperature_c)")
     vals = {m: validate(model, series, cfg.soc0) for m, model in models.items()}
     png = None
     if plot_best is not None:
