@@ -92,14 +92,61 @@ def read_series(cfg: BuildConfig, path: Path, role: str = "") -> TimeSeries:
     return series if window is None else series.window(*window)
 
 
-def _ocv_file_curve(cfg: BuildConfig, path: Path, progress: Progress) -> ocv_mod.OcvCurve:
-    """The OCV curve of one file source: a soc,ocv_v table or a low-rate test."""
-    if ocv_mod.looks_like_ocv_table(path):
+def _ocv_file_curve(cfg: BuildConfig, path: Path, progress: Progress,
+                    low: TimeSeries | None = None) -> ocv_mod.OcvCurve:
+    """The OCV curve of one file source: a soc,ocv_v table or a low-rate test (``low``:
+    that test, already read or joined from its parts)."""
+    if low is None and ocv_mod.looks_like_ocv_table(path):
         return ocv_mod.curve_from_table(ocv_mod.read_ocv_table(path), path.name)
-    progress(f"reading low-rate OCV test {path.name}")
-    low = read_series(cfg, path, "ocv")
-    return ocv_mod.curve_from_low_rate(low, cfg.capacity_ah, path.name, soc0=cfg.ocv_soc0,
+    if low is None:
+        progress(f"reading low-rate OCV test {path.name}")
+        low = read_series(cfg, path, "ocv")
+    name = Path(low.source).name if low.source else path.name
+    return ocv_mod.curve_from_low_rate(low, cfg.capacity_ah, name, soc0=cfg.ocv_soc0,
                                        branch=cfg.ocv_branch, cycle=cfg.ocv_cycle)
+
+
+def _ocv_file_curves(cfg: BuildConfig, sources, progress: Progress
+                     ) -> tuple[list, dict, list[str]]:
+    """The curves of data.ocv's file sources, in order: the sources left (a run of
+    consecutive low-rate files, none a discharge + charge cycle alone, becomes its first
+    file: their records joined end to end into one test), their curves, and notes."""
+    from .data.lowrate import join_records, split_low_rate
+
+    lows: dict = {}
+    for src in sources:
+        if src != "pulses" and not ocv_mod.looks_like_ocv_table(src):
+            progress(f"reading low-rate OCV test {src.name}")
+            low = read_series(cfg, src, "ocv")
+            lows[src] = (low, not split_low_rate(low, cfg.capacity_ah).cycles)
+    kept, curves, notes, run = [], {}, [], []
+
+    def flush():
+        if len(run) > 1:
+            joined, note = join_records([lows[p][0] for p in run])
+            notes.append(note)
+            curves[run[0]] = _ocv_file_curve(cfg, run[0], progress, joined)
+            kept.append(run[0])
+        else:
+            for p in run:
+                curves[p] = _ocv_file_curve(cfg, p, progress, lows[p][0])
+                kept.append(p)
+        run.clear()
+
+    for src in sources:
+        if src in lows and lows[src][1]:
+            run.append(src)
+            continue
+        flush()
+        if src in lows:
+            run.append(src)
+            flush()
+        else:
+            if src != "pulses":
+                curves[src] = _ocv_file_curve(cfg, src, progress)
+            kept.append(src)
+    flush()
+    return kept, curves, notes
 
 
 def pulse_test_soc0(cfg: BuildConfig, series: TimeSeries, rests, reference: OcvTable | None,
@@ -130,11 +177,11 @@ def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
     records: list[InputRecord] = []
     q = cfg.capacity_ah
     sources = cfg.ocv_sources or (("pulses",) if cfg.ocv is None else (cfg.ocv,))
-    file_curves = {}
     for src in sources:
         if src != "pulses":
-            file_curves[src] = _ocv_file_curve(cfg, src, progress)
             records.append(InputRecord("ocv", src.name, file_sha256(src)))
+    sources, file_curves, joined = _ocv_file_curves(cfg, sources, progress)
+    notes.extend(joined)
     reference = None
     if file_curves:
         reference = ocv_mod.merge_curves([file_curves[s] for s in sources if s != "pulses"])[0]

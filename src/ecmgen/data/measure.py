@@ -243,6 +243,7 @@ class _Layout:
     temperature: tuple[str, ...] = ()
     charge: tuple[str, ...] = ()
     discharge: tuple[str, ...] = ()     # with charge: the split counters, both needed
+    counters_required: bool = False     # generic names: the layout is its counters' too
 
     def describe(self) -> str:
         c = self.columns
@@ -252,13 +253,16 @@ class _Layout:
         if not all(n in found for n in (self.columns.time, self.columns.current,
                                          self.columns.voltage)):
             return None
+        if self.counters_required and not all(
+                any(n in found for n in names) for names in (self.charge, self.discharge)):
+            return None
         temp = next((n for n in self.temperature if n in found), None)
         charge = next((n for n in self.charge if n in found), None)
         discharge = next((n for n in self.discharge if n in found), None)
         if self.discharge and (charge is None or discharge is None):
             charge = discharge = None
         return ColumnMap(self.columns.time, self.columns.current, self.columns.voltage,
-                         temp, charge, discharge)
+                         temp, charge, discharge, current_sign=self.columns.current_sign)
 
     def present(self, found: list[str]) -> int:
         return sum(n in found for n in (self.columns.time, self.columns.current,
@@ -278,6 +282,11 @@ CSV_LAYOUTS = (
             ("Temperature (C)_1",), ("Charge_Capacity(Ah)",), ("Discharge_Capacity(Ah)",)),
     _Layout("Bitrode-style columns", ColumnMap("Time(s)", "Current(A)", "Voltage(V)"),
             (), ("Capacity(Ah)",)),
+    # Plett's ESC toolbox CSVs log discharge POSITIVE; their names are generic, so only
+    # with both counters, which would refuse a wrong sign (_check_charge_sign)
+    _Layout("Plett ESC-toolbox-style columns (discharge positive)",
+            ColumnMap("time", "current", "voltage", current_sign="discharge_positive"),
+            (), ("chgAh",), ("disAh",), counters_required=True),
     # CALCE low-rate OCV export: a single step, so Step_Time(s) is the only clock.
     _Layout("Arbin/CALCE-style single-step columns",
             ColumnMap("Step_Time(s)", "Current(A)", "Voltage(V)"), ("Temperature (C)_1",)),
@@ -460,8 +469,9 @@ def _read_csv_as(path: Path, columns: ColumnMap | None, encoding: str
     notes = []
     if columns is None:
         colmap, layout = _choose_layout(path, header, "column", CSV_LAYOUTS)
+        sign = "discharge" if colmap.current_sign == "discharge_positive" else "charge"
         notes.append(f"columns recognised by their names as {layout}; current taken as "
-                     f"positive on charge")
+                     f"positive on {sign}")
     else:
         colmap = columns
         _check_named(path, colmap, header, "column")
@@ -639,7 +649,9 @@ def _finish(path: Path, raw: _Raw, colmap: ColumnMap, capacity_ah: float | None)
         values["current"] = -values["current"]
         if "charge" in values and "discharge" not in values:   # split counters count up
             values["charge"] = -values["charge"]
-        notes.append("current (and charge) negated: file logs discharge positive")
+        notes.append("current (and charge) negated: file logs discharge positive"
+                     if "discharge" not in values else
+                     "current negated: file logs discharge positive")
     for role, unit in (("time", colmap.time_unit), ("current", colmap.current_unit),
                        ("voltage", colmap.voltage_unit), ("charge", colmap.charge_unit)):
         if role in values and unit not in ("s", "A", "V", "Ah"):
