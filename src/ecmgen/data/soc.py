@@ -260,6 +260,39 @@ def _charge_end(series: TimeSeries, a: int, rest_a: float, min_rest_s: float) ->
     return stop
 
 
+SHORT_REST_S = 10.0          # the stops of a drive cycle count as rests of an unrelaxed record
+RELAXED_DRIFT_V = 0.001      # a rest whose voltage moves more over its last half is unrelaxed
+
+
+def _unrelaxed(series: TimeSeries, end: int) -> str | None:
+    """Why the rest a record opens with (samples 0..end) cannot be taken as relaxed, or
+    None: its voltage still moves by more than RELAXED_DRIFT_V over its last half, or it
+    is too short to tell (under 3 samples or 5 s)."""
+    t, v = series.time_s[:end + 1], series.voltage_v[:end + 1]
+    if t.size < 3 or t[-1] - t[0] < 5.0:
+        return f"the rest it opens with, {t[-1] - t[0]:.0f} s, is too short to tell its OCV"
+    half = int(np.searchsorted(t, 0.5 * (t[0] + t[-1])))
+    moved = float(v[-1] - v[half])
+    if abs(moved) <= RELAXED_DRIFT_V:
+        return None
+    return (f"the rest it opens with is unrelaxed: its voltage still moved "
+            f"{moved * 1e3:+.1f} mV over its last {t[-1] - t[half]:.0f} s")
+
+
+def _relaxed_voltage(series: TimeSeries, end: int) -> float | None:
+    """Where the relaxation of the rest 0..end is heading, from its start, middle and end
+    voltages taken as steps of a geometric (exponential) approach (Aitken's delta
+    squared); None where the rest does not slow down as a relaxation does."""
+    t, v = series.time_s[:end + 1], series.voltage_v[:end + 1]
+    if t.size < 3 or t[-1] - t[0] < 5.0:
+        return None
+    v_mid = float(np.interp(0.5 * (t[0] + t[-1]), t, v))     # two equal time steps
+    d1, d2 = v_mid - float(v[0]), float(v[-1]) - v_mid
+    if d1 * d2 <= 0 or abs(d2) >= abs(d1):
+        return None
+    return float(v[-1] + d2 * d2 / (d1 - d2))
+
+
 def record_start_soc(ocv, capacity_ah: float, series: TimeSeries, rest_a: float,
                      min_rest_s: float = 60.0, fit_rest_s: float = 300.0
                      ) -> tuple[float, str]:
@@ -294,6 +327,18 @@ def record_start_soc(ocv, capacity_ah: float, series: TimeSeries, rest_a: float,
     if opens_with_charge:
         b = _charge_end(series, first, rest_a, min_rest_s)
     opening = first - 1 if np.abs(i[0]) <= rest_a else None
+    drift = None if opening is None else _unrelaxed(series, opening)
+    if drift is not None and v[opening] < float(ocv.ocv_v[-1]):
+        extrapolated = _relaxed_voltage(series, opening)
+        if extrapolated is not None:
+            soc = float(ocv.soc_at(extrapolated)) - float(q[opening]) / capacity_ah
+            return soc, (f"the OCV of {extrapolated:.4f} V, where the relaxation of the rest "
+                         f"it opens with is heading ({drift}; its last sample "
+                         f"{v[opening]:.4f} V)")
+        rests = find_rests(series, rest_a, SHORT_REST_S)
+        if len(rests) >= 3 and np.ptp(rests.charge_ah) / capacity_ah >= MIN_FIT_SPAN:
+            fit = fit_start_soc(ocv, capacity_ah, rests, series.source)
+            return fit.soc0, f"a fit to its rests ({drift}): {fit.note}"
     # one rested voltage tells the SOC to REST_VOLTAGE_V / slope; where the OCV is that
     # flat (an LFP plateau), all the record's rests are fitted together instead
     weak = opening is not None and _soc_error(ocv, v[opening]) > WEAK_REST_SOC
