@@ -96,3 +96,27 @@ def test_leaf_hppc_start_soc_and_last_level_from_the_file_alone(name):
     last = find_pulses(series, q, soc0=soc0)[-1]
     assert abs(last.soc - (truth + (cum[last.start] - cum[0]) / q)) < 0.01
     assert 0.05 < last.soc < 0.2
+
+
+@pytest.mark.slow
+def test_leaf_model_over_temperature_builds_from_the_files_as_shared(tmp_path):
+    """tests/data/nissan-leaf/config.toml: both HPPC files as [[data.pulse_tests]] at 25
+    and 40 degC, no pulses_soc0, no converted file. Before: 'columns not recognised', and
+    with a mapping, start SOC 1.0 and refused."""
+    import json
+    import subprocess
+    import sys
+
+    from conftest import REPO
+
+    need(SHARED_DATA / "nissan-leaf")
+    r = subprocess.run([sys.executable, "-m", "ecmgen.cli", "build",
+                        str(REPO / "tests" / "data" / "nissan-leaf" / "config.toml"),
+                        "--out", str(tmp_path / "out"), "--json", "-q"],
+                       capture_output=True, text=True, cwd=REPO)
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert out["temperature"]["ocv_temperatures_c"] == [25.0, 40.0]
+    starts = [n for n in out["notes"] if "constant-voltage charge" in n]
+    assert len(starts) == 2 and "0.072" in starts[0] and "0.058" in starts[1]
+    assert (tmp_path / "out" / "ocv-25.0degC.png").exists()

@@ -673,6 +673,24 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
     return result
 
 
+def _row_spans(result: BuildResult, method: str) -> list | None:
+    """Per pulse test (a temperature row of a model over temperature): the SOC its OCV
+    and its RC tables were measured at; None with one test."""
+    from .model.spans import table_spans
+
+    rows = []
+    for t in result.tests:
+        if method not in t.models or not np.isfinite(t.temperature_c):
+            return None
+        spans = table_spans(t.models[method])
+        report = t.inputs.ocv_report
+        if report is not None and report.curves:
+            spans["ocv"] = [min(c.span[0] for c in report.curves),
+                            max(c.span[1] for c in report.curves)]
+        rows.append((float(t.temperature_c), spans))
+    return rows if len(rows) > 1 else None
+
+
 def _usage(result: BuildResult) -> None:
     """Fit flags, and the SOC each validation ran through against the measured spans."""
     from .model.spans import usage, usage_notes
@@ -683,8 +701,9 @@ def _usage(result: BuildResult) -> None:
         ocv_span = (min(c.span[0] for c in report.curves), max(c.span[1] for c in report.curves))
     for m, vals in result.validations.items():
         result.usage[m] = {}
+        rows = _row_spans(result, m)
         for name, v in vals.items():
-            use = usage(result.models[m], v, ocv_span)
+            use = usage(result.models[m], v, ocv_span, rows)
             result.usage[m][name] = use
             if m == result.best:
                 result.notes.extend(_named(w, v.source, name) for w in v.warnings)
