@@ -637,25 +637,7 @@ def _finish(path: Path, raw: _Raw, colmap: ColumnMap, capacity_ah: float | None)
         return f"{raw.names[role]}, {raw.where(i)}"
 
     # Units and sign first, so every check below works in A, V, s, Ah.
-    scale = {"time": TIME_UNITS_S[colmap.time_unit],
-             "current": CURRENT_UNITS_A[colmap.current_unit],
-             "voltage": VOLTAGE_UNITS_V[colmap.voltage_unit],
-             "charge": CHARGE_UNITS_AH[colmap.charge_unit],
-             "discharge": CHARGE_UNITS_AH[colmap.charge_unit]}
-    for role, factor in scale.items():
-        if role in values and factor != 1.0:
-            values[role] = values[role] * factor
-    if colmap.current_sign == "discharge_positive":
-        values["current"] = -values["current"]
-        if "charge" in values and "discharge" not in values:   # split counters count up
-            values["charge"] = -values["charge"]
-        notes.append("current (and charge) negated: file logs discharge positive"
-                     if "discharge" not in values else
-                     "current negated: file logs discharge positive")
-    for role, unit in (("time", colmap.time_unit), ("current", colmap.current_unit),
-                       ("voltage", colmap.voltage_unit), ("charge", colmap.charge_unit)):
-        if role in values and unit not in ("s", "A", "V", "Ah"):
-            notes.append(f"{role} converted from {unit}")
+    values = _in_units(values, colmap, notes)
 
     first, stop = implausible_ends(values["voltage"])
     if (first, stop) != (0, n):
@@ -695,19 +677,7 @@ def _finish(path: Path, raw: _Raw, colmap: ColumnMap, capacity_ah: float | None)
     check_current(path, values["current"], colmap, capacity_ah, loc)
     if "temperature" in values:
         check_temperature(path, values["temperature"], loc)
-    charge = None
-    if "charge" in values:
-        if colmap.charge == CANONICAL_HEADER[-1] and "discharge" not in values:
-            charge, restarts = values["charge"], 0    # ecmgen's own: cumulative as written
-        else:
-            charge, restarts = cumulative_charge(time, values["current"], values["charge"],
-                                                 values.get("discharge"))
-        _check_charge_sign(path, dict(values, charge=charge), raw.names)
-        counted = raw.names["charge"] + (f" - {raw.names['discharge']}"
-                                         if "discharge" in values else "")
-        notes.append(f"charge counted by the cycler ({counted})" +
-                     (f", joined over {restarts} restart{'s' if restarts > 1 else ''} of "
-                      f"its counter" if restarts else ""))
+    charge = _charge_count(path, values, colmap, raw.names, notes)
     gaps = gap_note(time, values["current"], charge is not None)
     if gaps:
         notes.append(gaps)
@@ -715,6 +685,50 @@ def _finish(path: Path, raw: _Raw, colmap: ColumnMap, capacity_ah: float | None)
     return TimeSeries(time_s=time, current_a=values["current"], voltage_v=values["voltage"],
                       temperature_c=values.get("temperature"), charge_ah=charge,
                       source=str(path), notes=tuple(notes))
+
+
+def _in_units(values: dict, colmap: ColumnMap, notes: list[str]) -> dict:
+    """The columns in s, A, V, Ah, current positive on charge (said in ``notes``)."""
+    scale = {"time": TIME_UNITS_S[colmap.time_unit],
+             "current": CURRENT_UNITS_A[colmap.current_unit],
+             "voltage": VOLTAGE_UNITS_V[colmap.voltage_unit],
+             "charge": CHARGE_UNITS_AH[colmap.charge_unit],
+             "discharge": CHARGE_UNITS_AH[colmap.charge_unit]}
+    values = {role: arr * scale[role] if scale.get(role, 1.0) != 1.0 else arr
+              for role, arr in values.items()}
+    if colmap.current_sign == "discharge_positive":
+        values["current"] = -values["current"]
+        if "charge" in values and "discharge" not in values:   # split counters count up
+            values["charge"] = -values["charge"]
+        notes.append("current (and charge) negated: file logs discharge positive"
+                     if "discharge" not in values else
+                     "current negated: file logs discharge positive")
+    for role, unit in (("time", colmap.time_unit), ("current", colmap.current_unit),
+                       ("voltage", colmap.voltage_unit), ("charge", colmap.charge_unit)):
+        if role in values and unit not in ("s", "A", "V", "Ah"):
+            notes.append(f"{role} converted from {unit}")
+    return values
+
+
+def _charge_count(path: Path, values: dict, colmap: ColumnMap, names: dict,
+                  notes: list[str]) -> np.ndarray | None:
+    """The cumulative charge from the file's counter(s), joined over their restarts
+    (ecmgen.data.counters; ecmgen's own charge_ah column is cumulative as written), its
+    sign checked against the current; None without a counter."""
+    if "charge" not in values:
+        return None
+    if colmap.charge == CANONICAL_HEADER[-1] and "discharge" not in values:
+        charge = values["charge"]
+        _check_charge_sign(path, values, names)
+        return charge
+    charge, restarts = cumulative_charge(values["time"], values["current"], values["charge"],
+                                         values.get("discharge"))
+    _check_charge_sign(path, dict(values, charge=charge), names)
+    counted = names["charge"] + (f" - {names['discharge']}" if "discharge" in values else "")
+    notes.append(f"charge counted by the cycler ({counted})" +
+                 (f", joined over {restarts} restart{'s' if restarts > 1 else ''} of its "
+                  f"counter" if restarts else ""))
+    return charge
 
 
 def _check_charge_sign(path, values, names) -> None:

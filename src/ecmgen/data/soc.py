@@ -264,33 +264,54 @@ SHORT_REST_S = 10.0          # the stops of a drive cycle count as rests of an u
 RELAXED_DRIFT_V = 0.001      # a rest whose voltage moves more over its last half is unrelaxed
 
 
-def _unrelaxed(series: TimeSeries, end: int) -> str | None:
-    """Why the rest a record opens with (samples 0..end) cannot be taken as relaxed, or
-    None: its voltage still moves by more than RELAXED_DRIFT_V over its last half, or it
-    is too short to tell (under 3 samples or 5 s)."""
+def _window_means(series: TimeSeries, end: int) -> tuple[np.ndarray, float] | None:
+    """The voltage of the rest 0..end averaged over three windows of a fifth of its
+    length, at its start, middle and end (equally spaced, so a pure exponential
+    relaxation gives a geometric sequence), and the noise of such a mean (V); None for a
+    rest under 3 samples or 5 s."""
     t, v = series.time_s[:end + 1], series.voltage_v[:end + 1]
     if t.size < 3 or t[-1] - t[0] < 5.0:
-        return f"the rest it opens with, {t[-1] - t[0]:.0f} s, is too short to tell its OCV"
-    half = int(np.searchsorted(t, 0.5 * (t[0] + t[-1])))
-    moved = float(v[-1] - v[half])
-    if abs(moved) <= RELAXED_DRIFT_V:
+        return None
+    w = 0.2 * (t[-1] - t[0])
+    centres = (t[0] + 0.5 * w, 0.5 * (t[0] + t[-1]), t[-1] - 0.5 * w)
+    means = []
+    for c in centres:
+        inside = np.abs(t - c) <= 0.5 * w + 1e-9
+        means.append(float(np.mean(v[inside])) if inside.any() else float(np.interp(c, t, v)))
+    d = np.diff(v)
+    noise = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / np.sqrt(2.0) if d.size else 0
+    n = max(int(np.count_nonzero(np.abs(t - centres[2]) <= 0.5 * w + 1e-9)), 1)
+    return np.array(means), noise / np.sqrt(n)
+
+
+def _unrelaxed(series: TimeSeries, end: int) -> str | None:
+    """Why the rest a record opens with (samples 0..end) cannot be taken as relaxed, or
+    None: its voltage still moves from the middle to the end of it by more than
+    RELAXED_DRIFT_V and its noise, or it is too short to tell (under 3 samples or 5 s)."""
+    t = series.time_s
+    got = _window_means(series, end)
+    if got is None:
+        return f"the rest it opens with, {t[end] - t[0]:.0f} s, is too short to tell its OCV"
+    means, noise = got
+    moved = float(means[2] - means[1])
+    if abs(moved) <= max(RELAXED_DRIFT_V, 4.0 * noise):
         return None
     return (f"the rest it opens with is unrelaxed: its voltage still moved "
-            f"{moved * 1e3:+.1f} mV over its last {t[-1] - t[half]:.0f} s")
+            f"{moved * 1e3:+.1f} mV over its last half")
 
 
 def _relaxed_voltage(series: TimeSeries, end: int) -> float | None:
     """Where the relaxation of the rest 0..end is heading, from its start, middle and end
-    voltages taken as steps of a geometric (exponential) approach (Aitken's delta
-    squared); None where the rest does not slow down as a relaxation does."""
-    t, v = series.time_s[:end + 1], series.voltage_v[:end + 1]
-    if t.size < 3 or t[-1] - t[0] < 5.0:
+    voltages (window means) taken as steps of a geometric (exponential) approach (Aitken's
+    delta squared); None where the rest does not slow down as a relaxation does."""
+    got = _window_means(series, end)
+    if got is None:
         return None
-    v_mid = float(np.interp(0.5 * (t[0] + t[-1]), t, v))     # two equal time steps
-    d1, d2 = v_mid - float(v[0]), float(v[-1]) - v_mid
+    m = got[0]
+    d1, d2 = float(m[1] - m[0]), float(m[2] - m[1])
     if d1 * d2 <= 0 or abs(d2) >= abs(d1):
         return None
-    return float(v[-1] + d2 * d2 / (d1 - d2))
+    return float(m[2] + d2 * d2 / (d1 - d2))
 
 
 def record_start_soc(ocv, capacity_ah: float, series: TimeSeries, rest_a: float,

@@ -5,12 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
-
 import numpy as np
-
-if TYPE_CHECKING:
-    from .measure import TimeSeries
 
 
 LAG_MARGIN = 0.1          # a lag > 0 is reported only where its correlation beats lag 0's by more
@@ -47,7 +42,7 @@ class VoltageLag:
                 f"cycles)")
 
 
-def voltage_lag(series: TimeSeries, max_lag: int = 2) -> VoltageLag | None:
+def voltage_lag(series, max_lag: int = 2) -> VoltageLag | None:
     """The lag of the voltage behind the current, from the correlation of their
     sample-to-sample differences (``dv[k + lag]`` against ``di[k]``) at lags 0..max_lag.
     Only the regularly sampled part counts: intervals within 25 % of the interval at which
