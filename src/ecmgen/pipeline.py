@@ -119,33 +119,25 @@ def _ocv_file_curves(cfg: BuildConfig, sources, progress: Progress
             progress(f"reading low-rate OCV test {src.name}")
             low = read_series(cfg, src, "ocv")
             lows[src] = (low, not split_low_rate(low, cfg.capacity_ah).cycles)
-    kept, curves, notes, run = [], {}, [], []
-
-    def flush():
-        if len(run) > 1:
-            joined, note = join_records([lows[p][0] for p in run])
-            notes.append(note)
-            curves[run[0]] = _ocv_file_curve(cfg, run[0], progress, joined)
-            kept.append(run[0])
-        else:
-            for p in run:
-                curves[p] = _ocv_file_curve(cfg, p, progress, lows[p][0])
-                kept.append(p)
-        run.clear()
-
+    groups: list[tuple[list, bool]] = []      # ([sources], joinable), in order
     for src in sources:
-        if src in lows and lows[src][1]:
-            run.append(src)
-            continue
-        flush()
-        if src in lows:
-            run.append(src)
-            flush()
+        joinable = src in lows and lows[src][1]
+        if joinable and groups and groups[-1][1]:
+            groups[-1][0].append(src)
         else:
-            if src != "pulses":
-                curves[src] = _ocv_file_curve(cfg, src, progress)
-            kept.append(src)
-    flush()
+            groups.append(([src], joinable))
+    kept, curves, notes = [], {}, []
+    for group, _ in groups:
+        first = group[0]
+        kept.append(first)
+        if len(group) > 1:
+            joined, note = join_records([lows[p][0] for p in group])
+            notes.append(note)
+            curves[first] = _ocv_file_curve(cfg, first, progress, joined)
+        elif first in lows:
+            curves[first] = _ocv_file_curve(cfg, first, progress, lows[first][0])
+        elif first != "pulses":
+            curves[first] = _ocv_file_curve(cfg, first, progress)
     return kept, curves, notes
 
 
