@@ -133,3 +133,59 @@ def test_dcir_with_a_config_over_temperature_names_one_test(folder, capsys):
     assert "name one, ecmgen dcir PULSES" in capsys.readouterr().err
     assert main(["dcir", str(folder / "a.csv"), "--config", str(cfg), "--quiet"]) == 0
     assert capsys.readouterr().out.startswith("soc,direction,c_rate,t_s,r_ohm\n")
+
+
+# --------------------------------------------------------------------------- temperature_c
+
+def _two_rows(path):
+    path.write_text("time_s,current_a,voltage_v\n0,0,3.7\n1,0,3.7\n")
+    return path
+
+
+def test_data_temperature_c_gives_files_without_a_column_their_temperature(folder):
+    """Before: no config key for a file's ambient temperature; a validation file without
+    a temperature column was refused against a model over temperature."""
+    from ecmgen.pipeline import read_series
+
+    sub = folder / "runs"
+    sub.mkdir()
+    _two_rows(sub / "us06.csv")
+    _two_rows(folder / "cycle.csv")
+    cfg = load_config(_write(folder, HEAD.replace('cycle = "cycle.csv"',
+                                                  'cycle = "cycle.csv"\n'
+                                                  'extra_cycles = ["runs/us06.csv"]\n'
+                                                  'temperature_c = {"us06.csv" = 40}') +
+                             _test("a.csv", temperature_c=10)))
+    # a key naming one file of the config by its base name; a pulse test's own value
+    assert cfg.temperature_for(sub / "us06.csv") == 40.0
+    assert cfg.temperature_for(folder / "a.csv") == 10.0
+    assert cfg.temperature_for(folder / "cycle.csv") is None
+    series = read_series(cfg, sub / "us06.csv", "extra_cycles")
+    assert series.temperature_c.tolist() == [40.0, 40.0]
+    assert any("40 degC" in n for n in series.notes)
+    one = load_config(_write(folder, HEAD + "temperature_c = 25\n" + _test("a.csv")))
+    assert read_series(one, _two_rows(folder / "cycle.csv"), "cycle").temperature_c[0] == 25
+
+
+@pytest.mark.parametrize("value, words", [
+    ('{"nope.csv" = 25}', ["data.temperature_c names a missing file", "nope.csv"]),
+    ('{"cycle.csv" = 400}', ["data.temperature_c.'cycle.csv'", "-60..100"]),
+    ('"warm"', ["data.temperature_c", "a number or a table"]),
+])
+def test_bad_data_temperature_c(folder, value, words):
+    with pytest.raises(InputError) as exc:
+        load_config(_write(folder, HEAD + f"temperature_c = {value}\n" + _test("a.csv")))
+    assert all(w in str(exc.value) for w in words), str(exc.value)
+    assert "\n" not in str(exc.value)
+
+
+def test_cycle_window_key_may_name_a_file_by_its_base_name(folder):
+    """Before: the key had to repeat the path exactly as data.extra_cycles wrote it."""
+    sub = folder / "runs"
+    sub.mkdir()
+    _two_rows(sub / "us06.csv")
+    cfg = load_config(_write(folder, HEAD.replace('cycle = "cycle.csv"',
+                                                  'extra_cycles = ["runs/us06.csv"]\n'
+                                                  'cycle_window_s = {"us06.csv" = [0, 1]}') +
+                             _test("a.csv")))
+    assert cfg.window_for(sub / "us06.csv") == (0.0, 1.0)

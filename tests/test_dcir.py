@@ -227,3 +227,58 @@ def test_a_plateau_stepping_on_into_a_drive_profile_is_not_a_pulse():
     series = TimeSeries(t, i, 3.7 + 0.02 * i, source="dst.csv")
     with pytest.raises(InputError, match="dst.csv: no pulses found"):
         find_pulses(series, 2.9, soc0=0.8)
+
+
+def _logged_every(series, dt_s):
+    """The pulse test as a logger with a ``dt_s`` interval inside the pulses keeps it."""
+    on = series.current_a != 0
+    keep = ~on | (np.round(series.time_s, 6) % dt_s == 0)
+    return TimeSeries(series.time_s[keep], series.current_a[keep], series.voltage_v[keep],
+                      None, series.charge_ah[keep], f"every-{dt_s:g}s.csv")
+
+
+def test_times_before_the_first_sample_take_its_value_said_in_a_note():
+    """At 2 s logging the 1 s time comes before the first sample after the edge. Before:
+    no value there and no word of it; now the first sample's R, said in a note."""
+    m = flat(synthetic_nca_model())
+    series, soc0 = make_pulse_test(m, soc_levels=(0.6,), c_rates=(2.0,))
+    slow = _logged_every(series, 2.0)
+    table = extract_dcir(slow, find_pulses(slow, 2.9, soc0=soc0))
+    assert table.r_ohm[0, 1] == table.r_ohm[0, 0]
+    assert any("DC-IR time 1 s comes before the first sample" in n and "1 of 1 pulses" in n
+               for n in table.notes)
+    assert np.isfinite(table.r_ohm[0, [2, 3, 4]]).all() or \
+        any("DC-IR time 3 s: no value" in n for n in table.notes)
+
+
+def test_a_time_without_a_value_is_said_and_dropped_before_the_fits(tmp_path, capsys):
+    """At 1 s logging the 1 s time's sample is R0's: the table has no value there. Before:
+    not a word, `dcir` said '1 pulses x 5 times' for 4 rows, and a build failed with 'no
+    SOC level has an R(t) value at every [dcir] times_s'."""
+    from ecmgen.cli import main
+    from ecmgen.data.measure import write_timeseries_csv
+    from ecmgen.fit.points import five_point_rows
+    from ecmgen.config import load_config
+    from ecmgen.pipeline import prepare
+
+    m = flat(synthetic_nca_model())
+    series, soc0 = make_pulse_test(m, soc_levels=(0.8, 0.6), c_rates=(2.0,))
+    slow = _logged_every(series, 1.0)
+    table = extract_dcir(slow, find_pulses(slow, 2.9, soc0=soc0))
+    assert any("DC-IR time 1 s: no value in 2 of 2 pulses" in n for n in table.notes)
+    path = write_timeseries_csv(slow, tmp_path / "hppc.csv")
+    out = tmp_path / "dcir.csv"
+    assert main(["dcir", str(path), "--capacity-ah", "2.9", "--soc0", f"{soc0}",
+                 "--out", str(out)]) == 0
+    said = capsys.readouterr().err
+    written = out.read_text().count("\n") - 1
+    assert written == 8 and f"wrote {written} R(t) values (2 pulses; 0.1 s: 2, 1 s: 0" in said
+    cfg = tmp_path / "cell.toml"
+    (tmp_path / "ocv.csv").write_text("soc,ocv_v\n" + "".join(
+        f"{s!r},{v!r}\n" for s, v in zip(m.ocv.soc.tolist(), m.ocv.ocv_v[0].tolist())))
+    cfg.write_text(f'[cell]\ncapacity_ah = 2.9\n[data]\npulses = "hppc.csv"\n'
+                   f'pulses_soc0 = {soc0}\nocv = "ocv.csv"\n')
+    dcir = prepare(load_config(cfg)).dcir
+    assert dcir.t_s.tolist() == [0.1, 3.0, 6.0, 10.0]
+    rows, _ = five_point_rows(dcir)
+    assert len(rows) == 2 and np.isfinite(rows.r_ohm).all()

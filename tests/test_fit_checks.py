@@ -101,3 +101,29 @@ def test_progress_line_tells_the_relaxation_used(tmp_path):
     assert "1800 s of relaxation" not in line.split("(")[0]
     assert "40 s of relaxation each" in line, line
     assert "fit.relax_s = 1800 s" in line
+
+
+def test_spans_are_judged_at_the_cycle_temperature_row():
+    """A model over temperature whose -20 degC row's OCV was measured down to SOC 0.25 only
+    (0.05 at 25 degC), on a -20 degC cycle down to SOC 0.10. Before: the union of the spans
+    (0.05..1) -- no warning; now the -20 degC row's span, the share beyond it, a warning
+    naming each row's span."""
+    from ecmgen.model.simulate import simulate, validate
+    from ecmgen.model.spans import usage, usage_notes
+
+    m = synthetic_nca_model()
+    t = np.arange(0.0, 3000.0)
+    i = np.full(t.size, -3.0)                  # 0.95 -> 0.09
+    v = simulate(m, t, i, 0.95).voltage_v
+    val = validate(m, TimeSeries(t, i, v, np.full(t.size, -20.0), source="cold.csv"),
+                   soc0=0.95)
+    full = {"charge": [0.0, 1.0], "discharge": [0.0, 1.0]}
+    rows = [(25.0, dict(full, ocv=[0.05, 1.0])), (-20.0, dict(full, ocv=[0.25, 1.0]))]
+    union = usage(m, val, ocv_span=(0.05, 1.0))
+    assert union["beyond_span"]["ocv"] < 0.01
+    use = usage(m, val, ocv_span=(0.05, 1.0), rows=rows)
+    share = float(np.mean(np.clip(val.sim.soc, 0, 1) < 0.25 - 0.02))
+    assert use["beyond_span"]["ocv"] == pytest.approx(share) and share > 0.1
+    text = usage_notes(m, "cold.csv", use, (0.05, 1.0))[0]
+    assert "the OCV (measured at SOC 0.25..1.00 at -20 degC, 0.05..1.00 at 25 degC)" in text
+    assert "(warning)" in text

@@ -141,7 +141,7 @@ def cmd_dcir(args) -> int:
     if args.out:
         out = check_output_file(args.out, [pulses_path] + ([args.config] if args.config else []))
         table.write_csv(out)
-        print(f"wrote {len(table)} pulses x {len(table.t_s)} times to {out}", file=sys.stderr)
+        print(f"wrote {table.counts()} to {out}", file=sys.stderr)
     else:
         sys.stdout.write(table.to_csv_text())
     return 0

@@ -165,6 +165,9 @@ class BuildConfig:
     raw: dict = field(default_factory=dict, repr=False)
     # data.cycle_window_s: (t0, t1) for every validation file, or resolved file -> (t0, t1)
     cycle_window_s: tuple[float, float] | dict[Path, tuple[float, float]] | None = None
+    # data.temperature_c: the cell temperature (degC) of files without a temperature
+    # column, one for all or resolved file -> degC
+    temperature_c: float | dict[Path, float] | None = None
 
     def window_for(self, path: Path) -> tuple[float, float] | None:
         """The time window (s, the file's own time axis) for a validation file, if any."""
@@ -173,12 +176,27 @@ class BuildConfig:
             return w.get(Path(path).resolve())
         return w
 
+    def temperature_for(self, path: Path) -> float | None:
+        """The configured cell temperature of a file without a temperature column: its
+        entry in data.temperature_c, data.temperature_c itself, or the temperature_c of
+        the [[data.pulse_tests]] table it belongs to (None: none given)."""
+        p = Path(path).resolve()
+        t = self.temperature_c
+        if isinstance(t, dict):
+            if p in t:
+                return t[p]
+        elif t is not None:
+            return t
+        return next((test.temperature_c for test in self.pulse_tests
+                     if p in (test.file, test.steps)), None)
+
     def input_files(self) -> set[Path]:
         """Every file the config names, itself included, resolved (outputs must never
         replace one)."""
         files = [self.path, self.pulses, self.dcir, self.ocv, self.cycle, *self.extra_cycles,
                  *(p for p in self.ocv_sources if p != "pulses"),
-                 *(self.cycle_window_s if isinstance(self.cycle_window_s, dict) else ())]
+                 *(self.cycle_window_s if isinstance(self.cycle_window_s, dict) else ()),
+                 *(self.temperature_c if isinstance(self.temperature_c, dict) else ())]
         for t in self.pulse_tests:
             files += [t.file, t.steps, t.ocv]
         judge = (self.raw.get("diagnose") or {}).get("judge") if isinstance(
@@ -252,7 +270,22 @@ def _window(value, path: Path, where: str) -> tuple[float, float]:
     return t0, t1
 
 
-def _cycle_windows(data: dict, base: Path, path: Path):
+def _named_file(name: str, base: Path, path: Path, key: str, known: list[Path]) -> Path:
+    """The file a per-file table's key names: a path relative to the config, or else the
+    base name of exactly one of the files the config names elsewhere (``known``), so a
+    key need not repeat a path exactly as written in another key."""
+    p = (base / name).resolve()
+    if p.is_file():
+        return p
+    same = {k.resolve() for k in known if k is not None and k.name == Path(name).name}
+    if len(same) == 1:
+        return same.pop()
+    why = (f"{len(same)} files of the config are named {Path(name).name}: give the path"
+           if same else f"looked for {p}")
+    raise InputError(path, f"{key} names a missing file: {name} ({why})")
+
+
+def _cycle_windows(data: dict, base: Path, path: Path, known: list[Path]):
     """data.cycle_window_s: [t0, t1] for every validation file, or a table naming files."""
     if "cycle_window_s" not in data:
         return None
@@ -261,12 +294,26 @@ def _cycle_windows(data: dict, base: Path, path: Path):
         return _window(value, path, "data.cycle_window_s")
     windows = {}
     for name, w in value.items():
-        p = (base / name).resolve()
-        if not p.is_file():
-            raise InputError(path, f"data.cycle_window_s names a missing file: {name} "
-                                   f"(looked for {p})")
+        p = _named_file(name, base, path, "data.cycle_window_s", known)
         windows[p] = _window(w, path, f"data.cycle_window_s.{name!r}")
     return windows
+
+
+def _temperatures(data: dict, base: Path, path: Path, known: list[Path]):
+    """data.temperature_c: the cell temperature of every file without a temperature
+    column, or a table of them by file."""
+    value = data.get("temperature_c")
+    if value is None or not isinstance(value, dict):
+        return value if value is None else float(value)
+    lo, hi = TEMPERATURE_RANGE_C
+    temps = {}
+    for name, t in value.items():
+        where = f"data.temperature_c.{name!r}"
+        if isinstance(t, bool) or not isinstance(t, (int, float)) or not lo <= t <= hi:
+            raise InputError(path, f"{where} must be a temperature in {lo:g}..{hi:g} degC, "
+                                   f"got {t!r}")
+        temps[_named_file(name, base, path, "data.temperature_c", known)] = float(t)
+    return temps
 
 
 
@@ -454,6 +501,8 @@ def _load_config(path: Path) -> BuildConfig:
         raise InputError(path, f"model.surface_soc_gain must lie in 0..{SURFACE_SOC_GAIN_MAX:g} "
                                f"(0: off), got {gain:g}")
 
+    known = [pulses, ocv, _file(base, data, "cycle", path), *extra_paths,
+             *(p for t in pulse_tests for p in (t.file, t.steps, t.ocv))]
     return BuildConfig(
         path=path, capacity_ah=capacity, pulses=pulses, dcir=dcir,
         pulses_soc0=_number(data, "pulses_soc0", path, "data", None, unit_interval=True),
@@ -476,4 +525,5 @@ def _load_config(path: Path) -> BuildConfig:
         temperature_step_c=step, warm_row_c=None if warm is False else warm,
         surface_soc_gain=gain,
         estimator=estimator_config(raw.get("estimator", {}), path),
-        raw=raw, cycle_window_s=_cycle_windows(data, base, path))
+        raw=raw, cycle_window_s=_cycle_windows(data, base, path, known),
+        temperature_c=_temperatures(data, base, path, known))

@@ -88,14 +88,20 @@ SECTIONS: tuple[Section, ...] = (
             default="from the rests each cycle opens with"),
         Key("extra_cycles", FILES, "further validation cycles", default="[]"),
         Key("cycle_window_s", f"{WINDOW}|{TABLE}", "validate on t0 <= time <= t1 of each "
-            "validation file, or per file: {\"us06.mat\" = [0, 3600]}", unit="s",
+            "validation file, or per file: {\"us06.mat\" = [0, 3600]} (a path, or the "
+            "name of one file of the config)", unit="s",
             range=(-1e12, 1e12)),
+        Key("temperature_c", f"{NUMBER}|{TABLE}", "the cell temperature of files without a "
+            "temperature column, or per file: {\"us06.csv\" = 25} (a pulse test's own "
+            "temperature_c applies to its files)", unit="degC", range=TEMPERATURE_C,
+            default="the file's column"),
         Key("columns", TABLE, "column mapping of CSVs from other cyclers: [data.columns]"),
     )),
     Section("data.pulse_tests", "one pulse test of a model over temperature", (
         Key("file", FILE, "the pulse test", required=True),
         Key("soc0", NUMBER, "as data.pulses_soc0", unit="SOC", range=SOC),
-        Key("temperature_c", NUMBER, "its table temperature", unit="degC",
+        Key("temperature_c", NUMBER, "its table temperature, and its files' cell "
+            "temperature where they have no column", unit="degC",
             range=TEMPERATURE_C, default="the median cell temperature in its pulses"),
         Key("steps", FILE, "the SOC steps between its pulse sets, logged apart"),
         Key("ocv", FILE, "this test's OCV (a file, or \"pulses\")", default="data.ocv"),
@@ -107,7 +113,10 @@ SECTIONS: tuple[Section, ...] = (
         Key("current", COLUMN, "current column", default='"current_a"'),
         Key("voltage", COLUMN, "voltage column", default='"voltage_v"'),
         Key("temperature", COLUMN, "cell temperature column (degC)"),
-        Key("charge", COLUMN, "cumulative charge column"),
+        Key("charge", COLUMN, "the cycler's Ah counter: cumulative, or restarting per step "
+            "or cycle (joined on reading); with discharge: its charge counter"),
+        Key("discharge", COLUMN, "a discharge counter counting up beside charge (Arbin "
+            "Discharge_Capacity, disAh)"),
         Key("time_unit", CHOICE, "unit of the time column", choices=("s", "min", "h"),
             default='"s"'),
         Key("current_unit", CHOICE, "unit of the current column", choices=("A", "mA"),

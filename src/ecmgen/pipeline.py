@@ -84,30 +84,81 @@ def read_series(cfg: BuildConfig, path: Path, role: str = "") -> TimeSeries:
     roles = (role, COLUMN_ROLE_FALLBACK[role]) if role in COLUMN_ROLE_FALLBACK else (role,)
     columns = ColumnMap.for_file(cfg.columns, roles, cfg.path, path)
     series = read_timeseries(path, columns, capacity_ah=cfg.capacity_ah)
+    temp = cfg.temperature_for(path) if series.temperature_c is None else None
+    if temp is not None:
+        series = replace(series, temperature_c=np.full(len(series), temp),
+                         notes=series.notes + (f"no temperature column: the cell taken to "
+                                               f"be at {temp:g} degC (the config's "
+                                               f"temperature_c)",))
     window = cfg.window_for(path) if role in WINDOW_ROLES else None
     return series if window is None else series.window(*window)
 
 
-def _ocv_file_curve(cfg: BuildConfig, path: Path, progress: Progress) -> ocv_mod.OcvCurve:
-    """The OCV curve of one file source: a soc,ocv_v table or a low-rate test."""
-    if ocv_mod.looks_like_ocv_table(path):
+def _ocv_file_curve(cfg: BuildConfig, path: Path, progress: Progress,
+                    low: TimeSeries | None = None) -> ocv_mod.OcvCurve:
+    """The OCV curve of one file source: a soc,ocv_v table or a low-rate test (``low``:
+    that test, already read or joined from its parts)."""
+    if low is None and ocv_mod.looks_like_ocv_table(path):
         return ocv_mod.curve_from_table(ocv_mod.read_ocv_table(path), path.name)
-    progress(f"reading low-rate OCV test {path.name}")
-    low = read_series(cfg, path, "ocv")
-    return ocv_mod.curve_from_low_rate(low, cfg.capacity_ah, path.name, soc0=cfg.ocv_soc0,
+    if low is None:
+        progress(f"reading low-rate OCV test {path.name}")
+        low = read_series(cfg, path, "ocv")
+    name = Path(low.source).name if low.source else path.name
+    return ocv_mod.curve_from_low_rate(low, cfg.capacity_ah, name, soc0=cfg.ocv_soc0,
                                        branch=cfg.ocv_branch, cycle=cfg.ocv_cycle)
+
+
+def _ocv_file_curves(cfg: BuildConfig, sources, progress: Progress
+                     ) -> tuple[list, dict, list[str]]:
+    """The curves of data.ocv's file sources, in order: the sources left (a run of
+    consecutive low-rate files, none a discharge + charge cycle alone, becomes its first
+    file: their records joined end to end into one test), their curves, and notes."""
+    from .data.lowrate import join_records, split_low_rate
+
+    lows: dict = {}
+    for src in sources:
+        if src != "pulses" and not ocv_mod.looks_like_ocv_table(src):
+            progress(f"reading low-rate OCV test {src.name}")
+            low = read_series(cfg, src, "ocv")
+            lows[src] = (low, not split_low_rate(low, cfg.capacity_ah).cycles)
+    groups: list[tuple[list, bool]] = []      # ([sources], joinable), in order
+    for src in sources:
+        joinable = src in lows and lows[src][1]
+        if joinable and groups and groups[-1][1]:
+            groups[-1][0].append(src)
+        else:
+            groups.append(([src], joinable))
+    kept, curves, notes = [], {}, []
+    for group, _ in groups:
+        first = group[0]
+        kept.append(first)
+        if len(group) > 1:
+            joined, note = join_records([lows[p][0] for p in group])
+            notes.append(note)
+            curves[first] = _ocv_file_curve(cfg, first, progress, joined)
+        elif first in lows:
+            curves[first] = _ocv_file_curve(cfg, first, progress, lows[first][0])
+        elif first != "pulses":
+            curves[first] = _ocv_file_curve(cfg, first, progress)
+    return kept, curves, notes
 
 
 def pulse_test_soc0(cfg: BuildConfig, series: TimeSeries, rests, reference: OcvTable | None,
                     given: float | None) -> tuple[float, str, float]:
     """Start SOC of one pulse test and the capacity of its SOC axis: ``given``
-    (data.pulses_soc0) wins; else both fitted on all its rests against ``reference`` (the
-    OCV of the other sources); else 1.0. Returns (soc0, note, axis capacity in Ah)."""
-    from .data.soc import pulse_test_start_soc_and_capacity
+    (data.pulses_soc0) wins; else SOC 1.0 at the end of a constant-voltage charge it opens
+    with; else both fitted on all its rests against ``reference`` (the OCV of the other
+    sources); else 1.0. Returns (soc0, note, axis capacity in Ah)."""
+    from .data.soc import opening_cv_charge, pulse_test_start_soc_and_capacity
 
     q = cfg.capacity_ah
     if given is not None:
         return given, "", q
+    cv = opening_cv_charge(series, cfg.capacity_ah, max(0.02 * cfg.capacity_ah, 1e-3),
+                           after_discharge=True)
+    if cv is not None:
+        return cv[0], (f"pulse test start SOC {cv[0]:.3f}: {cv[1]} (set data.pulses_soc0 "
+                       f"to override)"), q
     if reference is not None and len(rests) >= 2:
         fit, q = pulse_test_start_soc_and_capacity(reference, q, rests, series.source)
         return fit.soc0, f"pulse test {fit.note} (set data.pulses_soc0 to override)", q
@@ -122,11 +173,11 @@ def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
     records: list[InputRecord] = []
     q = cfg.capacity_ah
     sources = cfg.ocv_sources or (("pulses",) if cfg.ocv is None else (cfg.ocv,))
-    file_curves = {}
     for src in sources:
         if src != "pulses":
-            file_curves[src] = _ocv_file_curve(cfg, src, progress)
             records.append(InputRecord("ocv", src.name, file_sha256(src)))
+    sources, file_curves, joined = _ocv_file_curves(cfg, sources, progress)
+    notes.extend(joined)
     reference = None
     if file_curves:
         reference = ocv_mod.merge_curves([file_curves[s] for s in sources if s != "pulses"])[0]
@@ -143,7 +194,7 @@ def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
         pulses = tuple(dcir_mod.find_pulses(series, q_axis, soc0=soc0,
                                             min_rest_s=cfg.min_rest_s,
                                             max_pulse_s=cfg.max_pulse_s))
-        table = dcir_mod.extract_dcir(series, list(pulses), cfg.times_s)
+        table = dcir_mod.extract_dcir(series, list(pulses), cfg.times_s).measured_times()
         notes.extend(table.notes)
         progress(f"{len(pulses)} pulses, {len(table)} DC-IR rows")
     else:
@@ -478,8 +529,8 @@ def validate_cycle(cfg: BuildConfig, path: Path, role: str, label: str,
     if series.temperature_c is None and any(m.needs_temperature for m in models.values()):
         raise InputError(path, "no cell temperature column: the model has tables over "
                                "temperature and each validation cycle needs its cell "
-                               "temperature (a temperature_c column, or a mapped one "
-                               "in [data.columns])")
+                               "temperature (a temperature_c column, a mapped one in "
+                               "[data.columns], or data.temperature_c)")
     vals = {m: validate(model, series, cfg.soc0) for m, model in models.items()}
     png = None
     if plot_best is not None:
@@ -635,6 +686,24 @@ def _quality(models: dict[str, EcmModel], flags: dict) -> dict:
     return {m: model_quality(model, flags.get(m, ())) for m, model in models.items()}
 
 
+def _row_spans(result: BuildResult, method: str) -> list | None:
+    """Per pulse test (a temperature row of a model over temperature): the SOC its OCV
+    and its RC tables were measured at; None with one test."""
+    from .model.spans import table_spans
+
+    rows = []
+    for t in result.tests:
+        if method not in t.models or not np.isfinite(t.temperature_c):
+            return None
+        spans = table_spans(t.models[method])
+        report = t.inputs.ocv_report
+        if report is not None and report.curves:
+            spans["ocv"] = [min(c.span[0] for c in report.curves),
+                            max(c.span[1] for c in report.curves)]
+        rows.append((float(t.temperature_c), spans))
+    return rows if len(rows) > 1 else None
+
+
 def _usage(result: BuildResult) -> None:
     """Fit flags, and the SOC each validation ran through against the measured spans."""
     from .model.spans import usage, usage_notes
@@ -645,8 +714,9 @@ def _usage(result: BuildResult) -> None:
         ocv_span = (min(c.span[0] for c in report.curves), max(c.span[1] for c in report.curves))
     for m, vals in result.validations.items():
         result.usage[m] = {}
+        rows = _row_spans(result, m)
         for name, v in vals.items():
-            use = usage(result.models[m], v, ocv_span)
+            use = usage(result.models[m], v, ocv_span, rows)
             result.usage[m][name] = use
             if m == result.best:
                 result.notes.extend(_named(w, v.source, name) for w in v.warnings)

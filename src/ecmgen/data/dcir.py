@@ -65,6 +65,31 @@ class DcirTable:
         return DcirTable(self.soc[mask], self.direction[mask], self.c_rate[mask], self.t_s,
                          self.r_ohm[mask], self.notes)
 
+    def n_values(self) -> int:
+        """How many R(t) values the table holds (what its CSV writes: one row each)."""
+        return int(np.count_nonzero(np.isfinite(self.r_ohm)))
+
+    def counts(self) -> str:
+        """What the table holds, in the words a command prints after writing it."""
+        per = np.count_nonzero(np.isfinite(self.r_ohm), axis=0)
+        full = all(int(c) == len(self) for c in per)
+        how = f"{self.t_s.size} times each" if full else ", ".join(
+            f"{t:g} s: {int(c)}" for t, c in zip(self.t_s, per))
+        return f"{self.n_values()} R(t) values ({len(self)} pulses; {how})"
+
+    def measured_times(self) -> "DcirTable":
+        """The table without the times at which no pulse has a value (a logger too slow
+        for them), said in a note; the fits need a value at every time of a row."""
+        keep = np.isfinite(self.r_ohm).any(axis=0) if len(self) else \
+            np.ones(self.t_s.size, bool)
+        if keep.all() or keep.sum() < 2:
+            return self
+        gone = ", ".join(f"{t:g}" for t in self.t_s[~keep])
+        note = (f"DC-IR time{'s' if (~keep).sum() > 1 else ''} {gone} s: no pulse has a "
+                f"value there; the fits use the other {int(keep.sum())} times")
+        return DcirTable(self.soc, self.direction, self.c_rate, self.t_s[keep],
+                         self.r_ohm[:, keep], self.notes + (note,))
+
     def to_csv_text(self) -> str:
         out = io.StringIO()
         w = csv.writer(out, lineterminator="\n")
@@ -272,12 +297,17 @@ def extract_dcir(series: TimeSeries, pulses: list[Pulse],
     """R(t) = (v(t) - v_rest) / (i(t) - i_rest) at each requested time into each pulse.
 
     The first time takes the first on-sample (the step's instant response on the
-    logger's grid); later times take the on-sample nearest in time, if within half a
-    sampling interval (else NaN). Pulses flagged ``cut_short`` are left out and noted."""
+    logger's grid), and so does every later time that comes before it (on a logger
+    slower than the times); later times take the on-sample nearest in time, if within half a
+    sampling interval and not the first sample, R0's (else NaN). Every time that is
+    replaced, or left without a value, in any pulse is said in a note. Pulses flagged
+    ``cut_short`` are left out and noted."""
     times = np.asarray(times_s, dtype=np.float64)
     t, i, v = series.time_s, series.current_a, series.voltage_v
     rows, notes = [], []
     first_dt = []
+    replaced = np.zeros(times.size, int)      # per time: pulses given the first sample's R
+    missed = np.zeros(times.size, int)        # per time: pulses without a value there
     for p in pulses:
         if p.cut_short:
             notes.append(f"pulse at t={t[p.start]:.1f} s ({p.direction} {p.c_rate:g}C, "
@@ -293,16 +323,37 @@ def extract_dcir(series: TimeSeries, pulses: list[Pulse],
         used = {0}  # the first sample is R0's; a slow logger cannot give R(1 s) from it too
         for j in range(1, times.size):
             k = int(np.argmin(np.abs(t_on - times[j])))
-            if k not in used and abs(t_on[k] - times[j]) <= min(0.5 * dt_local, 0.25 * times[j]) + 1e-6:
+            if times[j] < t_on[0] - min(0.5 * dt_local, 0.25 * times[j]) - 1e-6:
+                r[j] = r[0]             # before the first sample: that sample's R, said
+                replaced[j] += 1
+            elif k not in used and abs(t_on[k] - times[j]) <= min(0.5 * dt_local, 0.25 * times[j]) + 1e-6:
                 r[j] = dv[k] / di[k]
                 used.add(k)
+            else:
+                missed[j] += 1
         rows.append((p.soc, p.direction, p.c_rate, r))
     if first_dt and np.median(first_dt) > 2.0 * times[0]:
         notes.append(f"the first sample after a pulse edge comes {np.median(first_dt):.2g} s "
                      f"after it (not {times[0]:g} s): R0 is taken there; the logger is too "
                      "slow for the early DC-IR times")
+    notes += _time_notes(times, replaced, missed, len(rows), first_dt)
     if not rows:
         raise InputError(series.source, "every pulse was cut short; no DC-IR values")
     return DcirTable(np.array([x[0] for x in rows]), np.array([x[1] for x in rows]),
                      np.array([x[2] for x in rows]), times, np.array([x[3] for x in rows]),
                      tuple(notes))
+
+
+def _time_notes(times, replaced, missed, n, first_dt) -> list[str]:
+    """The DC-IR times some pulses could not give as asked, one note each."""
+    notes = []
+    first = float(np.median(first_dt)) if first_dt else 0.0
+    for j in np.flatnonzero(replaced):
+        notes.append(f"DC-IR time {times[j]:g} s comes before the first sample after the "
+                     f"edge ({first:.2g} s after it) in {replaced[j]} of {n} pulses: the "
+                     f"first sample's R is taken for it")
+    for j in np.flatnonzero(missed):
+        notes.append(f"DC-IR time {times[j]:g} s: no value in {missed[j]} of {n} pulses (no "
+                     f"sample within half an interval of it other than the first, R0's, or "
+                     f"the pulse ended before it)")
+    return notes

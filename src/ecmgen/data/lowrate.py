@@ -20,6 +20,7 @@ This module only reads the record; :mod:`ecmgen.data.ocv` makes the OCV from it.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -99,16 +100,47 @@ def split_low_rate(series: TimeSeries, capacity_ah: float) -> LowRateTest:
 
 
 def _pairs(branches: list[Branch], order: tuple[str, str]) -> list[tuple[int, int]]:
+    """Complete branches in ``order``, each with the next complete branch after it: the
+    incomplete ones between (a top-up, a constant-voltage hold whose dither flips the
+    current's sign, the low-current finish of Plett's scripts) do not break a cycle."""
+    complete = [k for k, b in enumerate(branches) if b.complete]
     out = []
-    k = 0
-    while k + 1 < len(branches):
-        a, b = branches[k], branches[k + 1]
-        if a.complete and b.complete and (a.direction, b.direction) == order:
-            out.append((k, k + 1))
-            k += 2
+    n = 0
+    while n + 1 < len(complete):
+        a, b = complete[n], complete[n + 1]
+        if (branches[a].direction, branches[b].direction) == order:
+            out.append((a, b))
+            n += 2
         else:
-            k += 1
+            n += 1
     return out
+
+
+def join_records(parts: list[TimeSeries]) -> tuple[TimeSeries, str]:
+    """One low-rate test logged in several files (Plett's four OCV scripts), joined end
+    to end in the order given: each part's clock continues one sampling interval after
+    the part before ends (the pause between the runs is not logged; at a low rate it
+    moves no charge), its charge count continues from the part before's end. Returns the
+    record and a note naming the parts."""
+    t, i, v, temp, q = [], [], [], [], []
+    t_end = q_end = 0.0
+    for k, s in enumerate(parts):
+        dt = float(np.median(np.diff(s.time_s)))
+        t.append(s.time_s - s.time_s[0] + (t_end + dt if k else 0.0))
+        qs = s.coulomb_ah()
+        q.append(qs + q_end)
+        t_end, q_end = float(t[-1][-1]), float(q[-1][-1])
+        i.append(s.current_a)
+        v.append(s.voltage_v)
+        temp.append(s.temperature_c)
+    temps = None if any(x is None for x in temp) else np.concatenate(temp)
+    names = " + ".join(Path(s.source).name for s in parts)
+    joined = TimeSeries(np.concatenate(t), np.concatenate(i), np.concatenate(v), temps,
+                        np.concatenate(q), names,
+                        tuple(n for s in parts for n in s.notes))
+    return joined, (f"OCV: {names}: parts of one low-rate test, none a discharge + charge "
+                    f"cycle alone, joined end to end in that order (each part's clock and "
+                    f"charge count continued from the one before)")
 
 
 def choose_branches(test: LowRateTest, source, cycle: int | None = None,

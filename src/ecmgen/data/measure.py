@@ -17,8 +17,10 @@ import numpy as np
 
 from ..errors import InputError, reading
 from ..files import write_atomic
+from .counters import cumulative_charge, gap_note, integrate_current
 from .csvtext import CsvRows, blocks, csv_encoding
-from .plausible import check_current, check_temperature, check_voltage
+from .timing import LAG_MARGIN, VoltageLag, voltage_lag  # noqa: F401 (re-exported)
+from .plausible import check_current, check_temperature, check_voltage, implausible_ends
 
 
 @dataclass(frozen=True)
@@ -30,7 +32,9 @@ class TimeSeries:
     voltage_v     volts at the cell terminals
     temperature_c degC or None
     charge_ah     cumulative charge in Ah (positive = charged) or None; where a cycler
-                  logs it, it is trusted over integrating current (files may omit segments)
+                  logs it, it is trusted over integrating current (files may omit segments);
+                  a counter that restarts per step or cycle, or one split into charge and
+                  discharge, is joined into this one on reading (ecmgen.data.counters)
     source        file the record came from (for error messages and provenance)
     """
 
@@ -76,12 +80,11 @@ class TimeSeries:
 
     def coulomb_ah(self) -> np.ndarray:
         """Cumulative charge in Ah from 0 at the first sample: the logged Ah column where
-        the file has one (re-zeroed), else the trapezoid integral of the current."""
+        the file has one (re-zeroed), else the integral of the current (the trapezoid,
+        held over logging gaps: ecmgen.data.counters)."""
         if self.charge_ah is not None:
             return self.charge_ah - self.charge_ah[0]
-        dt = np.diff(self.time_s)
-        inc = 0.5 * (self.current_a[1:] + self.current_a[:-1]) * dt / 3600.0
-        return np.concatenate(([0.0], np.cumsum(inc)))
+        return integrate_current(self.time_s, self.current_a)
 
 
 # --------------------------------------------------------------------------- column maps
@@ -101,7 +104,7 @@ CANONICAL_HEADER = ("time_s", "current_a", "voltage_v", "temperature_c", "charge
 _UNIT_CHOICES = {"time_unit": TIME_UNITS_S, "current_unit": CURRENT_UNITS_A,
                  "voltage_unit": VOLTAGE_UNITS_V, "charge_unit": CHARGE_UNITS_AH,
                  "current_sign": CURRENT_SIGNS}
-_NAME_KEYS = ("time", "current", "voltage", "temperature", "charge")
+_NAME_KEYS = ("time", "current", "voltage", "temperature", "charge", "discharge")
 _REQUIRED_KEYS = ("time", "current", "voltage")
 
 
@@ -112,8 +115,11 @@ class ColumnMap:
 
     time, current, voltage  required: a column name, or its position (1 = first column)
     temperature             optional column (degC)
-    charge                  optional cumulative-charge column (counts up on charge
-                            after ``current_sign`` is applied to it too)
+    charge                  optional charge counter (Ah): cumulative, or restarting per
+                            step or cycle; counts up on charge after ``current_sign`` is
+                            applied to it too; with ``discharge``: the charge counter
+    discharge               optional discharge counter beside ``charge``, counting up
+                            on discharge (Arbin's Discharge_Capacity, Plett's disAh)
     time_unit     "s" | "min" | "h"
     current_unit  "A" | "mA"
     voltage_unit  "V" | "mV"
@@ -130,6 +136,7 @@ class ColumnMap:
     voltage: str | int = "voltage_v"
     temperature: str | int | None = None
     charge: str | int | None = None
+    discharge: str | int | None = None
     time_unit: str = "s"
     current_unit: str = "A"
     voltage_unit: str = "V"
@@ -160,6 +167,8 @@ class ColumnMap:
             elif not self.header:
                 return (f"{key} = {value!r}: with header = false the columns are given by "
                         f"position ({key} = 1 for the first column)")
+        if self.discharge is not None and self.charge is None:
+            return "discharge (a discharge counter) needs charge (its charge counter) too"
         for key, choices in _UNIT_CHOICES.items():
             value = getattr(self, key)
             if value not in choices:
@@ -214,6 +223,10 @@ class ColumnMap:
             return cls.from_toml(common, config_path)
         return None
 
+    def by_position(self) -> bool:
+        """True when every column of the map is given by its position."""
+        return all(isinstance(v, int) for v in self.names().values())
+
     def names(self) -> dict[str, str | int]:
         """role -> column name (or 1-based position), for the columns this map uses."""
         return {k: getattr(self, k) for k in _NAME_KEYS if getattr(self, k) is not None}
@@ -229,6 +242,8 @@ class _Layout:
     columns: ColumnMap
     temperature: tuple[str, ...] = ()
     charge: tuple[str, ...] = ()
+    discharge: tuple[str, ...] = ()     # with charge: the split counters, both needed
+    counters_required: bool = False     # generic names: the layout is its counters' too
 
     def describe(self) -> str:
         c = self.columns
@@ -238,10 +253,16 @@ class _Layout:
         if not all(n in found for n in (self.columns.time, self.columns.current,
                                          self.columns.voltage)):
             return None
+        if self.counters_required and not all(
+                any(n in found for n in names) for names in (self.charge, self.discharge)):
+            return None
         temp = next((n for n in self.temperature if n in found), None)
         charge = next((n for n in self.charge if n in found), None)
+        discharge = next((n for n in self.discharge if n in found), None)
+        if self.discharge and (charge is None or discharge is None):
+            charge = discharge = None
         return ColumnMap(self.columns.time, self.columns.current, self.columns.voltage,
-                         temp, charge)
+                         temp, charge, discharge, current_sign=self.columns.current_sign)
 
     def present(self, found: list[str]) -> int:
         return sum(n in found for n in (self.columns.time, self.columns.current,
@@ -251,12 +272,21 @@ class _Layout:
 # CSV layouts tried in order when no mapping is given. Arbin (and the CALCE exports, which
 # come from Arbin testers) log current negative on discharge, i.e. already charge-positive;
 # a file with these names is read that way, whichever cycler wrote it (the note says so).
-# Their Charge/Discharge_Capacity columns reset every cycle, so charge is left to the current.
+# Their Charge/Discharge_Capacity counters (restarting every cycle) are joined into one
+# (ecmgen.data.counters). Bitrode's exports log discharge negative too, with an Ah counter
+# that restarts at every step.
 CSV_LAYOUTS = (
     _Layout("ecmgen's own columns", ColumnMap("time_s", "current_a", "voltage_v"),
             ("temperature_c",), ("charge_ah",)),
     _Layout("Arbin/CALCE-style columns", ColumnMap("Test_Time(s)", "Current(A)", "Voltage(V)"),
-            ("Temperature (C)_1",)),
+            ("Temperature (C)_1",), ("Charge_Capacity(Ah)",), ("Discharge_Capacity(Ah)",)),
+    _Layout("Bitrode-style columns", ColumnMap("Time(s)", "Current(A)", "Voltage(V)"),
+            (), ("Capacity(Ah)",)),
+    # Plett's ESC toolbox CSVs log discharge POSITIVE; their names are generic, so only
+    # with both counters, which would refuse a wrong sign (_check_charge_sign)
+    _Layout("Plett ESC-toolbox-style columns (discharge positive)",
+            ColumnMap("time", "current", "voltage", current_sign="discharge_positive"),
+            (), ("chgAh",), ("disAh",), counters_required=True),
     # CALCE low-rate OCV export: a single step, so Step_Time(s) is the only clock.
     _Layout("Arbin/CALCE-style single-step columns",
             ColumnMap("Step_Time(s)", "Current(A)", "Voltage(V)"), ("Temperature (C)_1",)),
@@ -375,9 +405,17 @@ def _numbers_only(row: list[str]) -> bool:
     return bool(cells) and all(_is_number(c) for c in cells)
 
 
-def _headerless(path: Path, row: list[str], line: int) -> InputError:
+def _mapped_cells(columns: ColumnMap, row: list[str]) -> list[str]:
+    """The cells of ``row`` at the map's column positions (those the row reaches)."""
+    return [row[k - 1] for k in columns.names().values()
+            if isinstance(k, int) and k <= len(row)]
+
+
+def _headerless(path: Path, row: list[str], line: int, text_columns: bool = False
+                ) -> InputError:
     shown = ", ".join(c.strip() for c in row[:4]) + (", ..." if len(row) > 4 else "")
-    return InputError(path, f"no header line: line {line} holds numbers ({shown}), not "
+    what = "its mapped columns hold numbers" if text_columns else "holds numbers"
+    return InputError(path, f"no header line: line {line} {what} ({shown}), not "
                             f"column names; for a file without a header set header = false "
                             f"in [data.columns] and give the columns by position, 1 = first "
                             f"(e.g. time = 1, current = 2, voltage = 3)")
@@ -407,6 +445,10 @@ def _read_csv_as(path: Path, columns: ColumnMap | None, encoding: str
             raise InputError(path, "empty file (no header line)")
         if _numbers_only(row):
             raise _headerless(path, row, line)
+        if columns is not None and columns.by_position() and \
+                _numbers_only(_mapped_cells(columns, row)):
+            # read as a header, this line of data would be lost without a word
+            raise _headerless(path, _mapped_cells(columns, row), line, text_columns=True)
         header = [name.strip() for name in row]
         against = "the header has"
     else:
@@ -414,7 +456,9 @@ def _read_csv_as(path: Path, columns: ColumnMap | None, encoding: str
         if first is None:
             raise InputError(path, "empty file (no data lines)")
         line, row = first
-        if not _numbers_only(row):
+        # a cycler's export holds text in columns of its own (Bitrode's "No", a mode
+        # "CHRG"): only the mapped columns must hold numbers
+        if not _numbers_only(_mapped_cells(columns, row)):
             raise InputError(path, f"header = false in [data.columns], but line {line} "
                                    f"holds names ({', '.join(c.strip() for c in row[:4])}"
                                    f"{', ...' if len(row) > 4 else ''}): a header line?")
@@ -425,8 +469,9 @@ def _read_csv_as(path: Path, columns: ColumnMap | None, encoding: str
     notes = []
     if columns is None:
         colmap, layout = _choose_layout(path, header, "column", CSV_LAYOUTS)
+        sign = "discharge" if colmap.current_sign == "discharge_positive" else "charge"
         notes.append(f"columns recognised by their names as {layout}; current taken as "
-                     f"positive on charge")
+                     f"positive on {sign}")
     else:
         colmap = columns
         _check_named(path, colmap, header, "column")
@@ -592,28 +637,25 @@ def _finish(path: Path, raw: _Raw, colmap: ColumnMap, capacity_ah: float | None)
         return f"{raw.names[role]}, {raw.where(i)}"
 
     # Units and sign first, so every check below works in A, V, s, Ah.
-    scale = {"time": TIME_UNITS_S[colmap.time_unit],
-             "current": CURRENT_UNITS_A[colmap.current_unit],
-             "voltage": VOLTAGE_UNITS_V[colmap.voltage_unit],
-             "charge": CHARGE_UNITS_AH[colmap.charge_unit]}
-    for role, factor in scale.items():
-        if role in values and factor != 1.0:
-            values[role] = values[role] * factor
-    if colmap.current_sign == "discharge_positive":
-        values["current"] = -values["current"]
-        if "charge" in values:
-            values["charge"] = -values["charge"]
-        notes.append("current (and charge) negated: file logs discharge positive")
-    for role, unit in (("time", colmap.time_unit), ("current", colmap.current_unit),
-                       ("voltage", colmap.voltage_unit), ("charge", colmap.charge_unit)):
-        if role in values and unit not in ("s", "A", "V", "Ah"):
-            notes.append(f"{role} converted from {unit}")
+    values = _in_units(values, colmap, notes)
+
+    first, stop = implausible_ends(values["voltage"])
+    if (first, stop) != (0, n):
+        for k in (*range(first), *range(stop, n)):
+            notes.append(f"{loc('voltage', k)} dropped: voltage {raw.values['voltage'][k]:.6g} V "
+                         f"at the record's {'start' if k < first else 'end'} is implausible "
+                         f"for a cell (a logger switched off?)")
+        values = {role: arr[first:stop] for role, arr in values.items()}
+        n = stop - first
+
+        def loc(role: str, i: int, first=first) -> str:
+            return f"{raw.names[role]}, {raw.where(i + first)}"
 
     for role, arr in values.items():
         bad = ~np.isfinite(arr)
         if bad.any():
             i = int(np.argmax(bad))
-            logged = raw.values[role][i]  # as in the file, before sign/unit conversion
+            logged = raw.values[role][i + first]  # as in the file, before sign/unit conversion
             what = "NaN" if np.isnan(logged) else ("+inf" if logged > 0 else "-inf")
             raise InputError(path, f"{loc(role, i)}: {what} (every value must be a finite "
                                    f"number)")
@@ -635,12 +677,58 @@ def _finish(path: Path, raw: _Raw, colmap: ColumnMap, capacity_ah: float | None)
     check_current(path, values["current"], colmap, capacity_ah, loc)
     if "temperature" in values:
         check_temperature(path, values["temperature"], loc)
-    if "charge" in values:
-        _check_charge_sign(path, values, raw.names)
+    charge = _charge_count(path, values, colmap, raw.names, notes)
+    gaps = gap_note(time, values["current"], charge is not None)
+    if gaps:
+        notes.append(gaps)
 
     return TimeSeries(time_s=time, current_a=values["current"], voltage_v=values["voltage"],
-                      temperature_c=values.get("temperature"), charge_ah=values.get("charge"),
+                      temperature_c=values.get("temperature"), charge_ah=charge,
                       source=str(path), notes=tuple(notes))
+
+
+def _in_units(values: dict, colmap: ColumnMap, notes: list[str]) -> dict:
+    """The columns in s, A, V, Ah, current positive on charge (said in ``notes``)."""
+    scale = {"time": TIME_UNITS_S[colmap.time_unit],
+             "current": CURRENT_UNITS_A[colmap.current_unit],
+             "voltage": VOLTAGE_UNITS_V[colmap.voltage_unit],
+             "charge": CHARGE_UNITS_AH[colmap.charge_unit],
+             "discharge": CHARGE_UNITS_AH[colmap.charge_unit]}
+    values = {role: arr * scale[role] if scale.get(role, 1.0) != 1.0 else arr
+              for role, arr in values.items()}
+    if colmap.current_sign == "discharge_positive":
+        values["current"] = -values["current"]
+        if "charge" in values and "discharge" not in values:   # split counters count up
+            values["charge"] = -values["charge"]
+        notes.append("current (and charge) negated: file logs discharge positive"
+                     if "discharge" not in values else
+                     "current negated: file logs discharge positive")
+    for role, unit in (("time", colmap.time_unit), ("current", colmap.current_unit),
+                       ("voltage", colmap.voltage_unit), ("charge", colmap.charge_unit)):
+        if role in values and unit not in ("s", "A", "V", "Ah"):
+            notes.append(f"{role} converted from {unit}")
+    return values
+
+
+def _charge_count(path: Path, values: dict, colmap: ColumnMap, names: dict,
+                  notes: list[str]) -> np.ndarray | None:
+    """The cumulative charge from the file's counter(s), joined over their restarts
+    (ecmgen.data.counters; ecmgen's own charge_ah column is cumulative as written), its
+    sign checked against the current; None without a counter."""
+    if "charge" not in values:
+        return None
+    if colmap.charge == CANONICAL_HEADER[-1] and "discharge" not in values:
+        charge = values["charge"]
+        _check_charge_sign(path, values, names)
+        return charge
+    charge, restarts = cumulative_charge(values["time"], values["current"], values["charge"],
+                                         values.get("discharge"))
+    _check_charge_sign(path, dict(values, charge=charge), names)
+    counted = names["charge"] + (f" - {names['discharge']}" if "discharge" in values else "")
+    notes.append(f"charge counted by the cycler ({counted})" +
+                 (f", joined over {restarts} restart{'s' if restarts > 1 else ''} of its "
+                  f"counter" if restarts else ""))
+    return charge
 
 
 def _check_charge_sign(path, values, names) -> None:
@@ -672,80 +760,6 @@ def charging_direction(current_a: np.ndarray, deadband_a: float) -> np.ndarray:
     idx = np.where(np.isnan(sign), 0, np.arange(sign.size))
     np.maximum.accumulate(idx, out=idx)
     return sign[idx] > 0
-
-
-# --------------------------------------------------------------------------- timing
-
-LAG_MARGIN = 0.1          # a lag > 0 is reported only where its correlation beats lag 0's by more
-LAG_STEP_SHARE = 0.05     # a current step: a sample-to-sample change above this share of |i|max
-LAG_MIN_STEPS = 20        # fewer steps on the regular grid: no verdict
-
-
-@dataclass(frozen=True)
-class VoltageLag:
-    """How many samples the voltage column responds late to a step of the current column
-    (a logger that samples them apart); measured, never corrected.
-
-    samples      the lag reported, in samples (0: the steps line up)
-    sample_s     the sampling interval it was measured on, s
-    correlation  correlation of the current's and the voltage's sample-to-sample
-                 differences with the voltage ``k`` samples later, k = 0 .. max_lag
-    """
-
-    samples: int
-    sample_s: float
-    correlation: tuple[float, ...]
-
-    def note(self, source: str) -> str:
-        """One line naming the file, e.g. for a validation's warnings."""
-        where = Path(source).name if source else "record"
-        c = self.correlation
-        if self.samples == 0:
-            return (f"{where}: voltage and current steps line up: correlation of their steps "
-                    f"{c[0]:.2f} at lag 0")
-        n = self.samples
-        return (f"{where}: the voltage lags the current by {n} sample{'s' if n > 1 else ''} "
-                f"({n * self.sample_s:.2g} s): correlation of their steps {c[n]:.2f} at lag "
-                f"{n} vs {c[0]:.2f} at lag 0 (not corrected; it adds to the error on fast "
-                f"cycles)")
-
-
-def voltage_lag(series: TimeSeries, max_lag: int = 2) -> VoltageLag | None:
-    """The lag of the voltage behind the current, from the correlation of their
-    sample-to-sample differences (``dv[k + lag]`` against ``di[k]``) at lags 0..max_lag.
-    Only the regularly sampled part counts: intervals within 25 % of the interval at which
-    the current steps (a record logged at 10 Hz around its pulses and 1 Hz between is
-    judged at 10 Hz). A lag > 0 is reported where its correlation beats lag 0's by more
-    than LAG_MARGIN. None where there are fewer than LAG_MIN_STEPS current steps."""
-    t, i, v = (np.asarray(a, dtype=np.float64)
-               for a in (series.time_s, series.current_a, series.voltage_v))
-    if t.size < 3 or max_lag < 0:
-        return None
-    dt, di, dv = np.diff(t), np.diff(i), np.diff(v)
-    step = np.abs(di) > LAG_STEP_SHARE * float(np.max(np.abs(i)))
-    if np.count_nonzero(step) < LAG_MIN_STEPS:
-        return None
-    sample_s = float(np.median(dt[step]))
-    regular = np.abs(dt - sample_s) <= 0.25 * sample_s
-    if sample_s <= 0 or np.count_nonzero(step & regular) < LAG_MIN_STEPS:
-        return None
-    corr = []
-    for lag in range(max_lag + 1):
-        n = dt.size - lag
-        ok = regular[:n].copy()
-        for j in range(1, lag + 1):
-            ok &= regular[j:j + n]
-        if np.count_nonzero(ok) < LAG_MIN_STEPS:
-            return None
-        a, b = di[:n][ok], dv[lag:lag + n][ok]
-        a, b = a - a.mean(), b - b.mean()
-        norm = float(np.sqrt((a @ a) * (b @ b)))
-        if not norm > 0:
-            return None
-        corr.append(float(a @ b) / norm)
-    best = int(np.argmax(corr))
-    samples = best if best > 0 and corr[best] > corr[0] + LAG_MARGIN else 0
-    return VoltageLag(samples, sample_s, tuple(corr))
 
 
 # --------------------------------------------------------------------------- writing

@@ -16,6 +16,26 @@ MAX_CURRENT_A = 2000.0       # used when it is not
 TEMPERATURE_RANGE_C = (-60.0, 150.0)
 
 
+# a logger switched off writes a row or two of 0 V at a record's end (the Panasonic -20 degC
+# steps file): so many rows at either end, at most, are dropped rather than the file refused
+MAX_END_ROWS_SHARE = 0.01
+
+
+def implausible_ends(volts: np.ndarray) -> tuple[int, int]:
+    """[first, stop): the record without the runs of implausible voltages at its start
+    and end, where they are at most MAX_END_ROWS_SHARE of its rows; (0, n) otherwise
+    (a voltage in the wrong unit is wrong everywhere, and is refused by check_voltage)."""
+    n = volts.size
+    lo, hi = VOLTAGE_RANGE_V
+    good = np.flatnonzero((volts >= lo) & (volts <= hi))
+    if good.size < 2:
+        return 0, n
+    first, stop = int(good[0]), int(good[-1]) + 1
+    if first + n - stop > MAX_END_ROWS_SHARE * n:
+        return 0, n
+    return first, stop
+
+
 def check_temperature(path, temps, loc) -> None:
     lo, hi = TEMPERATURE_RANGE_C
     out = (temps < lo) | (temps > hi)

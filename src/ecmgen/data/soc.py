@@ -159,6 +159,49 @@ def fit_start_soc(ocv, capacity_ah: float, rests: Rests, source="", *,
     return StartSoc(float(s0), rms, offsets, len(rests), note)
 
 
+def opening_cv_charge(series: TimeSeries, capacity_ah: float, rest_a: float,
+                      min_rest_s: float = 60.0, *, after_discharge: bool = False
+                      ) -> tuple[float, str] | None:
+    """The start SOC of a record that opens with a charge ending in a constant-voltage
+    phase (SOC 1.0 at its end, the charge before it counted back), and how it was found;
+    None for any other record. A charge logged from an empty cell (the Leaf's HPPC files)
+    tells the start SOC better than any rest: no OCV is needed.
+
+    ``after_discharge``: the first charge that moves at least CV_CHARGE_SHARE of the
+    capacity counts even after a discharge (a pulse test that first empties the cell,
+    as the Leaf's 40 degC file does); a drive cycle's regen pulses never do."""
+    i = series.current_a
+    q = series.coulomb_ah()
+    k = 0
+    while True:
+        moving = np.flatnonzero(np.abs(i[k:]) > rest_a)
+        if moving.size == 0:
+            return None
+        first = k + int(moving[0])
+        if i[first] < 0:
+            if not after_discharge:
+                return None
+            up = np.flatnonzero(i[first:] > rest_a)
+            if up.size == 0:
+                return None
+            first += int(up[0])
+        b = _charge_end(series, first, rest_a, min_rest_s)
+        charged = float(q[b - 1] - q[first])
+        if not after_discharge or charged >= CV_CHARGE_SHARE * capacity_ah:
+            break
+        k = b                      # a charge pulse: look on
+    if not _cv_end(series, first, b):
+        return None
+    end = float(q[b - 1])
+    return 1.0 - end / capacity_ah, (f"SOC 1.0 at the end of the constant-voltage charge "
+                                     f"the record opens with ({charged:.4g} Ah, ending "
+                                     f"{series.time_s[b - 1] - series.time_s[0]:.0f} s after "
+                                     f"its start)")
+
+
+CV_CHARGE_SHARE = 0.05
+
+
 CAPACITY_SCALES = np.round(np.arange(0.70, 1.4001, 0.005), 3)   # as capacity_error's range
 CAPACITY_RMS_GAIN = 0.5   # another capacity is taken when it halves the rests' RMS misfit
 
@@ -253,6 +296,60 @@ def _charge_end(series: TimeSeries, a: int, rest_a: float, min_rest_s: float) ->
     return stop
 
 
+SHORT_REST_S = 10.0          # the stops of a drive cycle count as rests of an unrelaxed record
+RELAXED_DRIFT_V = 0.001      # a rest whose voltage moves more over its last half is unrelaxed
+
+
+def _window_means(series: TimeSeries, end: int) -> tuple[np.ndarray, float] | None:
+    """The voltage of the rest 0..end averaged over three windows of a fifth of its
+    length, at its start, middle and end (equally spaced, so a pure exponential
+    relaxation gives a geometric sequence), and the noise of such a mean (V); None for a
+    rest under 3 samples or 5 s."""
+    t, v = series.time_s[:end + 1], series.voltage_v[:end + 1]
+    if t.size < 3 or t[-1] - t[0] < 5.0:
+        return None
+    w = 0.2 * (t[-1] - t[0])
+    centres = (t[0] + 0.5 * w, 0.5 * (t[0] + t[-1]), t[-1] - 0.5 * w)
+    means = []
+    for c in centres:
+        inside = np.abs(t - c) <= 0.5 * w + 1e-9
+        means.append(float(np.mean(v[inside])) if inside.any() else float(np.interp(c, t, v)))
+    d = np.diff(v)
+    noise = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / np.sqrt(2.0) if d.size else 0
+    n = max(int(np.count_nonzero(np.abs(t - centres[2]) <= 0.5 * w + 1e-9)), 1)
+    return np.array(means), noise / np.sqrt(n)
+
+
+def _unrelaxed(series: TimeSeries, end: int) -> str | None:
+    """Why the rest a record opens with (samples 0..end) cannot be taken as relaxed, or
+    None: its voltage still moves from the middle to the end of it by more than
+    RELAXED_DRIFT_V and its noise, or it is too short to tell (under 3 samples or 5 s)."""
+    t = series.time_s
+    got = _window_means(series, end)
+    if got is None:
+        return f"the rest it opens with, {t[end] - t[0]:.0f} s, is too short to tell its OCV"
+    means, noise = got
+    moved = float(means[2] - means[1])
+    if abs(moved) <= max(RELAXED_DRIFT_V, 4.0 * noise):
+        return None
+    return (f"the rest it opens with is unrelaxed: its voltage still moved "
+            f"{moved * 1e3:+.1f} mV over its last half")
+
+
+def _relaxed_voltage(series: TimeSeries, end: int) -> float | None:
+    """Where the relaxation of the rest 0..end is heading, from its start, middle and end
+    voltages (window means) taken as steps of a geometric (exponential) approach (Aitken's
+    delta squared); None where the rest does not slow down as a relaxation does."""
+    got = _window_means(series, end)
+    if got is None:
+        return None
+    m = got[0]
+    d1, d2 = float(m[1] - m[0]), float(m[2] - m[1])
+    if d1 * d2 <= 0 or abs(d2) >= abs(d1):
+        return None
+    return float(m[2] + d2 * d2 / (d1 - d2))
+
+
 def record_start_soc(ocv, capacity_ah: float, series: TimeSeries, rest_a: float,
                      min_rest_s: float = 60.0, fit_rest_s: float = 300.0
                      ) -> tuple[float, str]:
@@ -281,12 +378,24 @@ def record_start_soc(ocv, capacity_ah: float, series: TimeSeries, rest_a: float,
         return at(len(i) - 1, "the OCV of its last sample (the record never moves)")
     first = int(moving[0])
     opens_with_charge = bool(i[first] > 0)
+    cv = opening_cv_charge(series, capacity_ah, rest_a, min_rest_s)
+    if cv is not None:
+        return cv
     if opens_with_charge:
         b = _charge_end(series, first, rest_a, min_rest_s)
-        if _cv_end(series, first, b):
-            return 1.0 - float(q[b - 1]) / capacity_ah, (
-                "SOC 1.0 at the end of the constant-voltage charge the record opens with")
     opening = first - 1 if np.abs(i[0]) <= rest_a else None
+    drift = None if opening is None else _unrelaxed(series, opening)
+    if drift is not None and v[opening] < float(ocv.ocv_v[-1]):
+        extrapolated = _relaxed_voltage(series, opening)
+        if extrapolated is not None:
+            soc = float(ocv.soc_at(extrapolated)) - float(q[opening]) / capacity_ah
+            return soc, (f"the OCV of {extrapolated:.4f} V, where the relaxation of the rest "
+                         f"it opens with is heading ({drift}; its last sample "
+                         f"{v[opening]:.4f} V)")
+        rests = find_rests(series, rest_a, SHORT_REST_S)
+        if len(rests) >= 3 and np.ptp(rests.charge_ah) / capacity_ah >= MIN_FIT_SPAN:
+            fit = fit_start_soc(ocv, capacity_ah, rests, series.source)
+            return fit.soc0, f"a fit to its rests ({drift}): {fit.note}"
     # one rested voltage tells the SOC to REST_VOLTAGE_V / slope; where the OCV is that
     # flat (an LFP plateau), all the record's rests are fitted together instead
     weak = opening is not None and _soc_error(ocv, v[opening]) > WEAK_REST_SOC

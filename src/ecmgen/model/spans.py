@@ -29,21 +29,45 @@ def model_span_notes(model, copied: set[str] = frozenset()) -> list[str]:
     return notes
 
 
-def usage(model, validation, ocv_span=None) -> dict:
+def _at_temperature(rows, temperature_c: np.ndarray, what: str
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Per sample, the SOC span of ``what`` at its temperature: between two temperature
+    rows the narrower of theirs (a value held flat in either row enters the blend), beyond
+    them the nearest row's. ``rows``: [(temperature_c, {what: [lo, hi]})], sorted."""
+    temps = np.array([t for t, _ in rows])
+    lo = np.array([r[what][0] for _, r in rows])
+    hi = np.array([r[what][1] for _, r in rows])
+    k = np.clip(np.searchsorted(temps, temperature_c), 1, len(rows) - 1)
+    below = np.clip(k - 1, 0, len(rows) - 1)
+    lo_t = np.maximum(lo[below], lo[k])
+    hi_t = np.minimum(hi[below], hi[k])
+    outside = (temperature_c <= temps[0]) | (temperature_c >= temps[-1])
+    nearest = np.where(temperature_c <= temps[0], 0, len(rows) - 1)
+    return np.where(outside, lo[nearest], lo_t), np.where(outside, hi[nearest], hi_t)
+
+
+def usage(model, validation, ocv_span=None, rows=None) -> dict:
     """The SOC range a validation ran through, and the share of its samples beyond each
-    measured span (RC tables by the direction in use, the OCV)."""
+    measured span (RC tables by the direction in use, the OCV). ``rows``: the spans of
+    each temperature row of a model over temperature ([(temperature_c, {"ocv": [lo, hi],
+    "charge": ..., "discharge": ...})]): each sample is then judged against the spans at
+    its own temperature, not their union."""
     soc = np.clip(validation.sim.soc, 0.0, 1.0)
     out = {"soc_range": [float(soc.min()), float(soc.max())], "beyond_span": {}}
-    spans = table_spans(model)
+    spans = {**table_spans(model), **({"ocv": list(ocv_span)} if ocv_span else {})}
+    temps = validation.temperature_c
+    by_row = rows is not None and len(rows) > 1 and temps is not None
+    if by_row:
+        rows = sorted(rows, key=lambda r: r[0])
+        out["row_spans"] = {f"{t:g}": r for t, r in rows}
     charging = validation.sim.charging
-    for d, (lo, hi) in spans.items():
-        in_d = charging if d == "charge" else ~charging
-        beyond = in_d & ((soc < lo - SPAN_MARGIN) | (soc > hi + SPAN_MARGIN))
-        out["beyond_span"][d] = float(beyond.mean())
-    if ocv_span is not None:
-        lo, hi = ocv_span
-        out["beyond_span"]["ocv"] = float(np.mean((soc < lo - SPAN_MARGIN) |
-                                                  (soc > hi + SPAN_MARGIN)))
+    for what in spans:
+        lo, hi = _at_temperature(rows, np.asarray(temps, float), what) if by_row and \
+            all(what in r for _, r in rows) else spans[what]
+        beyond = (soc < np.asarray(lo) - SPAN_MARGIN) | (soc > np.asarray(hi) + SPAN_MARGIN)
+        if what != "ocv":
+            beyond &= charging if what == "charge" else ~charging
+        out["beyond_span"][what] = float(beyond.mean())
     return out
 
 
@@ -58,13 +82,20 @@ def usage_notes(model, name: str, use: dict, ocv_span=None) -> list[str]:
     if ocv_span is not None:
         spans["ocv"] = list(ocv_span)
     parts = []
+    rows = use.get("row_spans")
     for what, share in use["beyond_span"].items():
         if share < NOTE_SHARE or (what == "charge" and model.charge is model.discharge):
             continue
-        a, b = spans[what]
         label = "the OCV" if what == "ocv" else f"the {what} RC table"
-        parts.append(f"{label} (measured at SOC {a:.2f}..{b:.2f}) on {share:.0%} of the samples")
+        if rows and all(what in r for r in rows.values()):
+            measured = ", ".join(f"{r[what][0]:.2f}..{r[what][1]:.2f} at {t} degC"
+                                 for t, r in rows.items())
+        else:
+            a, b = spans[what]
+            measured = f"{a:.2f}..{b:.2f}"
+        parts.append(f"{label} (measured at SOC {measured}) on {share:.0%} of the samples")
     if not parts:
         return []
     return [f"{model.method} on {name} (SOC {lo:.2f}..{hi:.2f}) uses " + "; ".join(parts)
-            + " beyond the measured span, where it is held flat"]
+            + " beyond the measured span at its temperature, where it is held flat "
+              "(warning)"]
