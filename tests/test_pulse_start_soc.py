@@ -57,9 +57,9 @@ def test_pulse_test_opening_with_a_cc_cv_charge_starts_from_its_end(empty_first)
     1.000 to 1.98 ... check the start SOC')."""
     rec, start_true = cc_cv_then_pulses(empty_first)
     cfg = SimpleNamespace(capacity_ah=Q)
-    soc0, how = pulse_test_soc0(cfg, rec, rests=(), reference=None, given=None)
+    soc0, how, q = pulse_test_soc0(cfg, rec, rests=(), reference=None, given=None)
     assert abs(soc0 - start_true) < 0.01
-    assert "constant-voltage charge" in how
+    assert "constant-voltage charge" in how and q == Q     # the axis keeps the capacity
 
 
 def _cycler_count(path):
@@ -89,7 +89,7 @@ def test_leaf_hppc_start_soc_and_last_level_from_the_file_alone(name):
     path = need(SHARED_DATA / "nissan-leaf" / name)
     q = 32.5
     series = read_timeseries(path, capacity_ah=q)
-    soc0, how = pulse_test_soc0(SimpleNamespace(capacity_ah=q), series, (), None, None)
+    soc0, how, _ = pulse_test_soc0(SimpleNamespace(capacity_ah=q), series, (), None, None)
     cum, cv_end = _cycler_count(path)
     truth = 1.0 - (cum[cv_end] - cum[0]) / q
     assert abs(soc0 - truth) < 0.01
