@@ -24,6 +24,8 @@ bench: $(STAMP)
 	$(PY) bench/bench_fit.py
 	-$(PY) bench/bench_c.py
 	-$(PY) bench/bench_diagnose.py
+	-$(PY) bench/diagnose_suite.py
+	-$(PY) bench/real_cells.py
 
 clean:
 	rm -rf $(VENV) $(DEMO_OUT) build *.egg-info src/*.egg-info .pytest_cache
