@@ -444,39 +444,10 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
                        min_weight_s=min_weight_s)
     ranges, n = data_tau_ranges(ranges, _pulse_sampling_s(series, complete), rec.rest_used_s)
     notes.extend(n)
-    bases = {d: level_nodes(complete, d, capacity_ah) for d in directions}
-    ocv_nodes, levels = level_windows(complete, series.time_s, rec.t)
-    # rows only over the SOC the pulses measured: beyond it the tables are held flat and the
-    # OCV is extrapolated (the discharge to the cut-off after the last level)
-    ends = [p.soc + p.current_a * p.duration_s / 3600.0 / capacity_ah for p in complete]
-    span = (min(min(ends), min(p.soc for p in complete)) - SPAN_MARGIN,
-            max(max(ends), max(p.soc for p in complete)) + SPAN_MARGIN)
     spans = _r0_spans(complete, directions)
-    # a correction per direction of the last current needs the current dependence (two
-    # C-rates at a level) to tell it from r0 i
-    split = all(len({p.c_rate for p in complete if p.direction == d}) >= 2 for d in directions)
-    fits = []
-    # the OCV correction at the levels, or also half-way between them (a SOC move passes
-    # where the OCV table is interpolated between the rests, and its curvature there must
-    # not go into r(soc)): the one that predicts a left-out level better
-    for nodes_ocv in _ocv_node_sets(ocv_nodes):
-        prob = _Problem(rec, bases, nodes_ocv, i0_a, spans, levels, split_ocv=split,
-                        soc_span=span)
-        if prob.rows.size < 4 * (prob.jd + prob.n_ocv):
-            raise InputError(series.source, f"only {prob.rows.size} samples to fit the curve "
-                                            "method on")
-        fits.append((prob, _fit_time_constants(prob, ranges, progress if not fits else None)))
-    if len(fits) > 1:
-        (p0, f0), (p1, f1) = fits
-        use_mid = p1.cv_sse < p0.cv_sse
-        prob, got = fits[1] if use_mid else fits[0]
-        if np.isfinite(p0.cv_sse) and p0.cv_sse > 0:
-            notes.append(f"curve: OCV offsets {'also half-way between' if use_mid else 'at'} the "
-                         f"levels (leaving one level out: {p1.cv_sse / p0.cv_sse:.3g} x the "
-                         "error of offsets at the levels only)")
-        got = got[:3] + (f0[3] + f1[3],) + got[4:]
-    else:
-        prob, got = fits[0]
+    prob, got, n = _fit_problem(rec, complete, directions, capacity_ah, i0_a, spans, ranges,
+                                series, progress)
+    notes.extend(n)
     taus, x, cost, n_eval, search_notes, ranges = got
     notes.extend(search_notes)
     kinds = list(ranges)
@@ -485,29 +456,7 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
     # the fitted voltage at every kept sample (plots, per-node errors)
     full = side_by_side([prob.r0_full] + [prob.block(k, taus[k], full=True) for k in kinds])
     fitted = rec.y - full @ x                            # residual, measured minus fitted
-    at = prob.layout(kinds)["start"]
-    fits = {}
-    for n_d, d in enumerate(rec.dir_mask):
-        a0, nb, basis = prob.offsets[n_d], prob.sizes[n_d], prob.bases[n_d]
-        r0, rf, rs = (np.interp(nodes, basis, x[at[k] + a0:at[k] + a0 + nb])
-                      for k in ("r0", "fast", "slow"))
-        rd = float(x[at["diff"] + n_d]) if diffusion else None
-        low = min(p.soc for p in complete if p.direction == d)
-        high = max(p.soc for p in complete if p.direction == d)
-        ident = _identified(nodes, low, high)
-        if not ident.all():
-            held = nodes[~ident]
-            notes.append(f"curve: {d} r0/r_fast/r_slow held flat at SOC "
-                         f"{', '.join(f'{s:g}' for s in held)} (outside the SOC levels "
-                         f"with a complete pulse, {low:.3f} .. {high:.3f})")
-        held = basis[prob.r0_held[(prob.r0_held >= a0) & (prob.r0_held < a0 + nb)] - a0]
-        if held.size:
-            lo, hi, _, _, need = spans[d]
-            notes.append(f"curve: {d} r0 held at SOC {', '.join(f'{s:.3g}' for s in held)} "
-                         f"(r0 is pinned by the levels with complete pulses at {need} "
-                         f"or more C-rates, {lo:.3f} .. {hi:.3f})")
-        err = _node_error(rec, prob, fitted, nodes, rec.dir_mask[d], rms)
-        fits[d] = DirectionFit(r0, rf, rs, rd, err, ident)
+    fits = _direction_fits(prob, x, kinds, nodes, complete, spans, fitted, rms, notes)
     if len(directions) == 1:
         other = "charge" if directions[0] == "discharge" else "discharge"
         fits[other] = fits[directions[0]]
@@ -529,6 +478,75 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
                     int(prob.rows.size), tuple(notes),
                     _windows(series, complete, rec, fitted), dict(ranges),
                     float(rec.rest_used_s))
+
+
+def _fit_problem(rec: Record, complete, directions, capacity_ah: float, i0_a, spans: dict,
+                 ranges: dict, series: TimeSeries, progress=None):
+    """The linear problem of the record and its fit (:func:`_fit_time_constants`), with the
+    OCV offsets at the levels or also half-way between them (a SOC move passes where the
+    OCV table is interpolated between the rests, and its curvature there must not go into
+    r(soc)): the one that predicts a left-out level better. Returns (problem, the fit's
+    tuple, notes)."""
+    bases = {d: level_nodes(complete, d, capacity_ah) for d in directions}
+    ocv_nodes, levels = level_windows(complete, series.time_s, rec.t)
+    # rows only over the SOC the pulses measured: beyond it the tables are held flat and the
+    # OCV is extrapolated (the discharge to the cut-off after the last level)
+    ends = [p.soc + p.current_a * p.duration_s / 3600.0 / capacity_ah for p in complete]
+    span = (min(min(ends), min(p.soc for p in complete)) - SPAN_MARGIN,
+            max(max(ends), max(p.soc for p in complete)) + SPAN_MARGIN)
+    # a correction per direction of the last current needs the current dependence (two
+    # C-rates at a level) to tell it from r0 i
+    split = all(len({p.c_rate for p in complete if p.direction == d}) >= 2 for d in directions)
+    fits = []
+    for nodes_ocv in _ocv_node_sets(ocv_nodes):
+        prob = _Problem(rec, bases, nodes_ocv, i0_a, spans, levels, split_ocv=split,
+                        soc_span=span)
+        if prob.rows.size < 4 * (prob.jd + prob.n_ocv):
+            raise InputError(series.source, f"only {prob.rows.size} samples to fit the curve "
+                                            "method on")
+        fits.append((prob, _fit_time_constants(prob, ranges, progress if not fits else None)))
+    if len(fits) == 1:
+        return fits[0][0], fits[0][1], []
+    (p0, f0), (p1, f1) = fits
+    use_mid = p1.cv_sse < p0.cv_sse
+    prob, got = fits[1] if use_mid else fits[0]
+    notes = []
+    if np.isfinite(p0.cv_sse) and p0.cv_sse > 0:
+        notes.append(f"curve: OCV offsets {'also half-way between' if use_mid else 'at'} the "
+                     f"levels (leaving one level out: {p1.cv_sse / p0.cv_sse:.3g} x the "
+                     "error of offsets at the levels only)")
+    return prob, got[:3] + (f0[3] + f1[3],) + got[4:], notes
+
+
+def _direction_fits(prob: _Problem, x: np.ndarray, kinds, nodes: np.ndarray, complete,
+                    spans: dict, fitted: np.ndarray, rms: float, notes: list) -> dict:
+    """Each fitted direction's tables on the output SOC ``nodes`` (interpolated between its
+    levels, flat beyond), with notes on what was held."""
+    rec = prob.rec
+    at = prob.layout(kinds)["start"]
+    fits = {}
+    for n_d, d in enumerate(rec.dir_mask):
+        a0, nb, basis = prob.offsets[n_d], prob.sizes[n_d], prob.bases[n_d]
+        r0, rf, rs = (np.interp(nodes, basis, x[at[k] + a0:at[k] + a0 + nb])
+                      for k in ("r0", "fast", "slow"))
+        rd = float(x[at["diff"] + n_d]) if "diff" in at else None
+        low = min(p.soc for p in complete if p.direction == d)
+        high = max(p.soc for p in complete if p.direction == d)
+        ident = _identified(nodes, low, high)
+        if not ident.all():
+            held = nodes[~ident]
+            notes.append(f"curve: {d} r0/r_fast/r_slow held flat at SOC "
+                         f"{', '.join(f'{s:g}' for s in held)} (outside the SOC levels "
+                         f"with a complete pulse, {low:.3f} .. {high:.3f})")
+        held = basis[prob.r0_held[(prob.r0_held >= a0) & (prob.r0_held < a0 + nb)] - a0]
+        if held.size:
+            lo, hi, _, _, need = spans[d]
+            notes.append(f"curve: {d} r0 held at SOC {', '.join(f'{s:.3g}' for s in held)} "
+                         f"(r0 is pinned by the levels with complete pulses at {need} "
+                         f"or more C-rates, {lo:.3f} .. {hi:.3f})")
+        err = _node_error(rec, prob, fitted, nodes, rec.dir_mask[d], rms)
+        fits[d] = DirectionFit(r0, rf, rs, rd, err, ident)
+    return fits
 
 
 def _ocv_node_sets(nodes: np.ndarray) -> list[np.ndarray]:
