@@ -233,7 +233,8 @@ def pulse_test_start_soc_and_capacity(ocv, capacity_ah: float, rests: Rests, sou
         return start, capacity_ah
     # a full start (the opening rest at the top of the OCV) stays full
     bounds = None if np.isfinite(start.rms_v) else (start.soc0, start.soc0)
-    nominal = fit_start_soc(ocv, capacity_ah, rests, source, bounds=bounds)
+    nominal = start if bounds is None else fit_start_soc(ocv, capacity_ah, rests, source,
+                                                          bounds=bounds)
     best, scale = nominal, 1.0
     for k in CAPACITY_SCALES:
         try:

@@ -34,7 +34,8 @@ Smooth by measurement: a second-difference penalty over each direction's levels 
 the column scale); its weight is chosen by leaving one SOC level out (the rows from the rest
 before its first pulse to the end of its relaxation), fitting the others and measuring the
 left-out rows after refitting only the nuisance offsets there, over a log grid of weights
-(:func:`ecmgen.fit.curve_levels.choose_penalty`); the search then runs again at that weight.
+(:func:`ecmgen.fit.curve_levels.choose_penalty`); the resistances are then solved again at
+that weight, at the time constants the search found (:func:`_fit_time_constants`).
 
 Time constants the test can show: tau_fast not shorter than the sampling in the pulses, the
 slow and diffusion ones not longer than the longest relaxation after a current change. A
@@ -563,10 +564,18 @@ def _pulse_sampling_s(series: TimeSeries, complete) -> float:
     return float(np.median(dt)) if dt.size else 0.0
 
 
-def _solve_at(prob: _Problem, kinds, taus: dict):
-    """The resistances at given time constants (r0 held as after the search)."""
-    z = side_by_side([prob.r0w] + [prob.block(k, taus[k]) for k in kinds])
+def _solve_at(prob: _Problem, kinds, taus: dict, z: np.ndarray | None = None):
+    """The resistances at given time constants (r0 held as after the search); ``z``: their
+    weighted design columns, if already built."""
+    if z is None:
+        z = side_by_side([prob.r0w] + [prob.block(k, taus[k]) for k in kinds])
     return prob.solve(z.T @ z, z.T @ prob.yw, prob.layout(kinds), hold_r0=True)
+
+
+def _on_bound(taus: dict, ranges: dict) -> list[str]:
+    """The branches whose time constant ended within 1 % of a search bound."""
+    return [k for k in ranges
+            if taus[k] <= ranges[k][0] * 1.01 or taus[k] >= ranges[k][1] / 1.01]
 
 
 def _fit_time_constants(prob: _Problem, ranges: dict, progress=None):
@@ -589,9 +598,8 @@ def _fit_time_constants(prob: _Problem, ranges: dict, progress=None):
     prob.cv_sse = errors.get(lam, float("inf")) if errors else float("inf")
     if lam != prob.penalty:
         prob.penalty = lam
-        x, cost = _solve_at(prob, kinds, taus)
-    on_bound = [k for k in ranges
-                if taus[k] <= ranges[k][0] * 1.01 or taus[k] >= ranges[k][1] / 1.01]
+        x, cost = _solve_at(prob, kinds, taus, z)
+    on_bound = _on_bound(taus, ranges)
     if "diff" in on_bound:
         notes.append(f"curve: the diffusion pair's tau_diff {taus['diff']:.3g} s went to its "
                      f"bound ({ranges['diff'][0]:.3g} .. {ranges['diff'][1]:.3g} s): the test "
@@ -603,8 +611,7 @@ def _fit_time_constants(prob: _Problem, ranges: dict, progress=None):
         x, cost = _solve_at(prob, list(ranges), taus)
         notes.extend(more)
         n_eval += n2
-        on_bound = [k for k in ranges
-                    if taus[k] <= ranges[k][0] * 1.01 or taus[k] >= ranges[k][1] / 1.01]
+        on_bound = _on_bound(taus, ranges)
     for k in on_bound:
         lo, hi = ranges[k]
         notes.append(f"curve: tau_{k} {taus[k]:.3g} s is on its search bound ({lo:.3g} .. "
