@@ -1,0 +1,73 @@
+"""The joint smoothing refit of the five-point fits (ecmgen.fit.smooth): known truth."""
+
+import numpy as np
+
+from ecmgen.fit.lm import fit_lm
+from ecmgen.fit.points import _prepare, default_bounds
+from ecmgen.fit.smooth import _Direction, smooth_point_fit
+
+T_S = np.array([0.1, 1.0, 3.0, 6.0, 10.0])
+
+
+def _truth(soc):
+    r0 = 0.020 + 0.010 * (1 - soc) ** 2
+    rf = 0.004 + 0.004 * (1 - soc)
+    rs = 0.006 + 0.002 * soc
+    return r0, rf, 1.5 + 0 * soc, rs, 25.0 + 0 * soc
+
+
+def _rows(noise_ohm: float, seed: int = 0):
+    soc = np.linspace(0.1, 0.95, 10)
+    r0, rf, tf, rs, ts = _truth(soc)
+    t = T_S[None, :]
+    r = r0[:, None] + rf[:, None] * (1 - np.exp(-t / tf[:, None])) + \
+        rs[:, None] * (1 - np.exp(-t / ts[:, None]))
+    r = r + np.random.default_rng(seed).normal(0.0, noise_ohm, r.shape)
+    return soc, np.array(["discharge"] * soc.size), r
+
+
+def _roughness(p):
+    lp = np.log(p)
+    return float(np.max(np.abs(lp[1:-1] - 0.5 * (lp[:-2] + lp[2:]))))
+
+
+def test_jacobian_matches_finite_differences():
+    soc, _, r = _rows(2e-5)
+    r[3, 0] = 0.001          # a row whose R0 barrier is active
+    data = _prepare(T_S, r)
+    prob = _Direction(data, np.arange(soc.size), soc, default_bounds(T_S, r))
+    x = np.log(np.tile([1.0, 15.0, 0.003, 0.005], soc.size))
+    x += np.random.default_rng(1).normal(0.0, 0.1, x.size)
+    w = np.ones(soc.size)
+    w[4] = 0.0
+    jac = prob.jacobian(x, 0.3, w)
+    eps = 1e-7
+    num = np.column_stack([(prob.residual(x + eps * e, 0.3, w) - prob.residual(x - eps * e, 0.3, w))
+                           / (2 * eps) for e in np.eye(x.size)])
+    assert np.max(np.abs(jac - num)) < 1e-6 * max(1.0, np.max(np.abs(jac)))
+
+
+def test_smoothing_recovers_smooth_tables_from_noisy_levels():
+    soc, direction, r = _rows(4e-5)
+    raw = fit_lm(T_S, r)
+    fit, notes = smooth_point_fit(T_S, r, soc, direction, raw)
+    assert notes and "leave one level out" in notes[0]
+    r0, rf, tf, rs, ts = _truth(soc)
+    for p in (fit.r0_ohm, fit.r_fast_ohm, fit.r_slow_ohm, fit.tau_fast_s, fit.tau_slow_s):
+        assert np.all(p > 0)
+        assert _roughness(p) < 0.35
+    # the exactly determined per-level fit is rougher than the joint one
+    assert max(_roughness(raw.r_fast_ohm), _roughness(raw.tau_slow_s)) > \
+        max(_roughness(fit.r_fast_ohm), _roughness(fit.tau_slow_s))
+    assert np.allclose(fit.r0_ohm, r0, rtol=0.05)
+    total = fit.r_fast_ohm + fit.r_slow_ohm * (1 - np.exp(-10.0 / fit.tau_slow_s))
+    want = rf + rs * (1 - np.exp(-10.0 / ts))
+    assert np.allclose(total, want, rtol=0.1)
+
+
+def test_smoothing_is_deterministic():
+    soc, direction, r = _rows(4e-5, seed=3)
+    raw = fit_lm(T_S, r)
+    a, _ = smooth_point_fit(T_S, r, soc, direction, raw)
+    b, _ = smooth_point_fit(T_S, r, soc, direction, raw)
+    assert np.array_equal(a.r_slow_ohm, b.r_slow_ohm)
