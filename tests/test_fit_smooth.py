@@ -60,6 +60,7 @@ def test_smoothing_recovers_smooth_tables_from_noisy_levels():
     assert max(_roughness(raw.r_fast_ohm), _roughness(raw.tau_slow_s)) > \
         max(_roughness(fit.r_fast_ohm), _roughness(fit.tau_slow_s))
     assert np.allclose(fit.r0_ohm, r0, rtol=0.05)
+    assert np.all(fit.tau_fast_s < fit.tau_slow_s)
     total = fit.r_fast_ohm + fit.r_slow_ohm * (1 - np.exp(-10.0 / fit.tau_slow_s))
     want = rf + rs * (1 - np.exp(-10.0 / ts))
     assert np.allclose(total, want, rtol=0.1)

@@ -163,6 +163,10 @@ def smooth_point_fit(t_s, r_ohm, soc, direction, fit: PointFit,
         x_full = {lam: prob.solve(x0, lam, ones) for lam in SMOOTHING}
         lam = _choose(prob, x_full)
         tf, ts, rf, rs = prob.parts(x_full[lam])
+        # the two branches are interchangeable in the curve: name the faster one fast
+        swap = tf > ts
+        tf, ts = np.where(swap, ts, tf), np.where(swap, tf, ts)
+        rf, rs = np.where(swap, rs, rf), np.where(swap, rf, rs)
         for key, v in zip(("tau_fast_s", "tau_slow_s", "r_fast_ohm", "r_slow_ohm"),
                           (tf, ts, rf, rs)):
             out[key][ix] = v
