@@ -168,6 +168,7 @@ class BuildConfig:
     # data.temperature_c: the cell temperature (degC) of files without a temperature
     # column, one for all or resolved file -> degC
     temperature_c: float | dict[Path, float] | None = None
+    dynamic: bool = False         # data.dynamic: ``pulses`` is a dynamic test (its blocks)
 
     def window_for(self, path: Path) -> tuple[float, float] | None:
         """The time window (s, the file's own time axis) for a validation file, if any."""
@@ -386,11 +387,15 @@ def _load_config(path: Path) -> BuildConfig:
 
     pulses = _file(base, data, "pulses", path)
     dcir = _file(base, data, "dcir", path)
+    dynamic = _file(base, data, "dynamic", path)
     several = "pulse_tests" in data
-    if (pulses is not None) + (dcir is not None) + several != 1:
+    if (pulses is not None) + (dcir is not None) + (dynamic is not None) + several != 1:
         raise InputError(path, "give exactly one of data.pulses (a pulse test), "
-                               "[[data.pulse_tests]] (pulse tests at several temperatures) "
-                               "or data.dcir (a soc,direction,c_rate,t_s,r_ohm table)")
+                               "[[data.pulse_tests]] (pulse tests at several temperatures), "
+                               "data.dynamic (a drive profile with rests) or data.dcir (a "
+                               "soc,direction,c_rate,t_s,r_ohm table)")
+    if dynamic is not None:         # read and fitted as the pulse test is, by its blocks
+        pulses = dynamic
     if several and "pulses_soc0" in data:
         raise InputError(path, "data.pulses_soc0 goes with data.pulses; give soc0 in each "
                                "[[data.pulse_tests]] table")
@@ -447,9 +452,14 @@ def _load_config(path: Path) -> BuildConfig:
 
     # the whole-curve fit needs the pulse test itself, a DC-IR table is not enough
     has_pulses = pulses is not None or several
-    methods = fit.get("methods", list(METHODS) if has_pulses else ["ga", "lm"])
+    methods = fit.get("methods", (["curve"] if dynamic is not None else list(METHODS))
+                      if has_pulses else ["ga", "lm"])
     if not isinstance(methods, list) or not methods or any(m not in METHODS for m in methods):
         raise InputError(path, f"fit.methods must be a non-empty list from {list(METHODS)}")
+    if dynamic is not None and methods != ["curve"]:
+        # ga and lm fit DC-IR points of pulse edges from rest; a drive profile has none
+        raise InputError(path, "fit.methods: a dynamic test (data.dynamic) is fitted by the "
+                               "curve method only (ga and lm need the pulses of a pulse test)")
     if "curve" in methods and not has_pulses:
         raise InputError(path, "fit method \"curve\" needs the pulse test (data.pulses), "
                                "not only a DC-IR table")
@@ -504,7 +514,7 @@ def _load_config(path: Path) -> BuildConfig:
     known = [pulses, ocv, _file(base, data, "cycle", path), *extra_paths,
              *(p for t in pulse_tests for p in (t.file, t.steps, t.ocv))]
     return BuildConfig(
-        path=path, capacity_ah=capacity, pulses=pulses, dcir=dcir,
+        path=path, capacity_ah=capacity, pulses=pulses, dcir=dcir, dynamic=dynamic is not None,
         pulses_soc0=_number(data, "pulses_soc0", path, "data", None, unit_interval=True),
         pulse_tests=pulse_tests,
         ocv=ocv, ocv_soc0=_number(data, "ocv_soc0", path, "data", unit_interval=True),

@@ -4,7 +4,7 @@ default and meaning, in one table.
 ecmgen.config (the loader) checks a config against it first: unknown sections and keys
 are refused in every section, with the nearest known name ("did you mean"), and each
 value's type and range are checked here, so that the loader is left with what ties keys
-together (exactly one of data.pulses / data.dcir / [[data.pulse_tests]], fit.best among
+together (exactly one of data.pulses / data.dynamic / data.dcir / [[data.pulse_tests]], fit.best among
 fit.methods, files that exist). ``ecmgen config --explain`` prints :func:`reference`,
 and the README's config reference is that same text (a test keeps them equal).
 
@@ -67,7 +67,12 @@ SECTIONS: tuple[Section, ...] = (
             required=True),
     )),
     Section("data", "the measurement files (paths relative to the config)", (
-        Key("pulses", FILE, "a pulse/HPPC test (or data.dcir, or [[data.pulse_tests]])"),
+        Key("pulses", FILE, "a pulse/HPPC test (or data.dcir, data.dynamic, or "
+            "[[data.pulse_tests]])"),
+        Key("dynamic", FILE, "a dynamic test instead of a pulse test: a drive profile in "
+            "blocks with rests of 300 s or more between them; the rests give the SOC levels, "
+            "the blocks and their relaxations the RC tables (fit method curve only; start "
+            "SOC as data.pulses_soc0, \"pulses\" in data.ocv means its rests)"),
         Key("dcir", FILE, "a soc,direction,c_rate,t_s,r_ohm table instead of a pulse test"),
         Key("pulses_soc0", NUMBER, "SOC at the start of the pulse test", range=SOC,
             unit="SOC", default="from all its rests against the OCV, else 1.0"),
@@ -144,7 +149,8 @@ SECTIONS: tuple[Section, ...] = (
     )),
     Section("fit", "the fits", (
         Key("methods", CHOICES, "the methods fitted", choices=METHODS,
-            default='["ga", "lm", "curve"] (["ga", "lm"] with data.dcir)'),
+            default='["ga", "lm", "curve"] (["ga", "lm"] with data.dcir, ["curve"] with '
+            'data.dynamic)'),
         Key("seed", INTEGER, "the GA's random seed", range=(0, 2**63 - 1), default="0"),
         Key("relax_s", NUMBER, "at most this much relaxation after each pulse in the "
             "whole-test fit", unit="s", range=(1e-6, 1e7), default="1800"),
