@@ -177,10 +177,11 @@ class BuildConfig:
             return w.get(Path(path).resolve())
         return w
 
-    def temperature_for(self, path: Path) -> float | None:
+    def temperature_for(self, path: Path) -> float | Path | None:
         """The configured cell temperature of a file without a temperature column: its
-        entry in data.temperature_c, data.temperature_c itself, or the temperature_c of
-        the [[data.pulse_tests]] table it belongs to (None: none given)."""
+        entry in data.temperature_c (a number, or the Path of its time-stamped temperature
+        log), data.temperature_c itself, or the temperature_c of the [[data.pulse_tests]]
+        table it belongs to (None: none given)."""
         p = Path(path).resolve()
         t = self.temperature_c
         if isinstance(t, dict):
@@ -197,7 +198,9 @@ class BuildConfig:
         files = [self.path, self.pulses, self.dcir, self.ocv, self.cycle, *self.extra_cycles,
                  *(p for p in self.ocv_sources if p != "pulses"),
                  *(self.cycle_window_s if isinstance(self.cycle_window_s, dict) else ()),
-                 *(self.temperature_c if isinstance(self.temperature_c, dict) else ())]
+                 *(self.temperature_c if isinstance(self.temperature_c, dict) else ()),
+                 *(v for v in (self.temperature_c.values() if isinstance(
+                     self.temperature_c, dict) else ()) if isinstance(v, Path))]
         for t in self.pulse_tests:
             files += [t.file, t.steps, t.ocv]
         judge = (self.raw.get("diagnose") or {}).get("judge") if isinstance(
@@ -310,9 +313,13 @@ def _temperatures(data: dict, base: Path, path: Path, known: list[Path]):
     temps = {}
     for name, t in value.items():
         where = f"data.temperature_c.{name!r}"
+        if isinstance(t, str) and t:        # a time-stamped temperature log of that file
+            temps[_named_file(name, base, path, "data.temperature_c", known)] = \
+                _file(base, {name: t}, name, path, "data.temperature_c")
+            continue
         if isinstance(t, bool) or not isinstance(t, (int, float)) or not lo <= t <= hi:
-            raise InputError(path, f"{where} must be a temperature in {lo:g}..{hi:g} degC, "
-                                   f"got {t!r}")
+            raise InputError(path, f"{where} must be a temperature in {lo:g}..{hi:g} degC "
+                                   f"or a temperature log (a file name), got {t!r}")
         temps[_named_file(name, base, path, "data.temperature_c", known)] = float(t)
     return temps
 

@@ -97,7 +97,9 @@ SECTIONS: tuple[Section, ...] = (
             "name of one file of the config)", unit="s",
             range=(-1e12, 1e12)),
         Key("temperature_c", f"{NUMBER}|{TABLE}", "the cell temperature of files without a "
-            "temperature column, or per file: {\"us06.csv\" = 25} (a pulse test's own "
+            "temperature column, or per file: {\"us06.csv\" = 25}, or a time-stamped log "
+            "on the file's clock: {\"us06.csv\" = \"us06-temp.csv\"} (time and temp "
+            "columns by name; a log without times is refused) (a pulse test's own "
             "temperature_c applies to its files)", unit="degC", range=TEMPERATURE_C,
             default="the file's column"),
         Key("columns", TABLE, "column mapping of CSVs from other cyclers: [data.columns]"),

@@ -86,7 +86,11 @@ def read_series(cfg: BuildConfig, path: Path, role: str = "") -> TimeSeries:
     columns = ColumnMap.for_file(cfg.columns, roles, cfg.path, path)
     series = read_timeseries(path, columns, capacity_ah=cfg.capacity_ah)
     temp = cfg.temperature_for(path) if series.temperature_c is None else None
-    if temp is not None:
+    if isinstance(temp, Path):
+        from .data.templog import with_temperature_log
+
+        series = with_temperature_log(series, temp)
+    elif temp is not None:
         series = replace(series, temperature_c=np.full(len(series), temp),
                          notes=series.notes + (f"no temperature column: the cell taken to "
                                                f"be at {temp:g} degC (the config's "

@@ -50,6 +50,13 @@ def dynamic_levels(series: TimeSeries, capacity_ah: float, soc0: float, times_s
             f"more, starting at SOC {max(socs):.3f} .. {min(socs):.3f}: one SOC level each"
             + (f" ({cut} cut short by the voltage limit: rows, not levels)" if cut else "")
             + "; no DC-IR table")
+    levels = sum(not p.cut_short for p in blocks)
+    if levels < 3:
+        # a drive cycle run through without long rests (the Panasonic US06 from full to
+        # empty) is one level: tables constant over SOC, r0 and r_fast then trade freely
+        note += (f"; warning: only {levels} level{'s' if levels != 1 else ''}, the tables "
+                 "cannot follow SOC (a test with rests of "
+                 f"{MIN_OCV_REST_S:g} s or more between its blocks gives one level a block)")
     return blocks, table, note
 
 
