@@ -132,3 +132,24 @@ def test_a123_model_from_the_ocv_scripts_and_the_dynamic_test(tmp_path):
         series = read_series(cfg, A123 / "dyn_data" / f"A123_DYN_50_P25_{run}.csv", "cycle")
         mae[run] = validate(model, series, soc0=soc0).soc_above_10.mae_v
     assert mae["s1"] < 0.015 and mae["s3"] < 0.07, mae
+
+
+def test_a_pulse_test_entry_may_be_a_dynamic_test(tmp_path):
+    """Dynamic tests at several temperatures: one [[data.pulse_tests]] entry each, with
+    dynamic = true; their one-test configs read them as data.dynamic does."""
+    from ecmgen.config import load_config
+    from ecmgen.pipeline import pulse_test_config
+
+    for name in ("a.csv", "b.csv"):
+        (tmp_path / name).write_text("time_s,current_a,voltage_v\n0,0,3.3\n")
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[cell]\ncapacity_ah = 2\n'
+                   '[[data.pulse_tests]]\nfile = "a.csv"\ntemperature_c = 25\ndynamic = true\n'
+                   '[[data.pulse_tests]]\nfile = "b.csv"\ntemperature_c = 0\ndynamic = true\n')
+    got = load_config(cfg)
+    assert got.methods == ("curve",) and all(t.dynamic for t in got.pulse_tests)
+    assert pulse_test_config(got, got.pulse_tests[1]).dynamic
+    cfg.write_text(cfg.read_text() + '[fit]\nmethods = ["lm"]\n')
+    with pytest.raises(Exception) as exc:
+        load_config(cfg)
+    assert "curve method only" in str(exc.value)

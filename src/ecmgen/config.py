@@ -224,6 +224,7 @@ class PulseTest:
     temperature_c: float | None   # None: the median cell temperature during its pulses
     steps: Path | None            # the SOC-step record between its pulse sets, if any
     ocv: Path | None              # None: from its own rests
+    dynamic: bool = False         # a dynamic test (as data.dynamic), not a pulse test
 
 
 def _table(d: dict, key: str, path: Path) -> dict:
@@ -351,7 +352,7 @@ def _pulse_tests(data: dict, base: Path, path: Path, ocv: Path | None
         test = PulseTest(file=file, soc0=_number(entry, "soc0", path, where,
                                                  unit_interval=True),
                          temperature_c=temp, steps=_file(base, entry, "steps", path, where),
-                         ocv=test_ocv)
+                         ocv=test_ocv, dynamic=entry.get("dynamic", False))
         for k, other in enumerate(tests, 1):
             if other.file == file:
                 raise InputError(path, f"{where} names the same file as "
@@ -459,14 +460,16 @@ def _load_config(path: Path) -> BuildConfig:
 
     # the whole-curve fit needs the pulse test itself, a DC-IR table is not enough
     has_pulses = pulses is not None or several
-    methods = fit.get("methods", (["curve"] if dynamic is not None else list(METHODS))
+    any_dynamic = dynamic is not None or any(t.dynamic for t in pulse_tests)
+    methods = fit.get("methods", (["curve"] if any_dynamic else list(METHODS))
                       if has_pulses else ["ga", "lm"])
     if not isinstance(methods, list) or not methods or any(m not in METHODS for m in methods):
         raise InputError(path, f"fit.methods must be a non-empty list from {list(METHODS)}")
-    if dynamic is not None and methods != ["curve"]:
+    if any_dynamic and methods != ["curve"]:
         # ga and lm fit DC-IR points of pulse edges from rest; a drive profile has none
-        raise InputError(path, "fit.methods: a dynamic test (data.dynamic) is fitted by the "
-                               "curve method only (ga and lm need the pulses of a pulse test)")
+        raise InputError(path, "fit.methods: a dynamic test (data.dynamic, or dynamic = true "
+                               "in [[data.pulse_tests]]) is fitted by the curve method only "
+                               "(ga and lm need the pulses of a pulse test)")
     if "curve" in methods and not has_pulses:
         raise InputError(path, "fit method \"curve\" needs the pulse test (data.pulses), "
                                "not only a DC-IR table")

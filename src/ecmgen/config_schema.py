@@ -112,6 +112,8 @@ SECTIONS: tuple[Section, ...] = (
             range=TEMPERATURE_C, default="the median cell temperature in its pulses"),
         Key("steps", FILE, "the SOC steps between its pulse sets, logged apart"),
         Key("ocv", FILE, "this test's OCV (a file, or \"pulses\")", default="data.ocv"),
+        Key("dynamic", BOOL, "the file is a dynamic test, as data.dynamic (its table "
+            "temperature: the median cell temperature in its blocks)", default="false"),
     ), array=True),
     Section("data.columns", "CSV columns, units and current sign (every CSV of the "
             "config; [data.columns.<role>] extends it for one role's files: "

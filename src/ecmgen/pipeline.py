@@ -358,7 +358,7 @@ def pulse_test_config(cfg: BuildConfig, test: PulseTest) -> BuildConfig:
     own = test.ocv != cfg.ocv
     sources = (("pulses",) if test.ocv is None else (test.ocv,)) if own else cfg.ocv_sources
     return replace(cfg, pulses=test.file, pulses_soc0=test.soc0, ocv=test.ocv,
-                   ocv_sources=sources, pulse_tests=(test,))
+                   ocv_sources=sources, pulse_tests=(test,), dynamic=test.dynamic)
 
 
 def pulses_temperature_c(inputs: Inputs) -> float | None:
