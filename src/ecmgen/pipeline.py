@@ -313,6 +313,7 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
                               diffusion=branches, steps=inputs.steps,
                               relax_s=cfg.relax_s,
                               direction_deadband_a=common["direction_deadband_a"],
+                              blocks_both_ways=cfg.dynamic,
                               **(DYNAMIC_TAU_RANGES if cfg.dynamic else {}))
         flags = curve_fit_flags(cf, float(relax.max()) if relax.size else None)
         raw["flags"]["curve"] = flags
