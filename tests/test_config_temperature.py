@@ -189,3 +189,52 @@ def test_cycle_window_key_may_name_a_file_by_its_base_name(folder):
                                                   'cycle_window_s = {"us06.csv" = [0, 1]}') +
                              _test("a.csv")))
     assert cfg.window_for(sub / "us06.csv") == (0.0, 1.0)
+
+
+# ------------------------------------------------------------ a separate temperature log
+
+def _record(path, n=5):
+    rows = "".join(f"{10 + k},0,3.7\n" for k in range(n))
+    path.write_text("time_s,current_a,voltage_v\n" + rows)
+    return path
+
+
+def test_temperature_from_a_time_stamped_log(folder):
+    """A thermocouple logged apart from the cycler, with its own time stamps on the same
+    clock: interpolated onto the record; where the record runs past the log, its end
+    value is held and said. A pulse test's temperature is then the median in its pulses."""
+    from ecmgen.pipeline import read_series
+
+    _record(folder / "cycle.csv")
+    (folder / "cycle-temp.csv").write_text("Time (s),Temp (degC)\n10,20\n12,22\n13,23\n")
+    cfg = load_config(_write(folder, HEAD + 'temperature_c = {"cycle.csv" = '
+                                            '"cycle-temp.csv"}\n' + _test("a.csv")))
+    assert cfg.temperature_for(folder / "cycle.csv") == folder / "cycle-temp.csv"
+    assert folder / "cycle-temp.csv" in cfg.input_files()
+    series = read_series(cfg, folder / "cycle.csv", "cycle")
+    assert series.temperature_c.tolist() == [20.0, 21.0, 22.0, 23.0, 23.0]
+    assert any("cycle-temp.csv" in n and "20.0 % of the record lies beyond" in n
+               for n in series.notes)
+
+
+@pytest.mark.parametrize("log, words", [
+    # the Leaf's thermocouple files: values with no time column
+    ("Temperature_1,Temperature_2\n25.1,25.3\n25.2,25.4\n",
+     ["no time column", "cannot be placed on the record's clock"]),
+    ("time_s,voltage_v\n10,3.7\n11,3.7\n", ["no temperature column"]),
+    ("time_s,temperature_c\n1e9,25\n1.1e9,26\n", ["do not overlap", "same clock"]),
+    ("time_s,temperature_c\n10,warm\n", ["line 2: not a number"]),
+])
+def test_bad_temperature_logs_are_one_line(folder, log, words, capsys):
+    _record(folder / "cycle.csv")
+    (folder / "t.csv").write_text(log)
+    cfg = _write(folder, '[cell]\ncapacity_ah = 2.9\n[data]\ndcir = "dcir.csv"\n'
+                         'ocv = "ocv.csv"\ncycle = "cycle.csv"\n'
+                         'temperature_c = {"cycle.csv" = "t.csv"}\n')
+    (folder / "dcir.csv").write_text("soc,direction,t_s,r_ohm\n0.5,discharge,1,0.02\n")
+    from ecmgen.pipeline import read_series
+
+    with pytest.raises(InputError) as exc:
+        read_series(load_config(cfg), folder / "cycle.csv", "cycle")
+    msg = str(exc.value)
+    assert "t.csv" in msg and "\n" not in msg and all(w in msg for w in words), msg

@@ -212,3 +212,22 @@ def test_merge_first_source_over_its_span_the_next_beyond_it_shifted():
     assert not any("held flat" in n for n in notes)
     only, notes1, _ = merge_curves([a])
     assert any("measured SOC span 0.15..0.90; held flat beyond it" in n for n in notes1)
+
+
+@pytest.mark.parametrize("offset_v, warned", [(0.005, False), (0.045, False), (0.17, True)])
+def test_a_filling_source_far_from_the_first_where_they_meet_is_warned(offset_v, warned):
+    """Before: a low-rate file 170-250 mV from the rests where they meet (the Leaf's
+    cycling file against its 25 degC rests) filled the SOC below them without a warning.
+    Measured at the joint (data.ocv.JOINT_WARN_V): Panasonic 25 degC C/20 against the 25 /
+    0 / -10 / -20 degC rests 19 / 44 / 49 / 74 mV, the Leaf 173 mV."""
+    from ecmgen.data.ocv import GRID, OcvCurve, merge_curves
+
+    f = lambda s: 3.0 + 1.2 * s  # noqa: E731
+    inner = GRID[12:]
+    a = OcvCurve("pulses", inner, f(inner) + offset_v)
+    b = OcvCurve("cycling.csv", GRID.copy(), f(GRID))
+    _, notes, _ = merge_curves([a, b])
+    fill = next(n for n in notes if "from cycling.csv" in n)
+    assert ("warning" in fill) == warned, fill
+    if warned:
+        assert f"{offset_v * 1e3:.0f} mV from pulses" in fill and "below SOC 0.12" in fill

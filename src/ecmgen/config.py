@@ -168,6 +168,7 @@ class BuildConfig:
     # data.temperature_c: the cell temperature (degC) of files without a temperature
     # column, one for all or resolved file -> degC
     temperature_c: float | dict[Path, float] | None = None
+    dynamic: bool = False         # data.dynamic: ``pulses`` is a dynamic test (its blocks)
 
     def window_for(self, path: Path) -> tuple[float, float] | None:
         """The time window (s, the file's own time axis) for a validation file, if any."""
@@ -176,10 +177,11 @@ class BuildConfig:
             return w.get(Path(path).resolve())
         return w
 
-    def temperature_for(self, path: Path) -> float | None:
+    def temperature_for(self, path: Path) -> float | Path | None:
         """The configured cell temperature of a file without a temperature column: its
-        entry in data.temperature_c, data.temperature_c itself, or the temperature_c of
-        the [[data.pulse_tests]] table it belongs to (None: none given)."""
+        entry in data.temperature_c (a number, or the Path of its time-stamped temperature
+        log), data.temperature_c itself, or the temperature_c of the [[data.pulse_tests]]
+        table it belongs to (None: none given)."""
         p = Path(path).resolve()
         t = self.temperature_c
         if isinstance(t, dict):
@@ -196,7 +198,9 @@ class BuildConfig:
         files = [self.path, self.pulses, self.dcir, self.ocv, self.cycle, *self.extra_cycles,
                  *(p for p in self.ocv_sources if p != "pulses"),
                  *(self.cycle_window_s if isinstance(self.cycle_window_s, dict) else ()),
-                 *(self.temperature_c if isinstance(self.temperature_c, dict) else ())]
+                 *(self.temperature_c if isinstance(self.temperature_c, dict) else ()),
+                 *(v for v in (self.temperature_c.values() if isinstance(
+                     self.temperature_c, dict) else ()) if isinstance(v, Path))]
         for t in self.pulse_tests:
             files += [t.file, t.steps, t.ocv]
         judge = (self.raw.get("diagnose") or {}).get("judge") if isinstance(
@@ -220,6 +224,7 @@ class PulseTest:
     temperature_c: float | None   # None: the median cell temperature during its pulses
     steps: Path | None            # the SOC-step record between its pulse sets, if any
     ocv: Path | None              # None: from its own rests
+    dynamic: bool = False         # a dynamic test (as data.dynamic), not a pulse test
 
 
 def _table(d: dict, key: str, path: Path) -> dict:
@@ -309,9 +314,13 @@ def _temperatures(data: dict, base: Path, path: Path, known: list[Path]):
     temps = {}
     for name, t in value.items():
         where = f"data.temperature_c.{name!r}"
+        if isinstance(t, str) and t:        # a time-stamped temperature log of that file
+            temps[_named_file(name, base, path, "data.temperature_c", known)] = \
+                _file(base, {name: t}, name, path, "data.temperature_c")
+            continue
         if isinstance(t, bool) or not isinstance(t, (int, float)) or not lo <= t <= hi:
-            raise InputError(path, f"{where} must be a temperature in {lo:g}..{hi:g} degC, "
-                                   f"got {t!r}")
+            raise InputError(path, f"{where} must be a temperature in {lo:g}..{hi:g} degC "
+                                   f"or a temperature log (a file name), got {t!r}")
         temps[_named_file(name, base, path, "data.temperature_c", known)] = float(t)
     return temps
 
@@ -343,7 +352,7 @@ def _pulse_tests(data: dict, base: Path, path: Path, ocv: Path | None
         test = PulseTest(file=file, soc0=_number(entry, "soc0", path, where,
                                                  unit_interval=True),
                          temperature_c=temp, steps=_file(base, entry, "steps", path, where),
-                         ocv=test_ocv)
+                         ocv=test_ocv, dynamic=entry.get("dynamic", False))
         for k, other in enumerate(tests, 1):
             if other.file == file:
                 raise InputError(path, f"{where} names the same file as "
@@ -386,11 +395,15 @@ def _load_config(path: Path) -> BuildConfig:
 
     pulses = _file(base, data, "pulses", path)
     dcir = _file(base, data, "dcir", path)
+    dynamic = _file(base, data, "dynamic", path)
     several = "pulse_tests" in data
-    if (pulses is not None) + (dcir is not None) + several != 1:
+    if (pulses is not None) + (dcir is not None) + (dynamic is not None) + several != 1:
         raise InputError(path, "give exactly one of data.pulses (a pulse test), "
-                               "[[data.pulse_tests]] (pulse tests at several temperatures) "
-                               "or data.dcir (a soc,direction,c_rate,t_s,r_ohm table)")
+                               "[[data.pulse_tests]] (pulse tests at several temperatures), "
+                               "data.dynamic (a drive profile with rests) or data.dcir (a "
+                               "soc,direction,c_rate,t_s,r_ohm table)")
+    if dynamic is not None:         # read and fitted as the pulse test is, by its blocks
+        pulses = dynamic
     if several and "pulses_soc0" in data:
         raise InputError(path, "data.pulses_soc0 goes with data.pulses; give soc0 in each "
                                "[[data.pulse_tests]] table")
@@ -447,9 +460,16 @@ def _load_config(path: Path) -> BuildConfig:
 
     # the whole-curve fit needs the pulse test itself, a DC-IR table is not enough
     has_pulses = pulses is not None or several
-    methods = fit.get("methods", list(METHODS) if has_pulses else ["ga", "lm"])
+    any_dynamic = dynamic is not None or any(t.dynamic for t in pulse_tests)
+    methods = fit.get("methods", (["curve"] if any_dynamic else list(METHODS))
+                      if has_pulses else ["ga", "lm"])
     if not isinstance(methods, list) or not methods or any(m not in METHODS for m in methods):
         raise InputError(path, f"fit.methods must be a non-empty list from {list(METHODS)}")
+    if any_dynamic and methods != ["curve"]:
+        # ga and lm fit DC-IR points of pulse edges from rest; a drive profile has none
+        raise InputError(path, "fit.methods: a dynamic test (data.dynamic, or dynamic = true "
+                               "in [[data.pulse_tests]]) is fitted by the curve method only "
+                               "(ga and lm need the pulses of a pulse test)")
     if "curve" in methods and not has_pulses:
         raise InputError(path, "fit method \"curve\" needs the pulse test (data.pulses), "
                                "not only a DC-IR table")
@@ -504,7 +524,7 @@ def _load_config(path: Path) -> BuildConfig:
     known = [pulses, ocv, _file(base, data, "cycle", path), *extra_paths,
              *(p for t in pulse_tests for p in (t.file, t.steps, t.ocv))]
     return BuildConfig(
-        path=path, capacity_ah=capacity, pulses=pulses, dcir=dcir,
+        path=path, capacity_ah=capacity, pulses=pulses, dcir=dcir, dynamic=dynamic is not None,
         pulses_soc0=_number(data, "pulses_soc0", path, "data", None, unit_interval=True),
         pulse_tests=pulse_tests,
         ocv=ocv, ocv_soc0=_number(data, "ocv_soc0", path, "data", unit_interval=True),

@@ -4,7 +4,7 @@ default and meaning, in one table.
 ecmgen.config (the loader) checks a config against it first: unknown sections and keys
 are refused in every section, with the nearest known name ("did you mean"), and each
 value's type and range are checked here, so that the loader is left with what ties keys
-together (exactly one of data.pulses / data.dcir / [[data.pulse_tests]], fit.best among
+together (exactly one of data.pulses / data.dynamic / data.dcir / [[data.pulse_tests]], fit.best among
 fit.methods, files that exist). ``ecmgen config --explain`` prints :func:`reference`,
 and the README's config reference is that same text (a test keeps them equal).
 
@@ -67,7 +67,12 @@ SECTIONS: tuple[Section, ...] = (
             required=True),
     )),
     Section("data", "the measurement files (paths relative to the config)", (
-        Key("pulses", FILE, "a pulse/HPPC test (or data.dcir, or [[data.pulse_tests]])"),
+        Key("pulses", FILE, "a pulse/HPPC test (or data.dcir, data.dynamic, or "
+            "[[data.pulse_tests]])"),
+        Key("dynamic", FILE, "a dynamic test instead of a pulse test: a drive profile in "
+            "blocks with rests of 300 s or more between them; the rests give the SOC levels, "
+            "the blocks and their relaxations the RC tables (fit method curve only; start "
+            "SOC as data.pulses_soc0, \"pulses\" in data.ocv means its rests)"),
         Key("dcir", FILE, "a soc,direction,c_rate,t_s,r_ohm table instead of a pulse test"),
         Key("pulses_soc0", NUMBER, "SOC at the start of the pulse test", range=SOC,
             unit="SOC", default="from all its rests against the OCV, else 1.0"),
@@ -92,7 +97,9 @@ SECTIONS: tuple[Section, ...] = (
             "name of one file of the config)", unit="s",
             range=(-1e12, 1e12)),
         Key("temperature_c", f"{NUMBER}|{TABLE}", "the cell temperature of files without a "
-            "temperature column, or per file: {\"us06.csv\" = 25} (a pulse test's own "
+            "temperature column, or per file: {\"us06.csv\" = 25}, or a time-stamped log "
+            "on the file's clock: {\"us06.csv\" = \"us06-temp.csv\"} (time and temp "
+            "columns by name; a log without times is refused) (a pulse test's own "
             "temperature_c applies to its files)", unit="degC", range=TEMPERATURE_C,
             default="the file's column"),
         Key("columns", TABLE, "column mapping of CSVs from other cyclers: [data.columns]"),
@@ -105,6 +112,8 @@ SECTIONS: tuple[Section, ...] = (
             range=TEMPERATURE_C, default="the median cell temperature in its pulses"),
         Key("steps", FILE, "the SOC steps between its pulse sets, logged apart"),
         Key("ocv", FILE, "this test's OCV (a file, or \"pulses\")", default="data.ocv"),
+        Key("dynamic", BOOL, "the file is a dynamic test, as data.dynamic (its table "
+            "temperature: the median cell temperature in its blocks)", default="false"),
     ), array=True),
     Section("data.columns", "CSV columns, units and current sign (every CSV of the "
             "config; [data.columns.<role>] extends it for one role's files: "
@@ -144,7 +153,8 @@ SECTIONS: tuple[Section, ...] = (
     )),
     Section("fit", "the fits", (
         Key("methods", CHOICES, "the methods fitted", choices=METHODS,
-            default='["ga", "lm", "curve"] (["ga", "lm"] with data.dcir)'),
+            default='["ga", "lm", "curve"] (["ga", "lm"] with data.dcir, ["curve"] with '
+            'data.dynamic)'),
         Key("seed", INTEGER, "the GA's random seed", range=(0, 2**63 - 1), default="0"),
         Key("relax_s", NUMBER, "at most this much relaxation after each pulse in the "
             "whole-test fit", unit="s", range=(1e-6, 1e7), default="1800"),

@@ -20,6 +20,7 @@ import numpy as np
 
 from .config import COLUMN_ROLE_FALLBACK, WINDOW_ROLES, BuildConfig, PulseTest
 from .data import dcir as dcir_mod
+from .data.dynamic import dynamic_levels
 from .data.measure import ColumnMap, TimeSeries, read_timeseries
 from .data import ocv as ocv_mod
 from .data.ocv import OcvTable
@@ -85,7 +86,11 @@ def read_series(cfg: BuildConfig, path: Path, role: str = "") -> TimeSeries:
     columns = ColumnMap.for_file(cfg.columns, roles, cfg.path, path)
     series = read_timeseries(path, columns, capacity_ah=cfg.capacity_ah)
     temp = cfg.temperature_for(path) if series.temperature_c is None else None
-    if temp is not None:
+    if isinstance(temp, Path):
+        from .data.templog import with_temperature_log
+
+        series = with_temperature_log(series, temp)
+    elif temp is not None:
         series = replace(series, temperature_c=np.full(len(series), temp),
                          notes=series.notes + (f"no temperature column: the cell taken to "
                                                f"be at {temp:g} degC (the config's "
@@ -191,12 +196,17 @@ def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
         soc0, n, q_axis = pulse_test_soc0(cfg, series, rests, reference, cfg.pulses_soc0)
         if n:
             notes.append(n)
-        pulses = tuple(dcir_mod.find_pulses(series, q_axis, soc0=soc0,
-                                            min_rest_s=cfg.min_rest_s,
-                                            max_pulse_s=cfg.max_pulse_s))
-        table = dcir_mod.extract_dcir(series, list(pulses), cfg.times_s).measured_times()
-        notes.extend(table.notes)
-        progress(f"{len(pulses)} pulses, {len(table)} DC-IR rows")
+        if cfg.dynamic:
+            pulses, table, n = dynamic_levels(series, q_axis, soc0, cfg.times_s)
+            notes.append(n)
+            progress(n)
+        else:
+            pulses = tuple(dcir_mod.find_pulses(series, q_axis, soc0=soc0,
+                                                min_rest_s=cfg.min_rest_s,
+                                                max_pulse_s=cfg.max_pulse_s))
+            table = dcir_mod.extract_dcir(series, list(pulses), cfg.times_s).measured_times()
+            notes.extend(table.notes)
+            progress(f"{len(pulses)} pulses, {len(table)} DC-IR rows")
     else:
         table = dcir_mod.read_dcir_csv(cfg.dcir)
         records.append(InputRecord("dcir", cfg.dcir.name, file_sha256(cfg.dcir)))
@@ -291,11 +301,14 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
         raw["point_fits"] = fits
     if "curve" in cfg.methods:
         from .fit.curve import fit_pulse_curves
+        from .data.dynamic import DYNAMIC_TAU_RANGES
         from .fit.rate import fit_exchange_current
 
         # the diffusion pair and the Butler-Volmer fast branch: [fit] curve_branches
         branches = cfg.curve_branches
-        bv = fit_exchange_current(inputs.dcir, inputs.capacity_ah) if branches else None
+        # i0 comes from the C-rates of pulses at one level: a dynamic test has no DC-IR
+        bv = fit_exchange_current(inputs.dcir, inputs.capacity_ah) \
+            if branches and len(inputs.dcir) else None
         relax = dcir_mod.relaxation_s(inputs.pulses_series,
                                       [p for p in inputs.pulses if not p.cut_short], cfg.relax_s)
         progress(f"whole-test fit of the pulse test ({len(inputs.pulses)} pulses, "
@@ -305,7 +318,9 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
                               inputs.soc_capacity_ah or inputs.capacity_ah, i0_a=bv.i0_a if bv else None,
                               diffusion=branches, steps=inputs.steps,
                               relax_s=cfg.relax_s,
-                              direction_deadband_a=common["direction_deadband_a"])
+                              direction_deadband_a=common["direction_deadband_a"],
+                              blocks_both_ways=cfg.dynamic,
+                              **(DYNAMIC_TAU_RANGES if cfg.dynamic else {}))
         flags = curve_fit_flags(cf, float(relax.max()) if relax.size else None)
         raw["flags"]["curve"] = flags
         model = EcmModel(charge=RcTable(**cf.rc_columns("charge")),
@@ -350,7 +365,7 @@ def pulse_test_config(cfg: BuildConfig, test: PulseTest) -> BuildConfig:
     own = test.ocv != cfg.ocv
     sources = (("pulses",) if test.ocv is None else (test.ocv,)) if own else cfg.ocv_sources
     return replace(cfg, pulses=test.file, pulses_soc0=test.soc0, ocv=test.ocv,
-                   ocv_sources=sources, pulse_tests=(test,))
+                   ocv_sources=sources, pulse_tests=(test,), dynamic=test.dynamic)
 
 
 def pulses_temperature_c(inputs: Inputs) -> float | None:

@@ -39,6 +39,12 @@ GRID = np.linspace(0.0, 1.0, 101)
 # given by the user may be flat in places: an LFP plateau rounded to 1 mV)
 MIN_SLOPE_V_PER_SOC = 1e-4
 MIN_OCV_REST_S = 300.0      # a rest this long gives a rested (OCV) voltage
+# a source filling past the first one that meets it further off than this is warned about:
+# measured at the joint with the Panasonic 25 degC C/20 file, 19 / 44 / 49 / 74 mV from the
+# 25 / 0 / -10 / -20 degC tests' rests (the same cell; the cold ones at another
+# temperature), 173 mV for the Leaf's cycling file against its 25 degC rests (a cycle at
+# an unlabelled ambient)
+JOINT_WARN_V = 0.05
 FLAT_WINDOW_SOC = 0.5       # an OCV rising less than FLAT_RISE_V over half the SOC
 FLAT_RISE_V = 0.005         # range carries no SOC information (LFP plateaus: >= 40 mV)
 # The OCV cross-check warns above this RMS difference from the pulse test's rested
@@ -416,13 +422,26 @@ def merge_curves(curves: list[OcvCurve]) -> tuple[OcvTable, list[str], np.ndarra
             notes.append(f"OCV: SOC {span[0]:.2f}..{span[-1]:.2f} from {c.name}"
                          + (f", shifted by {shift * 1e3:+.1f} mV at SOC {GRID[joint]:.2f} to "
                             f"meet {curves[0].name}, the shift fading to none at SOC "
-                            f"{GRID[far]:.2f}" if abs(shift) >= 5e-5 else ""))
+                            f"{GRID[far]:.2f}" if abs(shift) >= 5e-5 else "")
+                         + _joint_warning(shift, c.name, curves[0].name, side, GRID[joint]))
     ok = np.flatnonzero(np.isfinite(v))
     lo, hi = GRID[ok[0]], GRID[ok[-1]]
     table = _monotone(GRID[ok], v[ok])
     if lo > 0.005 or hi < 0.995:
         notes.append(f"OCV: measured SOC span {lo:.2f}..{hi:.2f}; held flat beyond it")
     return table, notes, origin
+
+
+def _joint_warning(shift_v: float, name: str, first: str, side: str, soc: float) -> str:
+    """The words of a warning when a source filling past the first one meets it
+    ``shift_v`` away: more than JOINT_WARN_V, it is not the same cell state's OCV
+    (another temperature, age or cycle) and its filled part is a guess."""
+    if abs(shift_v) <= JOINT_WARN_V:
+        return ""
+    return (f"; warning: {name} is {abs(shift_v) * 1e3:.0f} mV from {first} where they meet "
+            f"(more than {JOINT_WARN_V * 1e3:g} mV: another temperature, age or cycle?), so "
+            f"the OCV {side} SOC {soc:.2f} is a guess: check data.ocv_cycle / "
+            "data.ocv_branch, or leave the file out (the OCV is then held flat there)")
 
 
 def check_not_flat(table: OcvTable, source, origin=None, sources=()) -> None:

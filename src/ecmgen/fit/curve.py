@@ -106,6 +106,8 @@ SLOW_START = 0.02          # grid start favouring slow dynamics: objective tilt 
 NM_EVALS = 60              # exact evaluations per local refinement
 SPAN_MARGIN = 0.01         # rows this far (SOC) beyond the pulses' own SOC still count
 R0_MIN_RATES = 3           # a level pins r0 when its complete pulses span this many C-rates
+BOTH_WAYS_SHARE = 0.1      # a dynamic test's blocks are levels of a direction that moves this
+                           # share of their charge (a drive profile's regen)
 
 
 @dataclass(frozen=True)
@@ -403,7 +405,8 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
                      tau_slow_s: tuple[float, float] = (5.0, 500.0),
                      tau_diff_s: tuple[float, float] = (150.0, 3000.0),
                      soc_nodes: np.ndarray = SOC_NODES,
-                     direction_deadband_a: float | None = None, progress=None) -> CurveFit:
+                     direction_deadband_a: float | None = None, progress=None,
+                     blocks_both_ways: bool = False) -> CurveFit:
     """Fit one pulse test as a whole (module docstring): the curve method.
 
     series, pulses   the pulse test and its pulses (:func:`ecmgen.data.dcir.find_pulses`;
@@ -417,6 +420,10 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
     relax_s          rest rows up to this long after each current change
     tau_*_s          search ranges (s); the fit keeps tau_fast < tau_slow < tau_diff
     progress         called as progress(done, total)
+    blocks_both_ways the pulses are blocks of a dynamic test (:mod:`ecmgen.data.dynamic`):
+                     each is a level of both directions where the record runs both ways
+                     (:func:`_both_ways`), and the OCV offsets are not split by the last
+                     current's direction (a drive profile flips it every few seconds)
     """
     if i0_a is not None and not (np.isfinite(i0_a) and i0_a > 0):
         raise ValueError(f"i0_a must be positive, got {i0_a!r}")
@@ -438,8 +445,12 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
     if steps is not None:
         record, n = merge_soc_steps(series, steps)
         notes.extend(n)
-    directions = tuple(d for d in DIRECTIONS if any(p.direction == d for p in complete))
     deadband = 0.01 * capacity_ah if direction_deadband_a is None else direction_deadband_a
+    blocks = complete
+    if blocks_both_ways:
+        complete, n = _both_ways(complete, series, deadband)
+        notes.extend(n)
+    directions = tuple(d for d in DIRECTIONS if any(p.direction == d for p in complete))
     rec = pulse_record(record, soc0, ocv, capacity_ah, directions=directions,
                        deadband_a=deadband, relax_s=relax_s, rows_per_decade=rows_per_decade,
                        min_weight_s=min_weight_s)
@@ -447,7 +458,7 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
     notes.extend(n)
     spans = _r0_spans(complete, directions)
     prob, got, n = _fit_problem(rec, complete, directions, capacity_ah, i0_a, spans, ranges,
-                                series, progress)
+                                series, progress, may_split=not blocks_both_ways)
     notes.extend(n)
     taus, x, cost, n_eval, search_notes, ranges = got
     notes.extend(search_notes)
@@ -477,12 +488,12 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
                     float(taus["fast"]), float(taus["slow"]),
                     float(taus["diff"]) if diffusion else None, i0_a, rms,
                     int(prob.rows.size), tuple(notes),
-                    _windows(series, complete, rec, fitted), dict(ranges),
+                    _windows(series, blocks, rec, fitted), dict(ranges),
                     float(rec.rest_used_s))
 
 
 def _fit_problem(rec: Record, complete, directions, capacity_ah: float, i0_a, spans: dict,
-                 ranges: dict, series: TimeSeries, progress=None):
+                 ranges: dict, series: TimeSeries, progress=None, may_split: bool = True):
     """The linear problem of the record and its fit (:func:`_fit_time_constants`), with the
     OCV offsets at the levels or also half-way between them (a SOC move passes where the
     OCV table is interpolated between the rests, and its curvature there must not go into
@@ -497,7 +508,8 @@ def _fit_problem(rec: Record, complete, directions, capacity_ah: float, i0_a, sp
             max(max(ends), max(p.soc for p in complete)) + SPAN_MARGIN)
     # a correction per direction of the last current needs the current dependence (two
     # C-rates at a level) to tell it from r0 i
-    split = all(len({p.c_rate for p in complete if p.direction == d}) >= 2 for d in directions)
+    split = may_split and all(len({p.c_rate for p in complete if p.direction == d}) >= 2
+                              for d in directions)
     fits = []
     for nodes_ocv in _ocv_node_sets(ocv_nodes):
         prob = _Problem(rec, bases, nodes_ocv, i0_a, spans, levels, split_ocv=split,
@@ -548,6 +560,32 @@ def _direction_fits(prob: _Problem, x: np.ndarray, kinds, nodes: np.ndarray, com
         err = _node_error(rec, prob, fitted, nodes, rec.dir_mask[d], rms)
         fits[d] = DirectionFit(r0, rf, rs, rd, err, ident)
     return fits
+
+
+def _both_ways(blocks, series: TimeSeries, deadband_a: float,
+               min_share: float = BOTH_WAYS_SHARE) -> tuple[list, list[str]]:
+    """A dynamic test's blocks as levels of both directions, when the samples under current
+    of the blocks run the other way than their net charge for at least ``min_share`` of
+    the charge they move (a drive profile's regen): each direction's tables are then free
+    at every block. Returns (the levels, notes)."""
+    from dataclasses import replace
+
+    from ..data.measure import charging_direction
+
+    i, dt = series.current_a, np.diff(series.time_s, prepend=series.time_s[0])
+    ix = np.concatenate([np.arange(p.start, p.stop) for p in blocks])
+    charging = charging_direction(i[ix], deadband_a)
+    moved = np.abs(i[ix]) * dt[ix]
+    share = {d: float(moved[m].sum() / max(moved.sum(), 1e-300))
+             for d, m in (("charge", charging), ("discharge", ~charging))}
+    have = {p.direction for p in blocks}
+    add = [d for d in DIRECTIONS if d not in have and share[d] >= min_share]
+    if not add:
+        return blocks, []
+    other = [replace(p, direction=d) for d in add for p in blocks]
+    return blocks + other, [f"curve: the blocks run both ways ({100 * share[add[0]]:.0f} % of "
+                            f"their charge moved on {add[0]}): each direction's tables are "
+                            "free at every block"]
 
 
 def _ocv_node_sets(nodes: np.ndarray) -> list[np.ndarray]:
