@@ -282,8 +282,7 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
             progress("Levenberg-Marquardt fit (casadi Jacobian, multi-start)")
             fits["lm"] = fit_lm(rows.t_s, rows.r_ohm)
         for m in point_methods:
-            # one level's five points fix its four parameters exactly: the levels are
-            # refitted together with a smoothness penalty chosen by leaving one out
+            # five points fix a level's four parameters exactly: smoothed over the levels
             fits[m], smooth_notes = smooth_point_fit(rows.t_s, rows.r_ohm, rows.soc,
                                                      rows.direction, fits[m])
             f = fits[m]
@@ -296,8 +295,8 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
             raw["flags"][m] = flags
             model = EcmModel(charge=ch, discharge=dis, method=m, **common)
             n3 += flag_notes(flags) + model_span_notes(model, _copied(n2))
-            models[m] = replace(model, notes=inputs.notes + tuple(n) + tuple(smooth_notes) +
-                                tuple(n2) + tuple(n3))
+            n3 = smooth_notes + n2 + n3
+            models[m] = replace(model, notes=inputs.notes + tuple(n) + tuple(n3))
         raw["point_fits"] = fits
     if "curve" in cfg.methods:
         from .fit.curve import fit_pulse_curves
