@@ -55,6 +55,9 @@ class EstimatorConfig:
     # RC-state process noise, fraction of the branch's steady voltage r |i|: chosen
     # leave-one-cycle-out on the same cycles (the smallest meeting issue 10's targets)
     polarization_error: float = 1.5
+    # the RC voltages at the first sample are unknown (a record may start under load or
+    # mid-relaxation): 1 sigma of each is its resistance times this current, in C
+    start_polarization_c: float = 1.0
 
     def __post_init__(self):
         if self.filter not in ESTIMATOR_FILTERS:

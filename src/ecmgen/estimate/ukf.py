@@ -59,11 +59,11 @@ class Ukf(Filter):
         X, Z = np.array(X), np.array(Z)
         xm, zm = X.mean(axis=0), float(Z.mean())
         dX, dZ = X - xm, Z - zm
-        q = np.array(process_noise(sm, self.noise, aux_mean, dt))
+        q = np.array(process_noise(sm, self.noise, aux_mean, dt, self.first))
         P = dX.T @ dX / (2 * n)
         P[np.diag_indices(n)] += q
         ocv = sm.ocv(float(xm[0]), tw_ocv)[0]
-        R = self.noise.measurement_variance(zm, ocv, dt, self.first)
+        R = self.noise.measurement_variance(zm, ocv, dt)
         self.first = False
         self.charging = charging
         if R > 0.0:
