@@ -44,6 +44,9 @@ GUESS_OFFSETS = (-0.2, 0.2)
 OFFSET_A, GAIN = 0.029, 1.01
 LOAD_A, REST_A = 0.5, 0.05
 MIN_LEFT_S = 2000.0                    # a cut needs this much record (within 2 % after 1800 s)
+# the [estimator] settings for a start anywhere (chosen on CHOOSE, docs/estimator.md);
+# --rested runs the defaults (a record taken to start rested) instead
+ANY_START = dict(polarization_error=0.2, start_polarization_c=0.5)
 
 
 def cycle_path(folder: str, name: str) -> Path:
@@ -126,13 +129,15 @@ def main() -> int:
     p.add_argument("--starts", type=float, nargs="+", default=list(STARTS))
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="an [estimator] setting for this run (e.g. model_error=0.2)")
+    p.add_argument("--rested", action="store_true",
+                   help="the default settings (a rested start) instead of ANY_START")
     p.add_argument("--only", nargs="+", metavar="FOLDER",
                    help="only these temperature folders (e.g. 25degC 0degC)")
     p.add_argument("--json", help="write every cut's figures here")
     args = p.parse_args()
 
     model = load_model(args.model)
-    cfg = EstimatorConfig()
+    cfg = EstimatorConfig() if args.rested else EstimatorConfig(**ANY_START)
     for kv in args.set:
         k, v = kv.split("=", 1)
         cfg = replace(cfg, **{k: type(getattr(cfg, k))(v) if not isinstance(getattr(cfg, k), bool)

@@ -19,8 +19,8 @@
  *       slope: a_x = 1 - c_x, a_h = 1 - c_h, the step's own coefficients), P = F P F^T + Q;
  *   at the first sample Q also carries the RC voltages' start variance (r_j start_a)^2;
  *   H = [dOCV/dsoc + dr0/dsoc g f i, 1, 1 (, 1) (, 1) (, m_v)], R from the model error and
- *       its correlation time from the first sample on (R = 0: the sample carries no
- *       information, e.g. dt = 0); the resistances and their SOC slopes times the effects' factors
+ *       its correlation time (R = 0: the sample carries no information, e.g. dt = 0; but
+ *       with start_a = 0 the first sample counts fully, the cell taken rested); the resistances and their SOC slopes times the effects' factors
  *       (current_dependent_resistance g on r0 and r_fast, temperature_dependence f on r0,
  *       r_fast and r_slow, as the step);
  *   K = P H^T / (H P H^T + R), iterated (relinearised at the updated SOC, at most 5 times)
@@ -638,7 +638,6 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
         e = m->x_r * nz->start_a;
         q[ECMRT_EST_IX] = q[ECMRT_EST_IX] + e * e;
 #endif
-        *first = 0u;
     }
     /* 2. P = F P F^T + Q (F: diagonal a, SOC column f, offset column o) */
     ECMRT_EST_UNROLL
@@ -689,9 +688,11 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 #endif
     e = nz->model_error * (vp - p.ocv);
     r = nz->vn2 + e * e;
-    if (dt < nz->corr_s) {
+    /* a record taken to start rested (start_a = 0): its first sample counts fully */
+    if (!(*first && nz->start_a == 0.0f) && dt < nz->corr_s) {
         r = dt > 0.0f ? r * (nz->corr_s / dt) : 0.0f;
     }
+    *first = 0u;
     if (!(vm >= -ECMRT_EST_V_MAX && vm <= ECMRT_EST_V_MAX)) {
         r = 0.0f;                                     /* no measurement (NaN, inf, absurd) */
     }

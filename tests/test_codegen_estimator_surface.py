@@ -69,10 +69,7 @@ def test_jacobians_are_those_of_the_c_step(case):
     differences of the generated C step (the state before sample k perturbed): F = d
     state' / d state, H F = d v / d state but for u_diff (see below)."""
     m = surface_est_model(case)
-    # a rested start (start_polarization_c 0): the Jacobians do not depend on the start, and
-    # the skip above bounds the surface SOC by the u_diff of a trajectory that starts at rest
-    cm = _compiled(m, "sj", EstimatorConfig(offset_state=case.endswith("offset"),
-                                            start_polarization_c=0.0))
+    cm = _compiled(m, "sj", EstimatorConfig(offset_state=case.endswith("offset")))
     est = cm.estimator
     t, i, temp, dt, ref = jacobian_run(m, cm)
     N = est.n

@@ -468,7 +468,6 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
                 if r_ is not None:
                     e = r_ * nz["start_a"]
                     q[s_] = q[s_] + e * e
-            first = False
         fp = [[a[r] * P[r][c] + f[r] * P[0][c] for c in range(N)] for r in range(N)]
         if off:
             fp = [[fp[r][c] + o[r] * P[ib][c] for c in range(N)] for r in range(N)]
@@ -499,8 +498,9 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
             h_out[t] = h
         e = nz["model_error"] * (vp - pa["ocv"][0])
         R = nz["vn2"] + e * e
-        if dt < nz["corr_s"]:
+        if not (first and nz["start_a"] == ZERO) and dt < nz["corr_s"]:
             R = R * (nz["corr_s"] / dt) if dt > ZERO else ZERO
+        first = False
         vm = vm_all[t]
         if not (vm >= -V_MAX and vm <= V_MAX):
             R = ZERO

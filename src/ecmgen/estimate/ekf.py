@@ -31,14 +31,16 @@ Noise (:class:`NoiseModel`, from the ``[estimator]`` settings):
   in the cold and near empty, small at rest), and it is correlated over
   ``error_correlation_s``: one sample of length dt_k carries the information of
   dt_k / error_correlation_s independent samples, so R_k = sigma_k^2 * error_correlation_s
-  / dt_k (at least sigma_k^2; a sample with dt = 0 is skipped), from the first sample on:
-  one sample never sets the SOC.
-- Start: a record may start anywhere, under load or while the cell relaxes, so the RC
-  voltages are unknown at the first sample: besides ``u0_sigma_v`` each gets the variance
-  (r_j g_j start_current_a)^2 (``start_polarization_c`` times the capacity; the branch's
-  resistance at the first sample's SOC guess and temperature) as process noise of the
-  first step. The SOC sigma then stays as wide as the voltage cannot yet tell the SOC from
-  the polarisation, and narrows as the record shows the RC voltages' own dynamics.
+  / dt_k (at least sigma_k^2; a sample with dt = 0 is skipped).
+- Start (``start_polarization_c``): 0 (the default) takes a record to start from a rested
+  cell: the RC states start at 0 +- ``u0_sigma_v`` and the first sample counts fully
+  (R = sigma^2), its voltage being the OCV. Above 0 the record may start anywhere, under
+  load or while the cell relaxes: the RC voltages are unknown at the first sample (each
+  gets the variance (r_j g_j start_current_a)^2, start_current_a = start_polarization_c
+  times the capacity, the branch's resistance at the first sample's SOC guess and
+  temperature, as process noise of the first step) and R carries the error's correlation
+  from the first sample on, so one sample never sets the SOC; the SOC sigma stays as wide
+  as the voltage cannot yet tell the SOC from the polarisation.
   ``model_error`` and ``error_correlation_s`` are measured on validation cycles by
   :mod:`.residual`.
 """
@@ -85,11 +87,13 @@ class NoiseModel:
                           cfg.polarization_error, cfg.voltage_noise_v, cfg.model_error,
                           cfg.error_correlation_s, cfg.start_polarization_c * capacity_ah)
 
-    def measurement_variance(self, v_pred: float, ocv: float, dt: float) -> float:
-        """R_k, or 0.0 for a sample that carries no information (dt = 0)."""
+    def measurement_variance(self, v_pred: float, ocv: float, dt: float, first: bool
+                             ) -> float:
+        """R_k, or 0.0 for a sample that carries no information (dt = 0, but for the
+        first sample of a record taken to start rested)."""
         eta = self.model_error * (v_pred - ocv)
         var = self.voltage_noise_v * self.voltage_noise_v + eta * eta
-        if dt >= self.error_correlation_s:
+        if (first and self.start_current_a == 0.0) or dt >= self.error_correlation_s:
             return var
         if dt <= 0.0:
             return 0.0
@@ -176,9 +180,9 @@ class Ekf(Filter):
         F = np.array(F)
         P = F @ self.P @ F.T
         P[np.diag_indices(n)] += process_noise(sm, self.noise, aux, dt, self.first)
-        self.first = False
         v_pred, H, ocv = sm.measure(x, aux, tw, tw_ocv, tfac)
-        R = self.noise.measurement_variance(v_pred, ocv, dt)
+        R = self.noise.measurement_variance(v_pred, ocv, dt, self.first)
+        self.first = False
         if R > 0.0:
             x0 = np.array(x)
             H = np.array(H)
