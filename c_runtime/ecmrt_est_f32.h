@@ -17,9 +17,10 @@
  *   F = d step / d x at the state before the step (a_j = 1 - c_j on the diagonal, the SOC
  *       column through the tables' SOC slopes at the new SOC; u_x and h have no SOC
  *       slope: a_x = 1 - c_x, a_h = 1 - c_h, the step's own coefficients), P = F P F^T + Q;
+ *   at the first sample Q also carries the RC voltages' start variance (r_j start_a)^2;
  *   H = [dOCV/dsoc + dr0/dsoc g f i, 1, 1 (, 1) (, 1) (, m_v)], R from the model error and
- *       its correlation time (R = 0: the sample carries no information, e.g. dt = 0 after
- *       the first); the resistances and their SOC slopes times the effects' factors
+ *       its correlation time (R = 0: the sample carries no information, e.g. dt = 0; but
+ *       with start_a = 0 the first sample counts fully, the cell taken rested); the resistances and their SOC slopes times the effects' factors
  *       (current_dependent_resistance g on r0 and r_fast, temperature_dependence f on r0,
  *       r_fast and r_slow, as the step);
  *   K = P H^T / (H P H^T + R), iterated (relinearised at the updated SOC, at most 5 times)
@@ -92,6 +93,7 @@ typedef struct {
     float vn2;                /* voltage_noise_v^2, V^2 */
     float model_error;        /* model voltage error / model overpotential */
     float corr_s;             /* error_correlation_s */
+    float start_a;            /* the RC voltages' start sigma is r_j times this current, A */
 #if ECMRT_FX_HYST
     float p0_h;               /* hysteresis_sigma^2: h's initial variance and its noise scale */
 #endif
@@ -621,6 +623,22 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
             q[u] = 0.0f;
         }
     }
+    /* the first sample: the RC voltages are unknown (a record may start under load or
+     * mid-relaxation), sigma r_j start_a with the resistances at the start */
+    if (*first) {
+        e = rg * nz->start_a;
+        q[1] = q[1] + e * e;
+        e = p.rs * nz->start_a;
+        q[2] = q[2] + e * e;
+#if ECMRT_DIFF
+        e = rd * nz->start_a;
+        q[3] = q[3] + e * e;
+#endif
+#if ECMRT_FX_XRC
+        e = m->x_r * nz->start_a;
+        q[ECMRT_EST_IX] = q[ECMRT_EST_IX] + e * e;
+#endif
+    }
     /* 2. P = F P F^T + Q (F: diagonal a, SOC column f, offset column o) */
     ECMRT_EST_UNROLL
     for (u = 0u; u < N; u++) {
@@ -670,7 +688,8 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 #endif
     e = nz->model_error * (vp - p.ocv);
     r = nz->vn2 + e * e;
-    if (!*first && dt < nz->corr_s) {
+    /* a record taken to start rested (start_a = 0): its first sample counts fully */
+    if (!(*first && nz->start_a == 0.0f) && dt < nz->corr_s) {
         r = dt > 0.0f ? r * (nz->corr_s / dt) : 0.0f;
     }
     *first = 0u;

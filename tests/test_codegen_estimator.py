@@ -260,6 +260,30 @@ def test_real_cycle_slices_bit_identical(model, built, folder, name):
     _check(model, built, s.time_s[sl], seen[sl], s.voltage_v[sl], 0.5, s.temperature_c[sl])
 
 
+@pytest.mark.parametrize("first_dt", [0.0, 0.1])
+def test_a_loaded_first_sample_leaves_the_rc_voltages_unknown(model, built, first_dt):
+    """Started under load in the middle of a cycle with start_polarization_c > 0: the first
+    step gives every RC voltage the start variance (r_j start_a)^2, the first sample does
+    not set the SOC (dt = 0: no information; dt > 0: R with the error's correlation), C ==
+    float32 reference; the default (a rested start) counts the first sample fully."""
+    s = _cycle("25degC", "us06")
+    k0 = s.time_s.size // 2 + int(np.argmax(np.abs(s.current_a[s.time_s.size // 2:]) > 2.0))
+    sl = slice(k0, k0 + 300)
+    seen = SCENARIO["gain"] * s.current_a[sl] + SCENARIO["offset"]
+    dt = cref.dt_from_time(s.time_s[sl])
+    dt[0] = first_dt
+    args = (seen, dt, s.voltage_v[sl], 0.5, s.temperature_c[sl])
+    anywhere = compile_spec(built.spec, estimator=prepare_estimator(
+        model, built.spec, EstimatorConfig(start_polarization_c=0.5)))
+    got = run_estimator_c(anywhere, *args)
+    assert bits_equal(got, simulate_estimator_f32(anywhere.spec, anywhere.estimator, *args))
+    assert abs(float(got.soc[0]) - 0.5) < 0.01
+    rested = run_estimator_c(built, *args)
+    assert abs(float(rested.soc[0]) - 0.5) > 0.05          # the loaded voltage taken as OCV
+    p0_u = built.estimator.noise["p0_u"]
+    assert np.all(np.diagonal(got.p[0])[1:4] > np.diagonal(rested.p[0])[1:4] + 5 * p0_u)
+
+
 @pytest.mark.slow
 def test_whole_cycles_bit_identical(model, built):
     """Every shared cycle, whole, in issue 10's scenario: bit-identical at every step and

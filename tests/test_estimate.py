@@ -267,6 +267,12 @@ def test_known_truth_cell_is_tracked_within_its_sigma(filter_):
     assert inside.mean() > 0.9, (inside.mean(), np.abs(err[late]).max())
     assert np.abs(err[late]).max() < 0.05
     assert abs(err[0]) < 0.1           # the rested first sample tells the SOC at once
+    # started anywhere (start_polarization_c > 0), one sample does not set the SOC: the
+    # first, with dt = 0, carries no information; the sigma covers the error as it closes
+    est = run_filter(model, t, i, v, 0.6, replace(cfg, start_polarization_c=0.5), temp)
+    err = est.soc - soc_true
+    assert est.soc[0] == 0.6 and np.abs(err[300:]).max() < 0.05
+    assert np.mean(np.abs(err) <= 3.0 * est.soc_sigma) > 0.95
 
 
 def test_cholesky():
@@ -326,6 +332,31 @@ def test_cli_estimate_writes_the_csv_and_json(cycle_files):
                "--soc0", "0.9", "--temperature-c", "15")
     assert res.returncode == 0, res.stderr
     assert "coulomb counting" in res.stdout
+
+
+def test_cli_estimate_window_starts_mid_record(cycle_files):
+    """--window-s T0 T1: the filter starts at T0 (under load here) from --soc0-guess, the
+    reference from the true SOC there (--soc0 counted to T0); the JSON carries the sigma's
+    calibration against that reference."""
+    import json
+
+    out = cycle_files / "est.csv"
+    res = _cli("estimate", cycle_files / "model.json", cycle_files / "cycle.csv",
+               "--soc0", "0.9", "--window-s", "300", "1100", "--soc0-guess", "0.5",
+               "--out", out, "--json")
+    assert res.returncode == 0, res.stderr
+    doc = json.loads(res.stdout)
+    # 240 s at -3 A in the first 300 s (rest in minute 2): 0.9 - 720 As / (3600 * 2.9 Ah)
+    assert doc["soc0"] == pytest.approx(0.9 - 720.0 / (3600 * 2.9), abs=1e-3)
+    assert doc["window_s"] == [300.0, 1100.0] and doc["soc0_guess"] == 0.5
+    cal = doc["calibration"]
+    assert set(cal) == {"within_1_sigma", "within_2_sigma", "within_3_sigma", "nees"}
+    assert 0.0 <= cal["within_1_sigma"] <= cal["within_2_sigma"] <= cal["within_3_sigma"] <= 1
+    rows = out.read_text().splitlines()[1:]
+    assert float(rows[0].split(",")[0]) == 300.0 and float(rows[-1].split(",")[0]) == 1100.0
+    _, err = _cli_fails("estimate", cycle_files / "model.json", cycle_files / "cycle.csv",
+                        "--soc0", "0.9", "--window-s", "5000", "6000")
+    assert "cycle.csv" in err and "outside the record" in err
 
 
 def test_cli_estimate_config_settings_from_the_other_cycles(cycle_files):

@@ -240,6 +240,10 @@ def cmd_estimate(args) -> int:
         cfg = load_config(args.config)
         if out is not None:
             check_output_file(out, _given(cfg))
+        if args.window_s is not None:   # the option wins over data.cycle_window_s
+            from dataclasses import replace
+
+            cfg = replace(cfg, cycle_window_s=None)
         settings = cfg.estimator
         series = read_series(cfg, Path(args.cycle), "cycle")
         settings = _settings_from_validation(cfg, model, settings, Path(args.cycle))
@@ -257,6 +261,8 @@ def cmd_estimate(args) -> int:
             series = replace(series, temperature_c=np.full(series.time_s.size,
                                                            args.temperature_c))
         soc0 = initial_soc(model, series)
+    if args.window_s is not None:
+        series, soc0 = _window_start(model, series, soc0, args.window_s)
     guess = soc0 if args.soc0_guess is None else args.soc0_guess
     run = estimate_record(model, series, guess, soc0, settings,
                           current_offset_a=args.current_offset_a,
@@ -268,6 +274,7 @@ def cmd_estimate(args) -> int:
         print(json_text(estimate_json(run, soc0=soc0, soc0_guess=guess,
                                        current_offset_a=args.current_offset_a,
                                        current_gain=args.current_gain,
+                                       window_s=args.window_s,
                                        filter=settings.filter,
                                        settings=asdict(settings))))
     else:
@@ -278,6 +285,18 @@ def cmd_estimate(args) -> int:
               f"{cc.soc_rmse * 100:.2f} %, max {cc.soc_max_abs * 100:.2f} % "
               f"(soc0 {soc0:.4f}, guess {guess:.4f})")
     return 0
+
+
+def _window_start(model, series, soc0: float, window_s):
+    """The record cut to ``window_s`` and its true SOC at the window's first sample (the
+    measured current counted from ``soc0`` at the record's start): a mid-record start,
+    under load or mid-relaxation, as a BMS meets it after a reset."""
+    from .estimate.run import coulomb_count
+
+    cut = series.window(*window_s)
+    k0 = int(np.searchsorted(series.time_s, cut.time_s[0]))
+    ref = coulomb_count(model, series.time_s[:k0 + 1], series.current_a[:k0 + 1], soc0)
+    return cut, min(max(float(ref[-1]), 0.0), 1.0)
 
 
 def _settings_from_validation(cfg, model, settings, cycle: Path):
@@ -446,6 +465,10 @@ def parser() -> argparse.ArgumentParser:
                    help="override the config's estimator.filter (default ekf)")
     e.add_argument("--config", help="a build config: its [estimator] settings and the "
                    "[data.columns] of the cycle's CSV")
+    e.add_argument("--window-s", type=float, nargs=2, metavar=("T0", "T1"),
+                   help="start the filter at T0 (the file's own time) and run it to T1; "
+                        "--soc0 stays the SOC at the file's start, --soc0-guess is the "
+                        "guess at T0")
     e.add_argument("--out", help="write time_s,soc,soc_sigma,voltage_pred_v,soc_ref here")
     e.add_argument("--json", action="store_true")
     e.add_argument("--quiet", action="store_true", help="(no progress is shown anyway)")

@@ -55,6 +55,12 @@ class EstimatorConfig:
     # RC-state process noise, fraction of the branch's steady voltage r |i|: chosen
     # leave-one-cycle-out on the same cycles (the smallest meeting issue 10's targets)
     polarization_error: float = 1.5
+    # 0: a record starts from a rested cell (its first sample counts fully). Above 0 it may
+    # start anywhere (under load, mid-relaxation): the RC voltages start unknown, sigma r_j
+    # times this current in C, and no sample counts fully. For a start anywhere 0.5 with
+    # polarization_error 0.2 were chosen on the 25 and 0 degC cycles cut to start anywhere,
+    # -10 and -20 degC held out (bench/estimate_any_start.py, docs/estimator.md)
+    start_polarization_c: float = 0.0
 
     def __post_init__(self):
         if self.filter not in ESTIMATOR_FILTERS:

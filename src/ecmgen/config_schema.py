@@ -207,6 +207,9 @@ SECTIONS: tuple[Section, ...] = (
             unit="s", range=(1e-6, 1e9), default="800 (as model_error)"),
         Key("polarization_error", NUMBER, "RC-state process noise, fraction of r |i|",
             range=(0.0, 100.0), default="1.5"),
+        Key("start_polarization_c", NUMBER, "0: the record starts rested; above: it may "
+            "start anywhere, the RC voltages unknown within r times this current", unit="C",
+            range=(0.0, 100.0), default="0"),
     )),
     Section("diagnose", "ecmgen diagnose: missing effects found on data.cycle", (
         Key("judge", FILE, "a second cycle to judge on",

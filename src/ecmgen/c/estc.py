@@ -42,7 +42,8 @@ NOISE_FIELDS = (("p0_soc", "initial SOC variance, soc0_sigma^2"),
                 ("pol", "polarization_error (RC process noise)"),
                 ("vn2", "voltage_noise_v^2, V^2"),
                 ("model_error", "model voltage error / model overpotential"),
-                ("corr_s", "error_correlation_s, s"))
+                ("corr_s", "error_correlation_s, s"),
+                ("start_a", "the RC voltages' start sigma is r_j times this current, A"))
 # with a hysteresis effect (ECMRT_FX_HYST) only; with the offset state (ECMRT_EST_OFFSET) only
 HYST_FIELDS = (("p0_h", "hysteresis_sigma^2: h's initial variance and noise scale"),)
 OFFSET_FIELDS = (("p0_b", "offset_a^2: the offset state's initial variance, A^2"),)
@@ -99,6 +100,7 @@ def prepare_estimator(model, spec: CSpec, cfg: EstimatorConfig | None = None,
             "noise_a": nm.current_noise_a, "horizon_s": nm.drift_horizon_s,
             "pol": nm.polarization_error, "vn2": nm.voltage_noise_v ** 2,
             "model_error": nm.model_error, "corr_s": nm.error_correlation_s,
+            "start_a": nm.start_current_a,
             "p0_h": nm.hysteresis_sigma ** 2, "p0_b": nm.offset_sigma_a ** 2}
     # the states of ecmgen.estimate.process.state_layout, in its order
     names = (("soc", "u_fast_v", "u_slow_v") + (("u_diff_v",) if spec.diff else ())

@@ -462,6 +462,12 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
             q[0] = (e * e) * (dt * nz["horizon_s"]) + r * r
         else:
             q = [ZERO] * N
+        if first:                    # the RC voltages' start variance
+            for s_, r_ in ((1, rg), (2, rs_), (3, src["r_diff"][t] if diff else None),
+                           (ix, x_r if xrc else None)):
+                if r_ is not None:
+                    e = r_ * nz["start_a"]
+                    q[s_] = q[s_] + e * e
         fp = [[a[r] * P[r][c] + f[r] * P[0][c] for c in range(N)] for r in range(N)]
         if off:
             fp = [[fp[r][c] + o[r] * P[ib][c] for c in range(N)] for r in range(N)]
@@ -492,7 +498,7 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
             h_out[t] = h
         e = nz["model_error"] * (vp - pa["ocv"][0])
         R = nz["vn2"] + e * e
-        if not first and dt < nz["corr_s"]:
+        if not (first and nz["start_a"] == ZERO) and dt < nz["corr_s"]:
             R = R * (nz["corr_s"] / dt) if dt > ZERO else ZERO
         first = False
         vm = vm_all[t]

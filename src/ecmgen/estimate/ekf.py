@@ -31,9 +31,16 @@ Noise (:class:`NoiseModel`, from the ``[estimator]`` settings):
   in the cold and near empty, small at rest), and it is correlated over
   ``error_correlation_s``: one sample of length dt_k carries the information of
   dt_k / error_correlation_s independent samples, so R_k = sigma_k^2 * error_correlation_s
-  / dt_k (at least sigma_k^2; a sample with dt = 0 after the first is skipped). The first
-  sample counts fully (R = sigma^2): a record is taken to start from a rested cell (the
-  RC states start at 0 +- ``u0_sigma_v``), whose voltage is its OCV.
+  / dt_k (at least sigma_k^2; a sample with dt = 0 is skipped).
+- Start (``start_polarization_c``): 0 (the default) takes a record to start from a rested
+  cell: the RC states start at 0 +- ``u0_sigma_v`` and the first sample counts fully
+  (R = sigma^2), its voltage being the OCV. Above 0 the record may start anywhere, under
+  load or while the cell relaxes: the RC voltages are unknown at the first sample (each
+  gets the variance (r_j g_j start_current_a)^2, start_current_a = start_polarization_c
+  times the capacity, the branch's resistance at the first sample's SOC guess and
+  temperature, as process noise of the first step) and R carries the error's correlation
+  from the first sample on, so one sample never sets the SOC; the SOC sigma stays as wide
+  as the voltage cannot yet tell the SOC from the polarisation.
   ``model_error`` and ``error_correlation_s`` are measured on validation cycles by
   :mod:`.residual`.
 """
@@ -69,6 +76,7 @@ class NoiseModel:
     voltage_noise_v: float
     model_error: float
     error_correlation_s: float
+    start_current_a: float = 0.0   # the RC voltages' start sigma is r_j times this current
     hysteresis_sigma: float = 0.1
 
     @staticmethod
@@ -77,14 +85,15 @@ class NoiseModel:
         return NoiseModel(cfg.soc0_sigma, cfg.u0_sigma_v, offset,
                           cfg.current_gain_error, cfg.current_noise_a, cfg.drift_horizon_s,
                           cfg.polarization_error, cfg.voltage_noise_v, cfg.model_error,
-                          cfg.error_correlation_s)
+                          cfg.error_correlation_s, cfg.start_polarization_c * capacity_ah)
 
     def measurement_variance(self, v_pred: float, ocv: float, dt: float, first: bool
                              ) -> float:
-        """R_k, or 0.0 for a sample that carries no information (dt = 0 after the first)."""
+        """R_k, or 0.0 for a sample that carries no information (dt = 0, but for the
+        first sample of a record taken to start rested)."""
         eta = self.model_error * (v_pred - ocv)
         var = self.voltage_noise_v * self.voltage_noise_v + eta * eta
-        if first or dt >= self.error_correlation_s:
+        if (first and self.start_current_a == 0.0) or dt >= self.error_correlation_s:
             return var
         if dt <= 0.0:
             return 0.0
@@ -112,11 +121,13 @@ def initial_state(step: StepModel, soc0: float) -> list[float]:
     return x
 
 
-def process_noise(step: StepModel, noise: NoiseModel, aux, dt: float) -> list[float]:
-    """Diagonal Q_k of one step (``aux`` from :meth:`StepModel.predict`)."""
+def process_noise(step: StepModel, noise: NoiseModel, aux, dt: float, first: bool = False
+                  ) -> list[float]:
+    """Diagonal Q_k of one step (``aux`` from :meth:`StepModel.predict`); at the first
+    sample also the RC voltages' start variance (:func:`start_polarization`)."""
     q = [0.0] * step.n
     if dt <= 0.0:
-        return q
+        return start_polarization(noise, aux, q) if first else q
     i = aux.i
     k = dt * step.soc_per_as
     bias = noise.gain_sigma * abs(i) + (noise.offset_sigma_a if step.i_b < 0 else 0.0)
@@ -129,6 +140,17 @@ def process_noise(step: StepModel, noise: NoiseModel, aux, dt: float) -> list[fl
         q[step.i_h] = noise.hysteresis_sigma ** 2 * (1.0 - math.exp(-2.0 * c))  # 1 - a_h^2
     if step.i_b >= 0:
         q[step.i_b] = noise.offset_sigma_a ** 2 * dt / noise.drift_horizon_s
+    return start_polarization(noise, aux, q) if first else q
+
+
+def start_polarization(noise: NoiseModel, aux, q: list[float]) -> list[float]:
+    """Adds the RC voltages' start variance to ``q``: a record may start under load or
+    while the cell relaxes, so each branch voltage is unknown within what the branch
+    carries at ``start_current_a`` (sigma r_j g_j start_current_a, the resistances at the
+    first sample's SOC and temperature)."""
+    for s, _a, rg in aux.rc:
+        e = rg * noise.start_current_a
+        q[s] = q[s] + e * e
     return q
 
 
@@ -157,7 +179,7 @@ class Ekf(Filter):
                                               tw_ocv=tw_ocv)
         F = np.array(F)
         P = F @ self.P @ F.T
-        P[np.diag_indices(n)] += process_noise(sm, self.noise, aux, dt)
+        P[np.diag_indices(n)] += process_noise(sm, self.noise, aux, dt, self.first)
         v_pred, H, ocv = sm.measure(x, aux, tw, tw_ocv, tfac)
         R = self.noise.measurement_variance(v_pred, ocv, dt, self.first)
         self.first = False

@@ -155,8 +155,21 @@ def estimate_csv_text(run: EstimateRun) -> str:
     return "\n".join(rows) + "\n"
 
 
+def calibration(run: EstimateRun) -> dict:
+    """How honest the filter's SOC sigma is against the reference: the share of samples
+    with |error| <= 1, 2, 3 sigma (0.68, 0.95, 0.997 for an honest Gaussian sigma) and the
+    mean normalised squared error (NEES, 1 for an honest sigma; above 1: overconfident)."""
+    e = np.abs(run.estimate.soc - run.soc_ref)
+    z = e / np.maximum(run.estimate.soc_sigma, 1e-12)
+    return {"within_1_sigma": float(np.mean(z <= 1.0)),
+            "within_2_sigma": float(np.mean(z <= 2.0)),
+            "within_3_sigma": float(np.mean(z <= 3.0)),
+            "nees": float(np.mean(z * z))}
+
+
 def estimate_json(run: EstimateRun, **context) -> dict:
-    """The filter's SOC figures at the top level, plain coulomb counting's under
-    ``coulomb_counting``, and the run's context (start SOCs, sensor errors, filter)."""
-    return dict(run.filter.as_dict(), coulomb_counting=run.coulomb_counting.as_dict(),
-                **context)
+    """The filter's SOC figures at the top level, their sigma's calibration under
+    ``calibration``, plain coulomb counting's under ``coulomb_counting``, and the run's
+    context (start SOCs, sensor errors, filter)."""
+    return dict(run.filter.as_dict(), calibration=calibration(run),
+                coulomb_counting=run.coulomb_counting.as_dict(), **context)
