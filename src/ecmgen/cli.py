@@ -473,7 +473,7 @@ def parser() -> argparse.ArgumentParser:
 
     k = sub.add_parser("config", help="print the config reference (every section and key)")
     k.add_argument("--explain", action="store_true", help="every key: type, unit, range, "
-                   "default, meaning (markdown; the README's reference is this text)")
+                   "default, meaning (markdown; docs/config.md holds this text)")
     k.set_defaults(func=cmd_config)
     return p
 

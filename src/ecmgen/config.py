@@ -1,7 +1,7 @@
 """The build configuration (one TOML file; paths are relative to it): the loader.
 
 What each section and key means, its type, unit, range and default are the rows of
-ecmgen.config_schema (``ecmgen config --explain`` prints them; the README's reference is
+ecmgen.config_schema (``ecmgen config --explain`` prints them; docs/config.md's reference is
 that text). :func:`load_config` checks a config against the schema first (unknown keys,
 types, ranges), then what ties keys together: exactly one of data.pulses, data.dcir or
 [[data.pulse_tests]]; fit.best among fit.methods; the files it names exist; the C

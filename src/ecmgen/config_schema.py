@@ -6,7 +6,7 @@ are refused in every section, with the nearest known name ("did you mean"), and 
 value's type and range are checked here, so that the loader is left with what ties keys
 together (exactly one of data.pulses / data.dcir / [[data.pulse_tests]], fit.best among
 fit.methods, files that exist). ``ecmgen config --explain`` prints :func:`reference`,
-and the README's config reference is that same text (a test keeps them equal).
+and docs/config.md's reference is that same text (a test keeps them equal).
 
 A key added to the config is one row here (and its use in the loader). A small table of
 our own rather than pydantic or attrs+cattrs: the checks are types and ranges of a dozen

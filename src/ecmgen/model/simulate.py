@@ -45,6 +45,10 @@ from .model import RC_FIELDS, EcmModel
 from .rc import rc_recurrence
 
 
+# a current above this (A) is driving the cell; below it, a rest or a soak
+DRIVE_CURRENT_A = 0.05
+
+
 @dataclass(frozen=True)
 class SimResult:
     """Simulated trajectory, one value per input sample."""
@@ -290,10 +294,16 @@ class Validation:
 
     @property
     def temperature_range_c(self) -> tuple[float, float] | None:
-        """(min, max) cell temperature of the record, degC (None: no temperature)."""
+        """(min, max) cell temperature over the drive, degC: from the first to the last
+        sample under current, so that a soak or cool-down before it does not count (the
+        whole record when it never draws current; None: no temperature)."""
         if self.temperature_c is None:
             return None
-        return float(np.min(self.temperature_c)), float(np.max(self.temperature_c))
+        t = np.asarray(self.temperature_c)
+        driven = np.flatnonzero(np.abs(self.sim.current_a) > DRIVE_CURRENT_A)
+        if driven.size:
+            t = t[driven[0]:driven[-1] + 1]
+        return float(np.min(t)), float(np.max(t))
 
     @property
     def error_v(self) -> np.ndarray:
