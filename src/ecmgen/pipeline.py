@@ -23,6 +23,7 @@ from .data import dcir as dcir_mod
 from .data.measure import ColumnMap, TimeSeries, read_timeseries
 from .data import ocv as ocv_mod
 from .data.ocv import OcvTable
+from .console import detail_of
 from .errors import InputError
 from .files import file_sha256
 from .model.model import RC_FIELDS, EcmModel, InputRecord, RcTable
@@ -446,13 +447,14 @@ def fit_pulse_tests(cfg: BuildConfig, progress: Progress = _quiet,
     if workers.parallel:
         progress(f"fitting {n} pulse tests on {workers.processes} processes")
     tasks = [workers.submit(fit_pulse_test, cfg, k, plots) for k in range(n)]
+    detail = detail_of(progress)
     out = []
     try:
         for k, task in enumerate(tasks):
             label = f"pulse test {k + 1}"
-            fit = task.result(lambda msg: progress(f"[{label}] {msg}"))
-            progress(f"[{label}] {cfg.pulse_tests[k].file.name}: {fit.label}, fitted in "
-                     f"{fit.seconds:.1f} s")
+            fit = task.result(lambda msg: detail(f"[{label}] {msg}"))
+            detail(f"[{label}] {cfg.pulse_tests[k].file.name}: {fit.label}, fitted in "
+                   f"{fit.seconds:.1f} s")
             out.append(fit)
     except BaseException:
         workers.cancel(tasks)
@@ -581,9 +583,11 @@ def validate_all(cfg: BuildConfig, models: dict[str, EcmModel], progress: Progre
              for path, role, label in cycles]
     out: dict[str, dict[str, Validation]] = {m: {} for m in models}
     pngs: dict[str, bytes] = {}
+    if len(cycles) > 1:
+        progress(f"validating on {len(cycles)} cycles")
     try:
         for (_, _, label), task in zip(cycles, tasks):
-            vals, png = task.result(progress)
+            vals, png = task.result(detail_of(progress) if len(cycles) > 1 else progress)
             for m, v in vals.items():
                 out[m][label] = v
             if png is not None:
