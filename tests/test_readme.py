@@ -83,7 +83,8 @@ def test_your_own_cell_builds(tmp_path):
     assert main(["build", str(tmp_path / "cell.toml"), "--out", str(tmp_path / "my-cell"),
                  "-q", "--no-c", "--no-plots"]) == 0
     assert (tmp_path / "my-cell" / "model.json").is_file()
-    assert (tmp_path / "my-cell" / "report.md").is_file()
+    report = (tmp_path / "my-cell" / "report.md").read_text()
+    assert "## Verdict" in report and "MAE <= 50 mV on every cycle" in report
 
 
 @pytest.mark.skipif(shutil.which("cc") is None, reason="no host C compiler")

@@ -161,6 +161,7 @@ class BuildConfig:
     temperature_step_c: float = 5.0    # [model]: 0 = the measured breakpoints as they are
     warm_row_c: float | None = 45.0    # [model]: derived warm row (None: none)
     surface_soc_gain: float = 0.0      # [model]: lam of the surface SOC (0: off)
+    max_mae_mv: float = 50.0           # [report]: the validation verdict's threshold
     estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
     raw: dict = field(default_factory=dict, repr=False)
     # data.cycle_window_s: (t0, t1) for every validation file, or resolved file -> (t0, t1)
@@ -524,6 +525,8 @@ def _load_config(path: Path) -> BuildConfig:
         curve_branches=branches,
         temperature_step_c=step, warm_row_c=None if warm is False else warm,
         surface_soc_gain=gain,
+        max_mae_mv=_number(raw.get("report", {}), "max_mae_mv", path, "report", 50.0,
+                           positive=True),
         estimator=estimator_config(raw.get("estimator", {}), path),
         raw=raw, cycle_window_s=_cycle_windows(data, base, path, known),
         temperature_c=_temperatures(data, base, path, known))

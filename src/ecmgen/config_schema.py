@@ -162,6 +162,10 @@ SECTIONS: tuple[Section, ...] = (
         Key("surface_soc_gain", NUMBER, "the RC tables read at the surface SOC (models "
             "with the diffusion pair; 0: off)", range=(0.0, 10.0), default="0"),
     )),
+    Section("report", "the verdicts of report.md", (
+        Key("max_mae_mv", NUMBER, "the validation passes when model.json's MAE on every "
+            "cycle is at most this", unit="mV", range=(1e-3, 1e4), default="50"),
+    )),
     Section("c", "the generated C", (
         Key("prefix", TEXT, "symbol and file prefix: a C identifier of 1-32 characters, "
             "not beginning with ecmrt", default='"ecm"'),

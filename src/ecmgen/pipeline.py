@@ -375,10 +375,12 @@ def fit_pulse_test(cfg: BuildConfig, k: int, plots: bool = False,
         raise
     if plots:
         from .plots import fit_pngs, ocv_png
+        from .plotting import degrees
 
         t1 = time.perf_counter()
-        fit.pngs = fit_pngs(fit.raw, f"-{fit.label}")
-        fit.pngs[f"ocv-{fit.label}.png"] = ocv_png(fit.inputs)
+        at = degrees(fit.temperature_c)
+        fit.pngs = fit_pngs(fit.raw, f"-{fit.label}", at=at)
+        fit.pngs[f"ocv-{fit.label}.png"] = ocv_png(fit.inputs, at=at)
         fit.timings["plots"] = time.perf_counter() - t1
     fit.seconds = time.perf_counter() - t0
     return fit
@@ -661,10 +663,12 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
                 result.c_report = _write_c(cfg, result, staging, progress)
                 lap("c")
             if plots:
-                from .plots import fit_pngs, ocv_png
+                from .plots import fit_pngs, ocv_png, pulse_test_degrees
 
                 progress("writing plots")
-                pngs = dict(fit_pngs(raw), **{"ocv.png": ocv_png(inputs)}) if not tests else {}
+                at = pulse_test_degrees(inputs)
+                pngs = dict(fit_pngs(raw, at=at), **{"ocv.png": ocv_png(inputs, at=at)}) \
+                    if not tests else {}
                 for t in tests:
                     pngs.update(t.pngs)
                 for m, task in param_tasks.items():

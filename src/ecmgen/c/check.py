@@ -75,7 +75,8 @@ def build_c_outputs(cfg, result, out_dir, progress=lambda msg: None) -> dict:
         if est is not None and n == "float":
             entry["estimator"] = est_eq or {"skipped": "no validation cycle to compare on"}
         entry.update({"dir": f"c/{n}", "files": [p.relative_to(out_dir).as_posix() for p in files],
-                      "table_bytes": describe(specs[n])["table_bytes"]})
+                      "table_bytes": describe(specs[n])["table_bytes"],
+                      "temperature_rows": describe(specs[n])["points"]["temperatures"]})
         block[n] = entry
     return block
 
