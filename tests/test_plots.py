@@ -11,11 +11,11 @@ from conftest import synthetic_nca_model
 
 
 def test_no_line_is_drawn_across_a_logging_gap():
-    t = np.array([0.0, 1.0, 2.0, 62.0, 63.0])
+    t = np.array([0.0, 1.0, 2.0, 2002.0, 2003.0])
     t2, y2 = break_gaps(t, np.arange(5.0))
-    assert t2.size == 6 and np.isnan(y2[3]) and t2[3] == 32.0
-    same = break_gaps(np.arange(5.0), np.arange(5.0))
-    assert same[0].size == 5
+    assert t2.size == 6 and np.isnan(y2[3]) and t2[3] == 1002.0
+    slow_rest = np.array([0.0, 0.1, 0.2, 60.2, 120.2, 120.3])    # a rest logged every 60 s
+    assert break_gaps(slow_rest, np.arange(6.0))[0].size == 6
 
 
 def test_every_temperature_has_a_visible_colour():

@@ -663,20 +663,9 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
                 result.c_report = _write_c(cfg, result, staging, progress)
                 lap("c")
             if plots:
-                from .plots import fit_pngs, ocv_png, pulse_test_degrees
-
                 progress("writing plots")
-                at = pulse_test_degrees(inputs)
-                pngs = dict(fit_pngs(raw, at=at), **{"ocv.png": ocv_png(inputs, at=at)}) \
-                    if not tests else {}
-                for t in tests:
-                    pngs.update(t.pngs)
-                for m, task in param_tasks.items():
-                    pngs[f"parameters-{m}.png"] = task.result(progress)
-                for label, png in cycle_pngs.items():
-                    stem = label.replace("/", "-").rsplit(".", 1)[0]
-                    pngs[f"validation-{stem}.png"] = png
-                for name, png in pngs.items():
+                for name, png in _plot_files(raw, inputs, tests, param_tasks, cycle_pngs,
+                                             progress).items():
                     (staging / name).write_bytes(png)
                 lap("plots")
             from .report import write_build_report
@@ -686,6 +675,25 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
     result.files = files
     result.out_dir = out_dir
     return result
+
+
+def _plot_files(raw: dict, inputs: Inputs, tests, param_tasks: dict, cycle_pngs: dict,
+                progress: Progress) -> dict[str, bytes]:
+    """Every plot of a build by file name: the fit plots and OCV of the pulse test (of
+    each test, drawn where it was fitted), the parameters per method, one validation per
+    cycle."""
+    from .plots import fit_pngs, ocv_png, pulse_test_degrees
+
+    at = pulse_test_degrees(inputs)
+    pngs = dict(fit_pngs(raw, at=at), **{"ocv.png": ocv_png(inputs, at=at)}) if not tests else {}
+    for t in tests:
+        pngs.update(t.pngs)
+    for m, task in param_tasks.items():
+        pngs[f"parameters-{m}.png"] = task.result(progress)
+    for label, png in cycle_pngs.items():
+        stem = label.replace("/", "-").rsplit(".", 1)[0]
+        pngs[f"validation-{stem}.png"] = png
+    return pngs
 
 
 def _quality(models: dict[str, EcmModel], flags: dict) -> dict:

@@ -73,7 +73,7 @@ def _panel_layout(fig) -> None:
     """Fixed margins for a grid of panels (_panels: 3.2 x 2.6 in each), much cheaper than
     tight_layout, which draws the figure once more to measure it."""
     w, h = fig.get_size_inches()
-    fig.subplots_adjust(left=0.6 / w, right=1 - 0.15 / w, bottom=0.45 / h, top=1 - 0.5 / h,
+    fig.subplots_adjust(left=0.6 / w, right=1 - 0.15 / w, bottom=0.5 / h, top=1 - 0.7 / h,
                         wspace=0.42, hspace=0.55)
 
 

@@ -59,9 +59,10 @@ def degrees(t) -> str:
     return "" if t is None or not np.isfinite(t) else f"{t:.1f} °C"
 
 
-def break_gaps(t: np.ndarray, *ys: np.ndarray, factor: float = 10.0, min_gap_s: float = 10.0):
+def break_gaps(t: np.ndarray, *ys: np.ndarray, factor: float = 10.0, min_gap_s: float = 300.0):
     """``t`` and ``ys`` with a NaN after each logging gap (a step ``factor`` times the
-    median step and at least ``min_gap_s``), so that a line is not drawn across it."""
+    median step and at least ``min_gap_s``: not a rest logged slowly), so that a line is
+    not drawn across it."""
     if t.size < 3:
         return (t, *ys)
     dt = np.diff(t)
