@@ -378,11 +378,20 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message):
         where = self.prog.removeprefix("ecmgen").strip()
         if not where and "required: command" in message:     # `ecmgen` alone
-            names = ", ".join(self._subparsers._group_actions[0].choices)
-            message = f"give a command: {names} (ecmgen COMMAND --help)"
+            print(self.command_list(), file=sys.stderr)
+            sys.exit(2)
         print(f"ecmgen: error: {where + ': ' if where else ''}{' '.join(message.split())}",
               file=sys.stderr)
         sys.exit(2)
+
+    def command_list(self) -> str:
+        """`ecmgen` alone: what it does and each command with its one-line help."""
+        actions = self._subparsers._group_actions[0]
+        helps = {a.dest: a.help for a in actions._choices_actions}
+        width = max(len(n) for n in actions.choices)
+        return "\n".join(["usage: ecmgen COMMAND [options]   (ecmgen COMMAND --help)", "",
+                          "commands:"] + [f"  {n:<{width}}  {helps.get(n, '')}"
+                                          for n in actions.choices])
 
 
 def parser() -> argparse.ArgumentParser:
