@@ -127,7 +127,9 @@ def test_the_docs_results_table_is_made_from_build_json():
     doc = {"best": "curve", "validation": {"curve": {"cycles": cyc}, "ga": {"cycles": cyc}}}
     table = make_docs.results_table(doc)
     assert "| a.mat | -10.2..-2.4 | **15.7** / 23.4 / 511 | 15.7 / 23.4 / 511 |" in table
+    assert "| x | 15.7 / 23.4 / 511 |" in make_docs.best_rows({"x": doc})
     page = (REPO / "docs" / "results.md").read_text()
-    assert make_docs.replace_block(page, table).count(table) == 1
+    for name in make_docs.BLOCKS:
+        assert make_docs.replace_block(page, name, table).count(table) == 1
     for name in make_docs.PICTURES:
         assert (REPO / "docs" / "img" / name).is_file()
