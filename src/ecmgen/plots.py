@@ -58,11 +58,10 @@ def plot_curve_fits(curve_fit, path: Path, at: str = "") -> Path:
         ax.grid(alpha=0.3)
         ax.set_ylabel("voltage [V]", fontsize=7)
         if k + cols >= n:
-            ax.set_xlabel("time from the level's first pulse [s] (log beyond 10 s)",
-                          fontsize=7)
+            ax.set_xlabel("time from the level's first pulse [s]", fontsize=7)
     axes[0].legend(fontsize=7, loc="lower right")
     fig.suptitle("Whole-test fit: measured and fitted voltage at each SOC level"
-                 + (f", {at}" if at else ""))
+                 + (f", {at}" if at else "") + " (time axis linear to 10 s, log beyond)")
     _panel_layout(fig)
     fig.savefig(path, dpi=90)
     plt.close(fig)

@@ -26,7 +26,7 @@ r_diff, tau_diff, i0) at the surface SOC instead of soc_k:
     (EcmModel.surface_per_volt): continuous in SOC.
 
 A discharge depletes the particles' surface (u_diff < 0), so the resistances are read at
-a lower SOC than the coulomb count's (issue 8, bench/cold_surface_soc.py).
+a lower SOC than the coulomb count's (bench/cold_surface_soc.py, docs/results.md).
 
 A model with ``effects`` (added by ``ecmgen diagnose``) changes steps 2, 3 and 5 as
 defined in :mod:`ecmgen.model.effects`; without effects the step above is untouched.
