@@ -25,7 +25,7 @@ MAX_LINES = 800
 LEVELS = [
     {"base": ("ecmgen._version", "ecmgen.errors", "ecmgen.files", "ecmgen.config",
               "ecmgen.plotting", "ecmgen.parallel", "ecmgen.outputs",
-              "ecmgen.config_schema")},
+              "ecmgen.config_schema", "ecmgen.console")},
     {"data": ("ecmgen.data",)},
     {"fit": ("ecmgen.fit",)},
     {"model": ("ecmgen.model",)},

@@ -49,36 +49,45 @@ def _check_numbers(args) -> None:
 
 
 def _progress(enabled: bool):
-    from .pipeline import _quiet, stderr_progress
+    from .console import StderrProgress, quiet
 
-    return stderr_progress if enabled else _quiet
+    return StderrProgress() if enabled else quiet
 
 
 def cmd_build(args) -> int:
     from .config import load_config
+    from .console import build_summary, cycle_table, note_lines
     from .pipeline import build
-    from .report import build_json, pulse_test_table, validation_table
+    from .report import build_json, pulse_test_table, validation_rows
 
     cfg = load_config(args.config)
     out = Path(args.out) if args.out else cfg.path.parent / "ecmgen-out"
     check_output_folder(out, _given(cfg))
-    result = build(cfg, out, _progress(not args.quiet), plots=not args.no_plots,
-                   c_code=not args.no_c, strict=args.strict)
+    progress = _progress(not args.quiet)
+    try:
+        result = build(cfg, out, progress, plots=not args.no_plots, c_code=not args.no_c,
+                       strict=args.strict)
+    finally:
+        getattr(progress, "close", lambda: None)()
     if args.json:
         print(json_text(build_json(result), indent=1))
-    else:
-        q = result.quality.get(result.best)
-        if q is not None and not q.passes:
-            from .fit.quality import quality_words
+        return 0
+    q = result.quality.get(result.best)
+    if q is not None and not q.passes:
+        from .fit.quality import quality_words
 
-            print(f"warning: {quality_words(result.best, q)} (build --strict makes this an error)")
+        print(f"warning: {quality_words(result.best, q)} (build --strict makes this an error)",
+              file=sys.stderr)
+    notes = note_lines(list(result.models[result.best].notes) + result.notes,
+                       str(result.out_dir / "report.md"))
+    for line in notes if not args.quiet else [n for n in notes if n.startswith("warning")]:
+        print(line, file=sys.stderr)
+    if not args.quiet:
         if result.tests:
             print(pulse_test_table(result))
             print()
-        print(validation_table(result))
-        for n in list(result.models[result.best].notes) + result.notes:
-            print(f"note: {n}")
-        print(f"wrote {len(result.files)} files to {result.out_dir}")
+        print(cycle_table(validation_rows(result), result.best))
+    print(build_summary(result))
     return 0
 
 
@@ -388,11 +397,20 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message):
         where = self.prog.removeprefix("ecmgen").strip()
         if not where and "required: command" in message:     # `ecmgen` alone
-            names = ", ".join(self._subparsers._group_actions[0].choices)
-            message = f"give a command: {names} (ecmgen COMMAND --help)"
+            print(self.command_list(), file=sys.stderr)
+            sys.exit(2)
         print(f"ecmgen: error: {where + ': ' if where else ''}{' '.join(message.split())}",
               file=sys.stderr)
         sys.exit(2)
+
+    def command_list(self) -> str:
+        """`ecmgen` alone: what it does and each command with its one-line help."""
+        actions = self._subparsers._group_actions[0]
+        helps = {a.dest: a.help for a in actions._choices_actions}
+        width = max(len(n) for n in actions.choices)
+        return "\n".join(["usage: ecmgen COMMAND [options]   (ecmgen COMMAND --help)", "",
+                          "commands:"] + [f"  {n:<{width}}  {helps.get(n, '')}"
+                                          for n in actions.choices])
 
 
 def parser() -> argparse.ArgumentParser:
@@ -496,7 +514,7 @@ def parser() -> argparse.ArgumentParser:
 
     k = sub.add_parser("config", help="print the config reference (every section and key)")
     k.add_argument("--explain", action="store_true", help="every key: type, unit, range, "
-                   "default, meaning (markdown; the README's reference is this text)")
+                   "default, meaning (markdown; docs/config.md holds this text)")
     k.set_defaults(func=cmd_config)
     return p
 

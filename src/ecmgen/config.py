@@ -1,7 +1,7 @@
 """The build configuration (one TOML file; paths are relative to it): the loader.
 
 What each section and key means, its type, unit, range and default are the rows of
-ecmgen.config_schema (``ecmgen config --explain`` prints them; the README's reference is
+ecmgen.config_schema (``ecmgen config --explain`` prints them; docs/config.md's reference is
 that text). :func:`load_config` checks a config against the schema first (unknown keys,
 types, ranges), then what ties keys together: exactly one of data.pulses, data.dcir or
 [[data.pulse_tests]]; fit.best among fit.methods; the files it names exist; the C
@@ -167,6 +167,7 @@ class BuildConfig:
     temperature_step_c: float = 5.0    # [model]: 0 = the measured breakpoints as they are
     warm_row_c: float | None = 45.0    # [model]: derived warm row (None: none)
     surface_soc_gain: float = 0.0      # [model]: lam of the surface SOC (0: off)
+    max_mae_mv: float = 50.0           # [report]: the validation verdict's threshold
     estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
     raw: dict = field(default_factory=dict, repr=False)
     # data.cycle_window_s: (t0, t1) for every validation file, or resolved file -> (t0, t1)
@@ -550,6 +551,8 @@ def _load_config(path: Path) -> BuildConfig:
         curve_branches=branches,
         temperature_step_c=step, warm_row_c=None if warm is False else warm,
         surface_soc_gain=gain,
+        max_mae_mv=_number(raw.get("report", {}), "max_mae_mv", path, "report", 50.0,
+                           positive=True),
         estimator=estimator_config(raw.get("estimator", {}), path),
         raw=raw, cycle_window_s=_cycle_windows(data, base, path, known),
         temperature_c=_temperatures(data, base, path, known))

@@ -6,7 +6,7 @@ are refused in every section, with the nearest known name ("did you mean"), and 
 value's type and range are checked here, so that the loader is left with what ties keys
 together (exactly one of data.pulses / data.dynamic / data.dcir / [[data.pulse_tests]], fit.best among
 fit.methods, files that exist). ``ecmgen config --explain`` prints :func:`reference`,
-and the README's config reference is that same text (a test keeps them equal).
+and docs/config.md's reference is that same text (a test keeps them equal).
 
 A key added to the config is one row here (and its use in the loader). A small table of
 our own rather than pydantic or attrs+cattrs: the checks are types and ranges of a dozen
@@ -171,6 +171,10 @@ SECTIONS: tuple[Section, ...] = (
             "(false: none)", unit="degC", range=TEMPERATURE_C, default="45"),
         Key("surface_soc_gain", NUMBER, "the RC tables read at the surface SOC (models "
             "with the diffusion pair; 0: off)", range=(0.0, 10.0), default="0"),
+    )),
+    Section("report", "the verdicts of report.md", (
+        Key("max_mae_mv", NUMBER, "the validation passes when model.json's MAE on every "
+            "cycle is at most this", unit="mV", range=(1e-3, 1e4), default="50"),
     )),
     Section("c", "the generated C", (
         Key("prefix", TEXT, "symbol and file prefix: a C identifier of 1-32 characters, "

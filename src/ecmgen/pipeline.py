@@ -24,6 +24,7 @@ from .data.dynamic import dynamic_levels
 from .data.measure import ColumnMap, TimeSeries, read_timeseries
 from .data import ocv as ocv_mod
 from .data.ocv import OcvTable
+from .console import detail_of
 from .errors import InputError
 from .files import file_sha256
 from .model.model import RC_FIELDS, EcmModel, InputRecord, RcTable
@@ -394,10 +395,12 @@ def fit_pulse_test(cfg: BuildConfig, k: int, plots: bool = False,
         raise
     if plots:
         from .plots import fit_pngs, ocv_png
+        from .plotting import degrees
 
         t1 = time.perf_counter()
-        fit.pngs = fit_pngs(fit.raw, f"-{fit.label}")
-        fit.pngs[f"ocv-{fit.label}.png"] = ocv_png(fit.inputs)
+        at = degrees(fit.temperature_c)
+        fit.pngs = fit_pngs(fit.raw, f"-{fit.label}", at=at)
+        fit.pngs[f"ocv-{fit.label}.png"] = ocv_png(fit.inputs, at=at)
         fit.timings["plots"] = time.perf_counter() - t1
     fit.seconds = time.perf_counter() - t0
     return fit
@@ -466,13 +469,14 @@ def fit_pulse_tests(cfg: BuildConfig, progress: Progress = _quiet,
     if workers.parallel:
         progress(f"fitting {n} pulse tests on {workers.processes} processes")
     tasks = [workers.submit(fit_pulse_test, cfg, k, plots) for k in range(n)]
+    detail = detail_of(progress)
     out = []
     try:
         for k, task in enumerate(tasks):
             label = f"pulse test {k + 1}"
-            fit = task.result(lambda msg: progress(f"[{label}] {msg}"))
-            progress(f"[{label}] {cfg.pulse_tests[k].file.name}: {fit.label}, fitted in "
-                     f"{fit.seconds:.1f} s")
+            fit = task.result(lambda msg: detail(f"[{label}] {msg}"))
+            detail(f"[{label}] {cfg.pulse_tests[k].file.name}: {fit.label}, fitted in "
+                   f"{fit.seconds:.1f} s")
             out.append(fit)
     except BaseException:
         workers.cancel(tasks)
@@ -601,9 +605,11 @@ def validate_all(cfg: BuildConfig, models: dict[str, EcmModel], progress: Progre
              for path, role, label in cycles]
     out: dict[str, dict[str, Validation]] = {m: {} for m in models}
     pngs: dict[str, bytes] = {}
+    if len(cycles) > 1:
+        progress(f"validating on {len(cycles)} cycles")
     try:
         for (_, _, label), task in zip(cycles, tasks):
-            vals, png = task.result(progress)
+            vals, png = task.result(detail_of(progress) if len(cycles) > 1 else progress)
             for m, v in vals.items():
                 out[m][label] = v
             if png is not None:
@@ -677,18 +683,9 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
                 result.c_report = _write_c(cfg, result, staging, progress)
                 lap("c")
             if plots:
-                from .plots import fit_pngs, ocv_png
-
                 progress("writing plots")
-                pngs = dict(fit_pngs(raw), **{"ocv.png": ocv_png(inputs)}) if not tests else {}
-                for t in tests:
-                    pngs.update(t.pngs)
-                for m, task in param_tasks.items():
-                    pngs[f"parameters-{m}.png"] = task.result(progress)
-                for label, png in cycle_pngs.items():
-                    stem = label.replace("/", "-").rsplit(".", 1)[0]
-                    pngs[f"validation-{stem}.png"] = png
-                for name, png in pngs.items():
+                for name, png in _plot_files(raw, inputs, tests, param_tasks, cycle_pngs,
+                                             progress).items():
                     (staging / name).write_bytes(png)
                 lap("plots")
             from .report import write_build_report
@@ -698,6 +695,25 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
     result.files = files
     result.out_dir = out_dir
     return result
+
+
+def _plot_files(raw: dict, inputs: Inputs, tests, param_tasks: dict, cycle_pngs: dict,
+                progress: Progress) -> dict[str, bytes]:
+    """Every plot of a build by file name: the fit plots and OCV of the pulse test (of
+    each test, drawn where it was fitted), the parameters per method, one validation per
+    cycle."""
+    from .plots import fit_pngs, ocv_png, pulse_test_degrees
+
+    at = pulse_test_degrees(inputs)
+    pngs = dict(fit_pngs(raw, at=at), **{"ocv.png": ocv_png(inputs, at=at)}) if not tests else {}
+    for t in tests:
+        pngs.update(t.pngs)
+    for m, task in param_tasks.items():
+        pngs[f"parameters-{m}.png"] = task.result(progress)
+    for label, png in cycle_pngs.items():
+        stem = label.replace("/", "-").rsplit(".", 1)[0]
+        pngs[f"validation-{stem}.png"] = png
+    return pngs
 
 
 def _quality(models: dict[str, EcmModel], flags: dict) -> dict:

@@ -159,6 +159,70 @@ def quality_lines(result) -> list[str]:
     return lines + [""]
 
 
+def _verdict(ok: bool) -> str:
+    return "pass" if ok else "**FAIL**"
+
+
+def verdict_lines(cfg, result) -> list[str]:
+    """report.md's first section: one row per check with what was measured, the
+    threshold and pass / FAIL (fit quality, validation, the C, its estimator)."""
+    from .fit.quality import ROUGHNESS_LIMIT
+
+    lines = ["## Verdict", "", "| check | measured | passes when | verdict |", "|---|---|---|---|"]
+    q = getattr(result, "quality", {}).get(result.best)
+    if q is not None:
+        lines.append(f"| table quality (`{result.best}`, model.json) | roughness {q.roughness:.2f}, "
+                     f"{q.non_positive} values <= 0, {len(q.on_bound)} time constants on a bound "
+                     f"| roughness < {ROUGHNESS_LIMIT:g}, no value <= 0 | {_verdict(q.passes)} |")
+    vals = result.validations.get(result.best, {})
+    if vals:
+        limit = getattr(cfg, "max_mae_mv", 50.0)
+        worst = max(vals, key=lambda c: vals[c].overall.mae_v)
+        over = [c for c, v in vals.items() if v.overall.mae_v * 1e3 > limit]
+        lines.append(f"| validation (`{result.best}`, {len(vals)} cycle{'s' if len(vals) > 1 else ''}) "
+                     f"| worst MAE {vals[worst].overall.mae_v * 1e3:.1f} mV (`{worst}`)"
+                     + (f"; above the limit: {', '.join(f'`{c}`' for c in over)}" if over else "")
+                     + f" | MAE <= {limit:g} mV on every cycle (`[report] max_mae_mv`) "
+                     f"| {_verdict(not over)} |")
+    for numeric, c in (getattr(result, "c_report", None) or {}).items():
+        lines.append(_c_verdict(f"C, {numeric}", c))
+        if isinstance(c.get("estimator"), dict):
+            lines.append(_c_verdict("C SOC estimator", dict(c["estimator"], cycle=c.get("cycle")),
+                                    soc=True))
+    return lines + [""]
+
+
+def _c_verdict(what: str, c: dict, soc: bool = False) -> str:
+    """A verdict row of the C: bit-identical to its Python reference over the cycle."""
+    if "skipped" in c:
+        return f"| {what} | not checked: {c['skipped']} | bit-identical to its reference | - |"
+    exact = bool(c.get("bit_exact_vs_reference"))
+    if soc:
+        diff = c.get("max_abs_soc_diff_vs_python")
+        far = "" if diff is None else f"; max abs SOC difference from the float64 filter {diff:.2g}"
+    else:
+        diff = c.get("max_abs_diff_vs_python_v")
+        far = "" if diff is None else f"; max abs dv from the float64 model {diff * 1e3:.3g} mV"
+    return (f"| {what} | {'bit-identical to' if exact else 'differs from'} its reference over "
+            f"`{c.get('cycle') or 'the cycle'}`{far} | bit-identical to its reference | "
+            f"{_verdict(exact)} |")
+
+
+def picture_lines(out_dir: Path) -> list[str]:
+    """The build's plots: the validations and parameters shown, the per-test fit plots
+    linked."""
+    pngs = sorted(p.name for p in Path(out_dir).glob("*.png"))
+    shown = [n for n in pngs if n.startswith(("validation-", "parameters-"))]
+    linked = [n for n in pngs if n not in shown]
+    if not pngs:
+        return []
+    lines = ["## Plots", ""]
+    lines += [f"![{n[:-4]}]({n})" for n in shown]
+    if linked:
+        lines += ["", "Fits per pulse test: " + ", ".join(f"[{n[:-4]}]({n})" for n in linked)]
+    return lines + [""]
+
+
 def write_build_report(cfg, result, out_dir: Path) -> Path:
     best = result.models[result.best]
     lines = [
@@ -166,12 +230,17 @@ def write_build_report(cfg, result, out_dir: Path) -> Path:
         f"config: `{cfg.path.name}`  capacity: {cfg.capacity_ah:g} Ah  methods: "
         f"{', '.join(cfg.methods)}  seed: {cfg.seed}", "",
     ]
+    lines += verdict_lines(cfg, result)
     if result.tests:
         grid = best.discharge.temperature_c
+        c_rows = sorted({c["temperature_rows"] for c in (result.c_report or {}).values()
+                         if "temperature_rows" in c})
+        in_c = (f"; the C holds both on one grid of {c_rows[0]} rows (the RC rows and the "
+                "OCV's joined)" if len(c_rows) == 1 and c_rows[0] != grid.size else "")
         lines += ["## Pulse tests (temperature breakpoints)", "", "```", pulse_test_table(result),
-                  "```", "", f"Tables over {grid.size} temperature rows "
+                  "```", "", f"RC tables over {grid.size} temperature rows "
                   f"({grid[0]:g}..{grid[-1]:g} degC), OCV over "
-                  f"{best.ocv.n_temperatures} rows; see the notes.", ""]
+                  f"{best.ocv.n_temperatures} rows{in_c}; see the notes.", ""]
     q = getattr(result, "quality", {}).get(result.best)
     if q is not None and not q.passes:
         from .fit.quality import quality_words
@@ -185,7 +254,7 @@ def write_build_report(cfg, result, out_dir: Path) -> Path:
     lines += ["## Validation (simulated - measured voltage)", ""]
     if result.tests:
         lines += ["Each cycle is simulated on its own measured cell temperature; "
-                  "`cell degC` is its range.", ""]
+                  "`cell degC` is its range over the drive (a soak before it left out).", ""]
     lines += ["```", validation_table(result), "```", ""]
     lagging = {c: v.voltage_lag_samples for c, v in result.validations.get(result.best, {}).items()
                if v.voltage_lag_samples > 0}
@@ -193,6 +262,7 @@ def write_build_report(cfg, result, out_dir: Path) -> Path:
         which = ", ".join(f"`{c}` by {n} sample{'s' if n > 1 else ''}" for c, n in lagging.items())
         lines += [f"The measured voltage lags the current in {which} (see the notes): the "
                   "errors above include it, the data are not shifted.", ""]
+    lines += picture_lines(out_dir)
     lines += quality_lines(result)
     lines += ["## Notes", ""]
     notes = list(best.notes) + list(getattr(result, "notes", []))

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..console import detail_of
 from ..data.measure import TimeSeries
 from ..errors import InputError
 from .cbuild import CBuildError, CToolchainMissing, c_equivalence
@@ -49,7 +50,7 @@ def build_c_outputs(cfg, result, out_dir, progress=lambda msg: None) -> dict:
         try:
             eq = c_equivalence(model, series, val.soc0, dt_s=dt_s, prefix=prefix, numerics=numerics)
             if est is not None:
-                progress("checking the C estimator against its references")
+                detail_of(progress)("checking the C estimator against its references")
                 est_eq = _estimator_block(model, specs["float"], est, series, val.soc0)
                 est_eq["settings_from"] = est_from
         except CToolchainMissing as exc:
@@ -66,7 +67,7 @@ def build_c_outputs(cfg, result, out_dir, progress=lambda msg: None) -> dict:
     out_dir = Path(out_dir)
     block = {}
     for n in numerics:
-        progress(f"writing {n} C ({prefix}_ecm.c)")
+        detail_of(progress)(f"writing {n} C ({prefix}_ecm.c)")
         files = generate_c(model, out_dir / "c" / n, prefix=prefix, numeric=n, dt_s=dt_s,
                            equivalence={n: eq[n]} if n in eq else None,
                            estimator=est_cfg if n == "float" else None)
@@ -74,7 +75,8 @@ def build_c_outputs(cfg, result, out_dir, progress=lambda msg: None) -> dict:
         if est is not None and n == "float":
             entry["estimator"] = est_eq or {"skipped": "no validation cycle to compare on"}
         entry.update({"dir": f"c/{n}", "files": [p.relative_to(out_dir).as_posix() for p in files],
-                      "table_bytes": describe(specs[n])["table_bytes"]})
+                      "table_bytes": describe(specs[n])["table_bytes"],
+                      "temperature_rows": describe(specs[n])["points"]["temperatures"]})
         block[n] = entry
     return block
 

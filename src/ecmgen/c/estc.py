@@ -15,7 +15,7 @@ sensor's offset as the last state (held in ``<prefix>_est_t.offset_a``).
 
 Float32 only, by decision: the covariance spans 0.09 (the start SOC's variance) down to
 ~1e-9 (a settled SOC's, and the cross terms) and the Joseph update subtracts nearly equal
-numbers; a fixed-point covariance would need block floating point (see README, measured
+numbers; a fixed-point covariance would need block floating point (see docs/estimator.md, measured
 figures in bench/bench_estimator_c.py). The model step under it is the float32 step.
 """
 

@@ -13,7 +13,7 @@ import numpy as np
 from ..files import json_text, write_atomic
 from ..model import effects as fx
 from ..model.rc import rc_recurrence
-from ..plotting import _plt
+from ..plotting import MEASURED, _plt
 from .search import DiagnoseResult, _lowpass
 
 
@@ -134,7 +134,7 @@ def plot_comparison(result: DiagnoseResult, path: Path) -> Path:
     fig = plt.figure(figsize=(13, 9))
     gs = fig.add_gridspec(3, 4)
     ax0 = fig.add_subplot(gs[0, :])
-    ax0.plot(t, vm, lw=0.8, color="k", label="measured")
+    ax0.plot(t, vm, label="measured", **dict(MEASURED, lw=0.8))
     ax0.plot(t, vb, lw=0.7, color="C1", label=f"base (MAE {result.mae_before_v * 1e3:.2f} mV)")
     ax0.plot(t, va, lw=0.7, color="C2",
              label=f"with {', '.join(result.effects) or 'no effects'} "

@@ -26,7 +26,7 @@ r_diff, tau_diff, i0) at the surface SOC instead of soc_k:
     (EcmModel.surface_per_volt): continuous in SOC.
 
 A discharge depletes the particles' surface (u_diff < 0), so the resistances are read at
-a lower SOC than the coulomb count's (issue 8, bench/cold_surface_soc.py).
+a lower SOC than the coulomb count's (bench/cold_surface_soc.py, docs/results.md).
 
 A model with ``effects`` (added by ``ecmgen diagnose``) changes steps 2, 3 and 5 as
 defined in :mod:`ecmgen.model.effects`; without effects the step above is untouched.
@@ -43,6 +43,10 @@ from ..data.measure import TimeSeries, charging_direction, voltage_lag
 from ..errors import InputError
 from .model import RC_FIELDS, EcmModel
 from .rc import rc_recurrence
+
+
+# a current above this (A) is driving the cell; below it, a rest or a soak
+DRIVE_CURRENT_A = 0.05
 
 
 @dataclass(frozen=True)
@@ -290,10 +294,16 @@ class Validation:
 
     @property
     def temperature_range_c(self) -> tuple[float, float] | None:
-        """(min, max) cell temperature of the record, degC (None: no temperature)."""
+        """(min, max) cell temperature over the drive, degC: from the first to the last
+        sample under current, so that a soak or cool-down before it does not count (the
+        whole record when it never draws current; None: no temperature)."""
         if self.temperature_c is None:
             return None
-        return float(np.min(self.temperature_c)), float(np.max(self.temperature_c))
+        t = np.asarray(self.temperature_c)
+        driven = np.flatnonzero(np.abs(self.sim.current_a) > DRIVE_CURRENT_A)
+        if driven.size:
+            t = t[driven[0]:driven[-1] + 1]
+        return float(np.min(t)), float(np.max(t))
 
     @property
     def error_v(self) -> np.ndarray:

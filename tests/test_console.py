@@ -1,0 +1,44 @@
+"""The command line's console: progress on stderr (stages only in a log), notes counted
+by kind, one line per validation cycle, the one-line summary."""
+
+from __future__ import annotations
+
+import io
+
+from ecmgen.console import StderrProgress, cycle_table, detail_of, note_lines
+
+
+def test_in_a_log_the_stages_are_lines_and_the_steps_are_left_out():
+    buf = io.StringIO()
+    p = StderrProgress(buf)
+    p("fitting 4 pulse tests")
+    detail_of(p)("[pulse test 1] GA fit")
+    p.close()
+    assert buf.getvalue() == "[ecmgen] fitting 4 pulse tests\n"
+    said = []
+    detail_of(said.append)("a step")         # a plain callable gets the steps too
+    assert said == ["a step"]
+
+
+def test_notes_are_counted_by_kind_and_warnings_kept_whole():
+    notes = [f"[0.6 degC] pulse at t={t}.0 s (discharge 6C, soc 0.4) cut short after 1 s: "
+             "left out" for t in range(5)]
+    notes += ["us06.mat: the voltage lags the current by 1 sample (0.1 s)",
+              "OCV: pulses, 57 rested voltages", "OCV check: 12 mV RMS; warning: the rests "
+              "are the better source"]
+    lines = note_lines(notes, "out/report.md")
+    assert lines == [
+        "warning: OCV check: 12 mV RMS; warning: the rests are the better source",
+        "note: 5 pulses cut short (shorter than the others of their direction) and left out",
+        "note: 1 cycles: the measured voltage lags the current (not corrected)",
+        "note: 1 more note: see out/report.md"]
+
+
+def test_one_line_per_cycle():
+    rows = [("ga", "us06.mat", 37.8, 42.6, 503.0, 37.8, (25.6, 33.0)),
+            ("curve", "us06.mat", 15.7, 23.4, 511.0, 15.7, (25.6, 33.0)),
+            ("curve", "hwfet.mat", 10.6, 22.1, 377.0, 8.7, None)]
+    text = cycle_table(rows, "curve").splitlines()
+    assert "curve*" in text[0] and len(text) == 5
+    assert text[2].split() == ["us06.mat", "25.6..33.0", "37.80", "15.70"]
+    assert text[3].split() == ["hwfet.mat", "-", "-", "10.60"]
