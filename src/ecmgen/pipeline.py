@@ -28,6 +28,7 @@ from .console import detail_of
 from .errors import InputError
 from .files import file_sha256
 from .model.model import RC_FIELDS, EcmModel, InputRecord, RcTable
+from .model.tables import copied_directions, level_tables
 from .model.simulate import Validation, validate
 from .outputs import check_output_folder, staged
 from .parallel import Workers
@@ -227,34 +228,6 @@ def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
                   q_axis)
 
 
-def _rc_tables(soc, direction, cols: dict[str, np.ndarray], fit_error, converged,
-               source: Path | None = None) -> tuple[RcTable, RcTable, list[str]]:
-    """Per-direction RcTables; a direction without data takes the other's, with a note."""
-    tables, notes = {}, []
-    for d in ("charge", "discharge"):
-        ix = np.flatnonzero((direction == d) & np.all(np.isfinite(np.vstack(list(cols.values()))), axis=0))
-        if ix.size == 0:
-            continue
-        ix = ix[np.argsort(soc[ix])]
-        s = np.clip(soc[ix], 0.0, 1.0)
-        ok = np.concatenate(([True], np.diff(s) > 1e-6))
-        ix = ix[ok]
-        tables[d] = RcTable(soc=np.clip(soc[ix], 0, 1), fit_error=np.asarray(fit_error)[ix],
-                            converged=np.asarray(converged)[ix],
-                            **{k: np.asarray(v)[ix] for k, v in cols.items()})
-    if not tables:
-        raise InputError(source, "no table cell could be fitted: no SOC level has an R(t) "
-                                 "value at every [dcir] times_s (pulses cut short, or too "
-                                 "short or too slowly logged for those times? [dcir] "
-                                 "c_rate = \"all\" uses every C-rate)")
-    for d, other in (("charge", "discharge"), ("discharge", "charge")):
-        if d not in tables:
-            tables[d] = tables[other]
-            notes.append(f"the test has {other} pulses only: the {d} parameters are the "
-                         f"{other} parameters")
-    return tables["charge"], tables["discharge"], notes
-
-
 def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
                ) -> tuple[dict[str, EcmModel], dict]:
     """Fit every method of the config; returns the models and the raw fits (for plots)."""
@@ -288,14 +261,14 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
                                                      rows.direction, fits[m])
             f = fits[m]
             cols = {k: getattr(f, k) for k in RC_FIELDS}
-            ch, dis, n2 = _rc_tables(rows.soc, rows.direction, cols, f.fitness_ohm,
+            ch, dis, n2 = level_tables(rows.soc, rows.direction, cols, f.fitness_ohm,
                                      f.converged, cfg.pulses or cfg.dcir)
             bad = int(np.sum(~f.converged))
             n3 = [f"{m}: {bad} of {f.converged.size} table cells did not converge"] if bad else []
             flags = point_fit_flags(m, f, rows)
             raw["flags"][m] = flags
             model = EcmModel(charge=ch, discharge=dis, method=m, **common)
-            n3 += flag_notes(flags) + model_span_notes(model, _copied(n2))
+            n3 += flag_notes(flags) + model_span_notes(model, copied_directions(n2))
             n3 = smooth_notes + n2 + n3
             models[m] = replace(model, notes=inputs.notes + tuple(n) + tuple(n3))
         raw["point_fits"] = fits
@@ -575,11 +548,6 @@ def _cycles(cfg: BuildConfig) -> list[tuple[Path, str, str]]:
     paths = ([cfg.cycle] if cfg.cycle else []) + list(cfg.extra_cycles)
     roles = (["cycle"] if cfg.cycle else []) + ["extra_cycles"] * len(cfg.extra_cycles)
     return list(zip(paths, roles, short_names(paths))) if paths else []
-
-
-def _copied(notes: list[str]) -> set[str]:
-    """Directions whose table _rc_tables copied from the other."""
-    return {d for d in ("charge", "discharge") for n in notes if f"the {d} parameters are" in n}
 
 
 def _relax_words(relax: np.ndarray, relax_s: float) -> str:
