@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * ecmrt.h - ecmgen C runtime: shared constants (hand-written, model-independent).
  *

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from ecmgen.c import cbuild, cref
-from ecmgen.c.codegen import generate_c
+from ecmgen.c.codegen import file_names, generate_c
 from test_codegen_helpers import realistic_model
 
 VARIANTS = [("float", None), ("float", 0.1), ("fixed", None), ("fixed", 0.1)]
@@ -159,10 +159,10 @@ SAN_MAIN = r"""
 #include <stdio.h>
 #include <stdint.h>
 #include <float.h>
-#include "fv_ecm.h"
-#include "fd_ecm.h"
-#include "qv_ecm.h"
-#include "qd_ecm.h"
+#include "fv_ecm_f32.h"
+#include "fd_ecm_f32.h"
+#include "qv_ecm_q.h"
+#include "qd_ecm_q.h"
 
 /* cell temperatures, every one a legal input (float: NaN and inf too) */
 static const float ftemps[8] = {25.0f, -20.0f, -60.0f, 90.0f, 1e30f, -1e30f, 0.5f, 17.3f};
@@ -194,41 +194,41 @@ int main(int argc, char **argv)
     for (a = 0; a < sizeof socs / sizeof socs[0]; a++)
         for (b = 0; b < sizeof cur / sizeof cur[0]; b++)
             for (c = 0; c < sizeof dts / sizeof dts[0]; c++) {
-                fv_state_t s; fd_state_t t;
+                fv_state_f32_t s; fd_state_f32_t t;
                 int r;
-                fv_init(&s, socs[a]); fd_init(&t, socs[a]);
+                fv_init_f32(&s, socs[a]); fd_init_f32(&t, socs[a]);
                 for (r = 0; r < 20; r++) {
-                    fails += bad_f(fv_step(&s, r % 3 ? cur[b] : -cur[b], FT(r + b), dts[c]));
-                    fails += bad_f(fv_step(&s, nan, nan, nan)) + bad_f(fv_step(&s, inf, inf, inf));
-                    fails += bad_f(fv_step(&s, -inf, -inf, -inf));
-                    fails += bad_f(fd_step(&t, cur[b], FT(r + c))) + bad_f(fd_step(&t, nan, nan));
-                    fails += bad_f(fd_step(&t, -inf, -inf));
+                    fails += bad_f(fv_step_f32(&s, r % 3 ? cur[b] : -cur[b], FT(r + b), dts[c]));
+                    fails += bad_f(fv_step_f32(&s, nan, nan, nan)) + bad_f(fv_step_f32(&s, inf, inf, inf));
+                    fails += bad_f(fv_step_f32(&s, -inf, -inf, -inf));
+                    fails += bad_f(fd_step_f32(&t, cur[b], FT(r + c))) + bad_f(fd_step_f32(&t, nan, nan));
+                    fails += bad_f(fd_step_f32(&t, -inf, -inf));
                 }
             }
     for (a = 0; a < sizeof qsocs / sizeof qsocs[0]; a++)
         for (b = 0; b < sizeof qcur / sizeof qcur[0]; b++)
             for (c = 0; c < sizeof qdts / sizeof qdts[0]; c++) {
-                qv_state_t s; qd_state_t t;
+                qv_state_q_t s; qd_state_q_t t;
                 int r;
-                qv_init(&s, qsocs[a]); qd_init(&t, qsocs[a]);
+                qv_init_q(&s, qsocs[a]); qd_init_q(&t, qsocs[a]);
                 for (r = 0; r < 20; r++) {
-                    int32_t v = qv_step(&s, r % 2 ? qcur[b] : -(qcur[b] + 1), QT(r + b), qdts[c]);
-                    int32_t w = qd_step(&t, qcur[b], QT(r + c));
+                    int32_t v = qv_step_q(&s, r % 2 ? qcur[b] : -(qcur[b] + 1), QT(r + b), qdts[c]);
+                    int32_t w = qd_step_q(&t, qcur[b], QT(r + c));
                     if (v < lo) lo = v;
                     if (v > hi) hi = v;
                     (void)w;
                 }
             }
     {
-        fv_state_t s; fd_state_t t; qv_state_t q; qd_state_t u;
-        fv_init(&s, 0.5f); fd_init(&t, 0.5f); qv_init(&q, 1 << 29); qd_init(&u, 1 << 29);
+        fv_state_f32_t s; fd_state_f32_t t; qv_state_q_t q; qd_state_q_t u;
+        fv_init_f32(&s, 0.5f); fd_init_f32(&t, 0.5f); qv_init_q(&q, 1 << 29); qd_init_q(&u, 1 << 29);
         for (k = 0; k < n; k++) {
             const uint32_t r1 = rnd(&x), r2 = rnd(&x);
             const float fi = (float)(int32_t)r1 * (1.0f / 8388608.0f);     /* +-256 A */
             const float fdt = (float)(r2 >> 8) * (1.0f / 1677721.6f);     /* 0..10 s */
-            fails += bad_f(fv_step(&s, fi, FT(r2 >> 29), fdt)) + bad_f(fd_step(&t, fi, FT(r1 >> 29)));
-            (void)qv_step(&q, (int32_t)r1, QT(r2 >> 29), (int32_t)(r2 >> 13));
-            (void)qd_step(&u, (int32_t)r2, QT(r1 >> 29));
+            fails += bad_f(fv_step_f32(&s, fi, FT(r2 >> 29), fdt)) + bad_f(fd_step_f32(&t, fi, FT(r1 >> 29)));
+            (void)qv_step_q(&q, (int32_t)r1, QT(r2 >> 29), (int32_t)(r2 >> 13));
+            (void)qd_step_q(&u, (int32_t)r2, QT(r1 >> 29));
         }
         printf("soc %g %g %ld %ld\n", (double)s.soc, (double)t.soc, (long)q.soc, (long)u.soc);
     }
@@ -247,7 +247,7 @@ def test_sanitized_build_has_no_undefined_behaviour(tmp_path):
     srcs = []
     for prefix, (numeric, dt_s) in zip(("fv", "fd", "qv", "qd"), VARIANTS):
         generate_c(_model(), tmp_path, prefix=prefix, numeric=numeric, dt_s=dt_s)
-        srcs.append(tmp_path / f"{prefix}_ecm.c")
+        srcs.append(tmp_path / file_names(prefix, numeric)["source"])
     (tmp_path / "main.c").write_text(SAN_MAIN.replace("#include <stdio.h>",
                                                       "#include <stdio.h>\n#include <stdlib.h>"))
     exe = tmp_path / "san"
@@ -395,10 +395,10 @@ SAN_FX_MAIN = r"""
 #include <stdlib.h>
 #include <stdint.h>
 #include <float.h>
-#include "fv_ecm.h"
-#include "fd_ecm.h"
-#include "qv_ecm.h"
-#include "qd_ecm.h"
+#include "fv_ecm_f32.h"
+#include "fd_ecm_f32.h"
+#include "qv_ecm_q.h"
+#include "qd_ecm_q.h"
 
 /* cell temperatures, every one a legal input (float: NaN and inf too) */
 static const float ftemps[8] = {25.0f, -20.0f, -60.0f, 90.0f, 1e30f, -1e30f, 0.5f, 17.3f};
@@ -433,33 +433,33 @@ int main(int argc, char **argv)
     for (a = 0; a < sizeof socs / sizeof socs[0]; a++)
         for (b = 0; b < sizeof cur / sizeof cur[0]; b++)
             for (c = 0; c < sizeof dts / sizeof dts[0]; c++) {
-                fv_state_t s; fd_state_t t;
+                fv_state_f32_t s; fd_state_f32_t t;
                 int r;
-                fv_init(&s, socs[a]); fd_init(&t, socs[a]);
+                fv_init_f32(&s, socs[a]); fd_init_f32(&t, socs[a]);
                 for (r = 0; r < 20; r++) {
-                    fails += bad_f(fv_step(&s, r % 3 ? cur[b] : -cur[b], FT(r + b), dts[c]));
-                    fails += bad_f(fv_step(&s, nan, nan, nan)) + bad_f(fv_step(&s, inf, inf, inf));
-                    fails += bad_f(fv_step(&s, -inf, -inf, -inf)) + bad_f(fv_step(&s, nan, FT(r), inf));
-                    fails += bad_f(fd_step(&t, r % 3 ? cur[b] : -cur[b], FT(r + c))) + bad_f(fd_step(&t, nan, nan));
-                    fails += bad_f(fd_step(&t, -inf, -inf)) + bad_f(fd_step(&t, inf, inf));
+                    fails += bad_f(fv_step_f32(&s, r % 3 ? cur[b] : -cur[b], FT(r + b), dts[c]));
+                    fails += bad_f(fv_step_f32(&s, nan, nan, nan)) + bad_f(fv_step_f32(&s, inf, inf, inf));
+                    fails += bad_f(fv_step_f32(&s, -inf, -inf, -inf)) + bad_f(fv_step_f32(&s, nan, FT(r), inf));
+                    fails += bad_f(fd_step_f32(&t, r % 3 ? cur[b] : -cur[b], FT(r + c))) + bad_f(fd_step_f32(&t, nan, nan));
+                    fails += bad_f(fd_step_f32(&t, -inf, -inf)) + bad_f(fd_step_f32(&t, inf, inf));
                     fails += BAD_FS(s) + BAD_FS(t);
                 }
             }
     for (a = 0; a < sizeof qsocs / sizeof qsocs[0]; a++)
         for (b = 0; b < sizeof qcur / sizeof qcur[0]; b++)
             for (c = 0; c < sizeof qdts / sizeof qdts[0]; c++) {
-                qv_state_t s; qd_state_t t;
+                qv_state_q_t s; qd_state_q_t t;
                 int r;
-                qv_init(&s, qsocs[a]); qd_init(&t, qsocs[a]);
+                qv_init_q(&s, qsocs[a]); qd_init_q(&t, qsocs[a]);
                 for (r = 0; r < 20; r++) {
-                    (void)qv_step(&s, r % 2 ? qcur[b] : -(qcur[b] + 1), QT(r + b), qdts[c]);
-                    (void)qd_step(&t, r % 2 ? qcur[b] : -(qcur[b] + 1), QT(r + c));
+                    (void)qv_step_q(&s, r % 2 ? qcur[b] : -(qcur[b] + 1), QT(r + b), qdts[c]);
+                    (void)qd_step_q(&t, r % 2 ? qcur[b] : -(qcur[b] + 1), QT(r + c));
                     qfails += BAD_QS(s) + BAD_QS(t);
                 }
             }
     {
-        fv_state_t s; fd_state_t t; qv_state_t q; qd_state_t u;
-        fv_init(&s, 0.5f); fd_init(&t, 0.5f); qv_init(&q, 1 << 29); qd_init(&u, 1 << 29);
+        fv_state_f32_t s; fd_state_f32_t t; qv_state_q_t q; qd_state_q_t u;
+        fv_init_f32(&s, 0.5f); fd_init_f32(&t, 0.5f); qv_init_q(&q, 1 << 29); qd_init_q(&u, 1 << 29);
         for (k = 0; k < n; k++) {
             const uint32_t r1 = rnd(&x), r2 = rnd(&x), r3 = rnd(&x);
             float fi = (float)(int32_t)r1 * (1.0f / 8388608.0f);          /* +-256 A */
@@ -468,9 +468,9 @@ int main(int argc, char **argv)
             if ((r3 & 1023u) == 0u) fi = (r3 & 1024u) ? nan : fi * 1e30f;  /* absurd inputs */
             if ((r3 & 4095u) == 1u) fdt = (r3 & 4096u) ? nan : 1e30f;
             if ((r3 & 3u) != 0u) qi >>= (r3 >> 2) % 24u;                   /* mostly moderate */
-            fails += bad_f(fv_step(&s, fi, FT(r2 >> 29), fdt)) + bad_f(fd_step(&t, fi, FT(r1 >> 29)));
-            (void)qv_step(&q, qi, QT(r2 >> 29), (int32_t)(r2 >> 13));
-            (void)qd_step(&u, qi, QT(r1 >> 29));
+            fails += bad_f(fv_step_f32(&s, fi, FT(r2 >> 29), fdt)) + bad_f(fd_step_f32(&t, fi, FT(r1 >> 29)));
+            (void)qv_step_q(&q, qi, QT(r2 >> 29), (int32_t)(r2 >> 13));
+            (void)qd_step_q(&u, qi, QT(r1 >> 29));
             if ((k & 63) == 0) {
                 fails += BAD_FS(s) + BAD_FS(t);
                 qfails += BAD_QS(q) + BAD_QS(u);
@@ -518,12 +518,12 @@ def test_effects_sanitized_build_has_no_undefined_behaviour(tmp_path, family):
         if family == "surface":
             model = replace(model, surface_soc_gain=0.5)
         generate_c(model, tmp_path, prefix=prefix, numeric=numeric, dt_s=dt_s)
-        src = (tmp_path / f"{prefix}_ecm.c").read_text()
+        src = (tmp_path / file_names(prefix, numeric)["source"]).read_text()
         assert "ECMRT_FX_HYST 1" in src
         assert ("ECMRT_SURFACE 1" in src) == (family == "surface")
         if family != "effects":
             assert all(f"ECMRT_{k} 1" in src for k in ("TEMP", "DIFF", "BV", "FX_ARR")), prefix
-        srcs.append(tmp_path / f"{prefix}_ecm.c")
+        srcs.append(tmp_path / file_names(prefix, numeric)["source"])
     (tmp_path / "main.c").write_text(SAN_FX_MAIN)
     exe = tmp_path / "san_fx"
     flags = [f for f in cbuild.STRICT_CFLAGS if f != "-Werror"]

@@ -22,6 +22,7 @@ from pathlib import Path
 import pytest
 
 from conftest import REPO
+from ecmgen.c.codegen import file_names
 
 EXAMPLE = REPO / "examples" / "panasonic-25degC"
 # what a wheel is built from: everything else in the checkout (tests, examples, bench) is
@@ -130,7 +131,8 @@ def test_wheel_in_a_fresh_venv_generates_c(tmp_path):
         result = json.loads(r.stdout)
         for numeric in ("float", "fixed"):
             assert result["c"][numeric]["bit_exact_vs_reference"] is True
-            assert (tmp_path / "out" / "c" / numeric / "pan18650pf_ecm.c").is_file()
+            src = file_names("pan18650pf", numeric)["source"]
+            assert (tmp_path / "out" / "c" / numeric / src).is_file()
         assert (tmp_path / "out" / "c" / "float" / "ecmrt_f32.h").read_text() == \
             (REPO / "c_runtime" / "ecmrt_f32.h").read_text()
     finally:

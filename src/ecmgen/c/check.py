@@ -12,7 +12,7 @@ from pathlib import Path
 from ..data.measure import TimeSeries
 from ..errors import InputError
 from .cbuild import CBuildError, CToolchainMissing, c_equivalence
-from .codegen import describe, generate_c, prepare
+from .codegen import describe, file_names, generate_c, prepare
 
 
 def build_c_outputs(cfg, result, out_dir, progress=lambda msg: None) -> dict:
@@ -66,7 +66,7 @@ def build_c_outputs(cfg, result, out_dir, progress=lambda msg: None) -> dict:
     out_dir = Path(out_dir)
     block = {}
     for n in numerics:
-        progress(f"writing {n} C ({prefix}_ecm.c)")
+        progress(f"writing {n} C ({file_names(prefix, n)['source']})")
         files = generate_c(model, out_dir / "c" / n, prefix=prefix, numeric=n, dt_s=dt_s,
                            equivalence={n: eq[n]} if n in eq else None,
                            estimator=est_cfg if n == "float" else None)
