@@ -62,7 +62,7 @@
 #define ECMRT_CACHE_CLEAR(s) ((s)->pc_key = ECMRT_KEY_NONE, (s)->oc_key = 0xFFu)
 #endif
 /* the temperature row k_t of the state, clamped (a corrupted value costs no wild read) */
-#define ECMRT_KT(kt) ((kt) > (unsigned)m->t.n - 2u ? (unsigned)m->t.n - 2u : (kt))
+#define ECMRT_KT(m, kt) ((kt) > (unsigned)(m)->t.n - 2u ? (unsigned)(m)->t.n - 2u : (kt))
 #else
 #define ECMRT_HINT_T(s) 0u
 #endif

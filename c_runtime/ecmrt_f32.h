@@ -624,14 +624,14 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
     }
 #if ECMRT_SURFACE
     wo = ECMRT_F32_OCV_LOCATE(&m->ocv_g, soc, &ko);
-    sp = m->sv + 2u * ((unsigned)m->ocv_g.n * ECMRT_KT(kt) + ko);    /* as ecmrt_f32_segment */
+    sp = m->sv + 2u * ((unsigned)m->ocv_g.n * ECMRT_KT(m, kt) + ko);    /* as ecmrt_f32_segment */
     sa = sp[0] + sp[1] * wt;
     socr = ecmrt_f32_surface(s, soc, sa + ((sp[2] + sp[3] * wt) - sa) * wo);
 #endif
     w = ECMRT_F32_RC_LOCATE(&d->g, socr, &kd);
     key = (kd << 1) | dir;
     if (key != s->pc_key) {
-        ecmrt_f32_segment(d->rows + ECMRT_NPAR * ((unsigned)d->g.n * ECMRT_KT(kt) + kd), ECMRT_NPAR,
+        ecmrt_f32_segment(d->rows + ECMRT_NPAR * ((unsigned)d->g.n * ECMRT_KT(m, kt) + kd), ECMRT_NPAR,
                           ECMRT_NPAR, wt, s->pc);
         s->pc_key = (uint16_t)key;
     }
@@ -645,7 +645,7 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
 #endif
 #if ECMRT_BRANCHES
 #if ECMRT_TEMP
-    kt = ECMRT_KT(kt);
+    kt = ECMRT_KT(m, kt);
     br = d->branch + 2u * ECMRT_NB * kt;
 #else
     br = d->branch;
@@ -696,7 +696,7 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
 #endif
 #if ECMRT_TEMP
     if (ko != s->oc_key) {
-        ecmrt_f32_segment(m->ocv + 2u * ((unsigned)m->ocv_g.n * ECMRT_KT(kt) + ko), 2u, 2u, wt, s->oc);
+        ecmrt_f32_segment(m->ocv + 2u * ((unsigned)m->ocv_g.n * ECMRT_KT(m, kt) + ko), 2u, 2u, wt, s->oc);
         s->oc_key = (uint8_t)ko;
     }
     ocv = s->oc[0] + s->oc[1] * w;

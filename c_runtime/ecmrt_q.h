@@ -619,7 +619,7 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
     /* the OCV located first; sv bilinear as the OCV (temperature first) */
     wo = ECMRT_Q_OCV_LOCATE(&m->ocv_g, soc, &ko);
 #if ECMRT_TEMP
-    sp = m->sv + (unsigned)m->ocv_g.n * ECMRT_KT(kt) + ko;
+    sp = m->sv + (unsigned)m->ocv_g.n * ECMRT_KT(m, kt) + ko;
     sa = ecmrt_q_lerp(sp, (unsigned)m->ocv_g.n, wt);
     socr = ecmrt_q_surface(soc, sa + (int32_t)ECMRT_RSHR((int64_t)(ecmrt_q_lerp(sp + 1u,
         (unsigned)m->ocv_g.n, wt) - sa) * wo, ECMRT_Q30), s->u_diff);
@@ -631,7 +631,7 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
 #if ECMRT_TEMP
     key = (kd << 1) | dir;
     if (key != s->pc_key) {
-        ecmrt_q_segment(d->rows + ECMRT_NPAR * ((unsigned)d->g.n * ECMRT_KT(kt) + kd), ECMRT_NPAR,
+        ecmrt_q_segment(d->rows + ECMRT_NPAR * ((unsigned)d->g.n * ECMRT_KT(m, kt) + kd), ECMRT_NPAR,
                         ECMRT_NPAR, ECMRT_NPAR * (unsigned)d->g.n, wt, s->pc);
         s->pc_key = (uint16_t)key;
     }
@@ -640,7 +640,7 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
 #endif
 #if ECMRT_BRANCHES
 #if ECMRT_TEMP
-    kt = ECMRT_KT(kt);
+    kt = ECMRT_KT(m, kt);
     br = d->branch + ECMRT_NB * kt;
 #else
     br = d->branch;
@@ -708,7 +708,7 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
 #endif
 #if ECMRT_TEMP
     if (ko != s->oc_key) {
-        ecmrt_q_segment(m->ocv + (unsigned)m->ocv_g.n * ECMRT_KT(kt) + ko, 1u, 1u, (unsigned)m->ocv_g.n, wt,
+        ecmrt_q_segment(m->ocv + (unsigned)m->ocv_g.n * ECMRT_KT(m, kt) + ko, 1u, 1u, (unsigned)m->ocv_g.n, wt,
                         s->oc);
         s->oc_key = (uint8_t)ko;
     }
