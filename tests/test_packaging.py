@@ -133,6 +133,12 @@ def test_wheel_in_a_fresh_venv_generates_c(tmp_path):
             assert result["c"][numeric]["bit_exact_vs_reference"] is True
             src = file_names("pan18650pf", numeric)["source"]
             assert (tmp_path / "out" / "c" / numeric / src).is_file()
+            # the generated equivalence test, with the wheel alone, outside the source tree
+            test = tmp_path / "out" / "c" / numeric / f"test_{src[:-2]}_equivalence.py"
+            r = _run([py, test], tmp_path)
+            assert r.stdout.strip().endswith("equivalent to the golden vectors"), r.stdout
+        r = _run([venv / "bin" / "ecmgen", "verify", tmp_path / "out"], tmp_path)
+        assert r.stdout.splitlines()[-1] == "ecmgen verify: 2 of 2 passed", r.stdout
         assert (tmp_path / "out" / "c" / "float" / "ecmrt_f32.h").read_text() == \
             (REPO / "c_runtime" / "ecmrt_f32.h").read_text()
     finally:

@@ -17,11 +17,11 @@ static void check(const fe_est_f32_t *e, float vp)
 #if defined(FE_FX) && FE_FX     /* effects and offset state: h in [-1, 1], u_x, offset finite */
     bad |= !(e->m.h >= -1.0f && e->m.h <= 1.0f) || !finite(e->m.u_x) || !finite(e->offset_a);
 #endif
-    for (a = 0; a < FE_EST_STATES; a++) {
-        bad |= !(e->p[a * FE_EST_STATES + a] >= 0.0f);
-        for (b = 0; b < FE_EST_STATES; b++) {
-            bad |= !finite(e->p[a * FE_EST_STATES + b]);
-            bad |= e->p[a * FE_EST_STATES + b] != e->p[b * FE_EST_STATES + a];
+    for (a = 0; a < FE_EST_F32_STATES; a++) {
+        bad |= !(e->p[a * FE_EST_F32_STATES + a] >= 0.0f);
+        for (b = 0; b < FE_EST_F32_STATES; b++) {
+            bad |= !finite(e->p[a * FE_EST_F32_STATES + b]);
+            bad |= e->p[a * FE_EST_F32_STATES + b] != e->p[b * FE_EST_F32_STATES + a];
         }
     }
     if (bad && fails < 5) {

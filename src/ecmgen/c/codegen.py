@@ -52,8 +52,8 @@ __all__ = ["C_EFFECTS", "NUMERICS", "CDir", "CGrid", "CSpec", "c_float", "descri
            "_as_model"]
 
 # the runtime headers a model's .c needs, the one it includes last
-RUNTIME_FILES = {"float": ("ecmrt.h", "ecmrt_f32.h"),
-                 "fixed": ("ecmrt.h", "ecmrt_q_exp.h", "ecmrt_q.h")}
+RUNTIME_FILES = {"float": ("ecmrt.h", "ecmrt_state.h", "ecmrt_f32.h"),
+                 "fixed": ("ecmrt.h", "ecmrt_state.h", "ecmrt_q_exp.h", "ecmrt_q.h")}
 
 
 def _find_dir(name: str) -> Path:

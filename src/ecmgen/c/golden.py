@@ -11,6 +11,8 @@ outputs, for the firmware team's CI.
     fixed point.
 ``<prefix>_ecm_<s>_test.c``     a C99 program that replays them (exit status 0 / 1, one
     line on stdout; ``-DECMV_HOSTED=0`` for a target without stdio).
+``test_<prefix>_ecm_<s>_equivalence.py``  a pytest file (also a script) running that check
+    through :func:`ecmgen.c.verify.verify`: needs only the ecmgen wheel and a compiler.
 
 ``ecmgen verify`` (:mod:`ecmgen.c.verify`) compiles that program with the user's copy of the
 C, compiler and flags. Same model, options and cycle -> the same bytes.
@@ -34,7 +36,8 @@ TOL_SOC_F32 = 1e-6
 
 def vector_names(prefix: str, numeric: str) -> dict[str, str]:
     stem = c_names(prefix, numeric)["source"][:-2]
-    return {"vectors": f"{stem}_vectors.h", "test": f"{stem}_test.c"}
+    return {"vectors": f"{stem}_vectors.h", "test": f"{stem}_test.c",
+            "pytest": f"test_{stem}_equivalence.py"}
 
 
 @dataclass(frozen=True)
@@ -152,8 +155,9 @@ def render_vectors(spec: CSpec, segments: list[Segment]) -> dict[str, str]:
     ctx = _context(spec)
     ctx["files"] = dict(file_names(spec.prefix, spec.numeric), **names)
     ctx["vp"] = vp
-    test = _env().get_template("ecm_test.c.j2").render(ctx)
-    return {names["vectors"]: text, names["test"]: test}
+    env = _env()
+    return {names["vectors"]: text, names["test"]: env.get_template("ecm_test.c.j2").render(ctx),
+            names["pytest"]: env.get_template("test_equivalence.py.j2").render(ctx)}
 
 
 def write_golden(spec: CSpec, out_dir, series=None, soc0: float = 1.0) -> list[Path]:
