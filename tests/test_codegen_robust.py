@@ -160,26 +160,39 @@ SAN_MAIN = (REPO / "tests" / "data" / "codegen_sanitize_main.c").read_text()
 
 
 def test_sanitized_build_has_no_undefined_behaviour(tmp_path):
+    cc = _sanitizer_cc(tmp_path)
+    srcs = []
+    for prefix, (numeric, dt_s) in zip(("fv", "fd", "qv", "qd"), VARIANTS):
+        generate_c(_model(), tmp_path, prefix=prefix, numeric=numeric, dt_s=dt_s)
+        srcs.append(tmp_path / file_names(prefix, numeric)["source"])
+    run = _sanitized_run(cc, tmp_path, srcs, SAN_MAIN, "10000000")
+    assert "fails 0" in run.stdout
+
+
+def _sanitizer_cc(tmp_path) -> list[str]:
+    """The host compiler, or a skip when it cannot build with the sanitizers."""
     cc = cbuild.host_cc()
     probe = subprocess.run([*cc, *cbuild.SANITIZE_FLAGS, "-x", "c", "-", "-o", tmp_path / "probe"],
                            input="int main(void){return 0;}\n", capture_output=True, text=True)
     if probe.returncode != 0:
         pytest.skip(f"compiler cannot build with sanitizers: {probe.stderr.strip()[:200]}")
-    srcs = []
-    for prefix, (numeric, dt_s) in zip(("fv", "fd", "qv", "qd"), VARIANTS):
-        generate_c(_model(), tmp_path, prefix=prefix, numeric=numeric, dt_s=dt_s)
-        srcs.append(tmp_path / file_names(prefix, numeric)["source"])
-    (tmp_path / "main.c").write_text(SAN_MAIN)
+    return cc
+
+
+def _sanitized_run(cc, tmp_path, srcs, main: str, steps: str) -> subprocess.CompletedProcess:
+    """The generated sources and ``main`` built with the sanitizers and run for ``steps``:
+    no runtime error, exit status 0."""
+    (tmp_path / "main.c").write_text(main)
     exe = tmp_path / "san"
     flags = [f for f in cbuild.STRICT_CFLAGS if f != "-Werror"]
     proc = subprocess.run([*cc, *flags, *cbuild.SANITIZE_FLAGS, "-O1", "-I", str(tmp_path),
                            *map(str, srcs), str(tmp_path / "main.c"), "-o", str(exe)],
                           capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
-    run = subprocess.run([str(exe), "10000000"], capture_output=True, text=True, timeout=300)
+    run = subprocess.run([str(exe), steps], capture_output=True, text=True, timeout=300)
     assert "runtime error" not in run.stderr and "AddressSanitizer" not in run.stderr, run.stderr
     assert run.returncode == 0, run.stdout + run.stderr
-    assert "fails 0" in run.stdout
+    return run
 
 
 # --- models with effects -----------------------------------------------------------------------
@@ -333,11 +346,7 @@ def test_effects_sanitized_build_has_no_undefined_behaviour(tmp_path, family):
     5*10^6 (temperature: 2*10^6) random steps: no sanitizer report, no non-finite output,
     every state finite, h within [-1, 1]. "surface": the temperature family with the surface
     SOC (surface_soc_gain 0.5) in every variant."""
-    cc = cbuild.host_cc()
-    probe = subprocess.run([*cc, *cbuild.SANITIZE_FLAGS, "-x", "c", "-", "-o", tmp_path / "probe"],
-                           input="int main(void){return 0;}\n", capture_output=True, text=True)
-    if probe.returncode != 0:
-        pytest.skip(f"compiler cannot build with sanitizers: {probe.stderr.strip()[:200]}")
+    cc = _sanitizer_cc(tmp_path)
     srcs = []
     for prefix, (numeric, dt_s) in zip(("fv", "fd", "qv", "qd"), VARIANTS):
         model = _fx_model(numeric) if family == "effects" else _temperature_fx_model(numeric)
@@ -350,16 +359,7 @@ def test_effects_sanitized_build_has_no_undefined_behaviour(tmp_path, family):
         if family != "effects":
             assert all(f"ECMRT_{k} 1" in src for k in ("TEMP", "DIFF", "BV", "FX_ARR")), prefix
         srcs.append(tmp_path / file_names(prefix, numeric)["source"])
-    (tmp_path / "main.c").write_text(SAN_FX_MAIN)
-    exe = tmp_path / "san_fx"
-    flags = [f for f in cbuild.STRICT_CFLAGS if f != "-Werror"]
-    proc = subprocess.run([*cc, *flags, *cbuild.SANITIZE_FLAGS, "-O1", "-I", str(tmp_path),
-                           *map(str, srcs), str(tmp_path / "main.c"), "-o", str(exe)],
-                          capture_output=True, text=True)
-    assert proc.returncode == 0, proc.stderr
-    steps = "5000000" if family == "effects" else "2000000"
-    run = subprocess.run([str(exe), steps], capture_output=True, text=True, timeout=300)
+    run = _sanitized_run(cc, tmp_path, srcs, SAN_FX_MAIN,
+                         "5000000" if family == "effects" else "2000000")
     print("\n", run.stdout)
-    assert "runtime error" not in run.stderr and "AddressSanitizer" not in run.stderr, run.stderr
-    assert run.returncode == 0, run.stdout + run.stderr
     assert "fails 0 qfails 0" in run.stdout

@@ -25,6 +25,10 @@ static int bad_f(float v) { return !(v == v) || v > 1e6f || v < -1e6f; }
 /* fixed state: h in Q30 [-1, 1] */
 #define BAD_QS(s) ((s).h < -(1 << 30) || (s).h > (1 << 30))
 
+#define NQ_SOC (sizeof qsocs / sizeof qsocs[0])
+#define NQ_CUR (sizeof qcur / sizeof qcur[0])
+#define NQ_DT (sizeof qdts / sizeof qdts[0])
+
 int main(int argc, char **argv)
 {
     static const float cur[] = {0.0f, 1e30f, -1e30f, FLT_MAX, -FLT_MAX, 1e-45f, -1e-45f,
@@ -37,7 +41,7 @@ int main(int argc, char **argv)
     const float nan = 0.0f / (argc > 99 ? 1.0f : 0.0f);   /* NaN without a constant fold warning */
     const float inf = 1.0f / (argc > 99 ? 1.0f : 0.0f);
     long n = argc > 1 ? atol(argv[1]) : 1000000L;
-    size_t a, b, c;
+    size_t a, b, c, n3;
     long k;
     uint32_t x = 2463534242u;
     for (a = 0; a < sizeof socs / sizeof socs[0]; a++)
@@ -55,18 +59,22 @@ int main(int argc, char **argv)
                     fails += BAD_FS(s) + BAD_FS(t);
                 }
             }
-    for (a = 0; a < sizeof qsocs / sizeof qsocs[0]; a++)
-        for (b = 0; b < sizeof qcur / sizeof qcur[0]; b++)
-            for (c = 0; c < sizeof qdts / sizeof qdts[0]; c++) {
-                qv_state_q_t s; qd_state_q_t t;
-                int r;
-                qv_init_q(&s, qsocs[a]); qd_init_q(&t, qsocs[a]);
-                for (r = 0; r < 20; r++) {
-                    (void)qv_step_q(&s, r % 2 ? qcur[b] : -(qcur[b] + 1), QT(r + b), qdts[c]);
-                    (void)qd_step_q(&t, r % 2 ? qcur[b] : -(qcur[b] + 1), QT(r + c));
-                    qfails += BAD_QS(s) + BAD_QS(t);
-                }
+    /* every (soc, current, dt) combination of the fixed-point variants, one loop */
+    for (n3 = 0; n3 < NQ_SOC * NQ_CUR * NQ_DT; n3++) {
+        a = n3 / (NQ_CUR * NQ_DT);
+        b = n3 / NQ_DT % NQ_CUR;
+        c = n3 % NQ_DT;
+        {
+            qv_state_q_t s; qd_state_q_t t;
+            int r;
+            qv_init_q(&s, qsocs[a]); qd_init_q(&t, qsocs[a]);
+            for (r = 0; r < 20; r++) {
+                (void)qv_step_q(&s, r % 2 ? qcur[b] : -(qcur[b] + 1), QT(r + b), qdts[c]);
+                (void)qd_step_q(&t, r % 2 ? qcur[b] : -(qcur[b] + 1), QT(r + c));
+                qfails += BAD_QS(s) + BAD_QS(t);
             }
+        }
+    }
     {
         fv_state_f32_t s; fd_state_f32_t t; qv_state_q_t q; qd_state_q_t u;
         fv_init_f32(&s, 0.5f); fd_init_f32(&t, 0.5f); qv_init_q(&q, 1 << 29); qd_init_q(&u, 1 << 29);

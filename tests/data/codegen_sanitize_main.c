@@ -20,6 +20,10 @@ static uint32_t rnd(uint32_t *x) { *x ^= *x << 13; *x ^= *x >> 17; *x ^= *x << 5
 static int bad_f(float v) { return !(v == v) || v > 1e6f || v < -1e6f; }
 static long fails = 0;
 
+#define NQ_SOC (sizeof qsocs / sizeof qsocs[0])
+#define NQ_CUR (sizeof qcur / sizeof qcur[0])
+#define NQ_DT (sizeof qdts / sizeof qdts[0])
+
 int main(int argc, char **argv)
 {
     static const float cur[] = {0.0f, 1e30f, -1e30f, FLT_MAX, -FLT_MAX, 1e-45f, -1e-45f,
@@ -32,7 +36,7 @@ int main(int argc, char **argv)
     const float nan = 0.0f / (argc > 99 ? 1.0f : 0.0f);   /* NaN without a constant fold warning */
     const float inf = 1.0f / (argc > 99 ? 1.0f : 0.0f);
     long n = argc > 1 ? atol(argv[1]) : 1000000L;
-    size_t a, b, c;
+    size_t a, b, c, n3;
     long k;
     uint32_t x = 2463534242u;
     int32_t lo = INT32_MAX, hi = INT32_MIN;
@@ -51,20 +55,24 @@ int main(int argc, char **argv)
                     fails += bad_f(fd_step_f32(&t, -inf, -inf));
                 }
             }
-    for (a = 0; a < sizeof qsocs / sizeof qsocs[0]; a++)
-        for (b = 0; b < sizeof qcur / sizeof qcur[0]; b++)
-            for (c = 0; c < sizeof qdts / sizeof qdts[0]; c++) {
-                qv_state_q_t s; qd_state_q_t t;
-                int r;
-                qv_init_q(&s, qsocs[a]); qd_init_q(&t, qsocs[a]);
-                for (r = 0; r < 20; r++) {
-                    int32_t v = qv_step_q(&s, r % 2 ? qcur[b] : -(qcur[b] + 1), QT(r + b), qdts[c]);
-                    int32_t w = qd_step_q(&t, qcur[b], QT(r + c));
-                    if (v < lo) lo = v;
-                    if (v > hi) hi = v;
-                    (void)w;
-                }
+    /* every (soc, current, dt) combination of the fixed-point variants, one loop */
+    for (n3 = 0; n3 < NQ_SOC * NQ_CUR * NQ_DT; n3++) {
+        a = n3 / (NQ_CUR * NQ_DT);
+        b = n3 / NQ_DT % NQ_CUR;
+        c = n3 % NQ_DT;
+        {
+            qv_state_q_t s; qd_state_q_t t;
+            int r;
+            qv_init_q(&s, qsocs[a]); qd_init_q(&t, qsocs[a]);
+            for (r = 0; r < 20; r++) {
+                int32_t v = qv_step_q(&s, r % 2 ? qcur[b] : -(qcur[b] + 1), QT(r + b), qdts[c]);
+                int32_t w = qd_step_q(&t, qcur[b], QT(r + c));
+                if (v < lo) lo = v;
+                if (v > hi) hi = v;
+                (void)w;
             }
+        }
+    }
     {
         fv_state_f32_t s; fd_state_f32_t t; qv_state_q_t q; qd_state_q_t u;
         fv_init_f32(&s, 0.5f); fd_init_f32(&t, 0.5f); qv_init_q(&q, 1 << 29); qd_init_q(&u, 1 << 29);
