@@ -163,3 +163,47 @@ def test_verify_bad_input_is_one_line_exit_2(kit, tmp_path):
     (empty / "x.c").write_text("")
     res = _cli("verify", d / "pan_ecm_q_vectors.h", "--c", empty)
     assert res.returncode == 2 and "pan_ecm_q.c" in res.stderr
+
+
+FORMATS_MAIN = r"""
+#include "pan_ecm_q.h"
+PAN_ECM_Q_ASSERT_FORMATS(QI, QV);
+int main(void)
+{
+    const pan_amp_q{QI}_t i = PAN_ECM_Q_AMP_Q{QI}_FROM(-2.5);
+    const pan_volt_q{QV}_t v = PAN_ECM_Q_VOLT_Q{QV}_FROM(3);
+    const pan_degc_q8_t t = PAN_ECM_Q_DEGC_Q8_FROM(-10.25);
+    const pan_soc_q30_t s = PAN_ECM_Q_SOC_Q30_FROM(0.5);
+    return (i == -(int32_t)(5 << ({QI} - 1)) && v == (int32_t)(3 << {QV}) && t == -2624 &&
+            s == (1 << 29) && PAN_ECM_Q_VOLT_Q{QV}_TO_MILLI(v) == 3000 &&
+            PAN_ECM_Q_AMP_Q{QI}_TO_MILLI(i) == -2500 && PAN_ECM_Q_DEGC_Q8_TO_MILLI(t) == -10250) ? 0 : 1;
+}
+"""
+
+
+def test_fixed_point_types_and_formats_break_the_build_when_they_change(kit, tmp_path):
+    """The conversion macros are exact; code written for other formats does not compile."""
+    d, specs = kit
+    q = specs["fixed"].q
+    qi, qv = q["Q_I"], q["Q_V"]
+
+    def build(qi_, qv_):
+        text = FORMATS_MAIN.replace("{QI}", str(qi_)).replace("{QV}", str(qv_))
+        (tmp_path / "f.c").write_text(text.replace("QI, QV", f"{qi_}, {qv_}"))
+        return subprocess.run([*host_cc(), *STRICT_CFLAGS, "-I", d, tmp_path / "f.c",
+                               d / "pan_ecm_q.c", "-o", tmp_path / "f"], capture_output=True,
+                              text=True)
+
+    ok = build(qi, qv)
+    assert ok.returncode == 0, ok.stderr
+    assert subprocess.run([tmp_path / "f"]).returncode == 0
+    for other in ((qi, qv - 1), (qi + 1, qv)):          # a refit that moved a format
+        assert build(*other).returncode != 0
+
+
+def test_fast_math_is_refused(kit, tmp_path):
+    d, _ = kit
+    proc = subprocess.run([*host_cc(), "-std=c99", "-ffast-math", "-I", d, "-c",
+                           d / "pan_ecm_f32.c", "-o", tmp_path / "x.o"], capture_output=True,
+                          text=True)
+    assert proc.returncode != 0 and "-ffast-math" in proc.stderr
