@@ -50,6 +50,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
 from ecmgen.c import cbuild, cref, target  # noqa: E402
+from ecmgen.c.names import c_names  # noqa: E402
 from ecmgen.c.codegen import describe, prepare, render  # noqa: E402
 from ecmgen.c.spec import state_bytes  # noqa: E402
 from ecmgen.model.simulate import simulate  # noqa: E402
@@ -113,18 +114,18 @@ def label(numeric, dt_s):
 CG_MAIN = r"""
 #include <stdio.h>
 #include <stdlib.h>
-#include "bench_ecm.h"
+#include "HEADER"
 int main(int argc, char **argv)
 {
     FILE *f = fopen(argv[1], "rb");
     size_t n = (size_t)atol(argv[2]), k;
     T *i = malloc(n * sizeof *i), *dt = malloc(n * sizeof *dt), *t = malloc(n * sizeof *t);
-    bench_state_t s;
+    STATE s;
     double acc = 0.0;
     if (!f || fread(i, sizeof *i, n, f) != n || fread(dt, sizeof *dt, n, f) != n ||
         fread(t, sizeof *t, n, f) != n) return 1;
-    bench_init(&s, SOC0);
-    for (k = 0; k < n; k++) acc += (double)bench_step(&s, i[k], t[k] DTARG);
+    INIT(&s, SOC0);
+    for (k = 0; k < n; k++) acc += (double)STEP(&s, i[k], t[k] DTARG);
     printf("%g\n", acc);
     (void)argc;
     return 0;
@@ -155,16 +156,19 @@ def instructions_per_step(model, cur, dt, temp, n) -> dict:
             i_n, dt_n, t_n = _native(spec, cur[:n], dt[:n], temp[:n])
             t, soc0 = ("int32_t", str(cref.soc_to_raw(0.95))) if spec.fixed else ("float", "0.95f")
             (d / "in.bin").write_bytes(i_n.tobytes() + dt_n.tobytes() + t_n.tobytes())
+            nm = c_names("bench", numeric)
             main = CG_MAIN.replace("T *", f"{t} *").replace("SOC0", soc0)
+            for key in ("HEADER", "STATE", "INIT", "STEP"):
+                main = main.replace(key, nm[{"STATE": "state"}.get(key, key.lower())])
             main = main.replace("DTARG", ", dt[k]" if dt_s is None else "")
             (d / "main.c").write_text(main)
-            subprocess.run([*cc, *cbuild.STRICT_CFLAGS, "-O2", "-I", str(d), "-c", str(d / "bench_ecm.c"),
+            subprocess.run([*cc, *cbuild.STRICT_CFLAGS, "-O2", "-I", str(d), "-c", str(d / nm["source"]),
                             "-o", str(d / "m.o")], check=True)
             subprocess.run([*cc, "-O2", "-I", str(d), str(d / "main.c"), str(d / "m.o"), "-o",
                             str(d / "a.out")], check=True)
             cg = d / "cg.out"
             subprocess.run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={cg}",
-                            "--toggle-collect=bench_step", str(d / "a.out"), str(d / "in.bin"), str(n)],
+                            f"--toggle-collect={nm['step']}", str(d / "a.out"), str(d / "in.bin"), str(n)],
                            check=True, capture_output=True)
             total = int(re.search(r"^summary:\s+(\d+)", cg.read_text(), re.M).group(1))
             out[label(numeric, dt_s).strip()] = round(total / n, 1)
@@ -184,13 +188,14 @@ def flash_ram(model) -> dict:
                 if cpu == "m0" and numeric == "float":
                     continue
                 spec = prepare(model, numeric=numeric, dt_s=dt_s, prefix="bench")
+                sfx = c_names("bench", numeric)["suffix"]
                 obj = target.cross_compile(spec, Path(tmp) / f"{cpu}_{numeric}_{dt_s}", cpu=cpu, opt="-Os")
                 sz = target.sizes(obj.obj)
                 su = target.stack_usage(obj.obj)
                 res[f"{cpu} {label(numeric, dt_s).strip()}"] = {
                     "code": sz["code"], "tables": sz["tables"], "data+bss": sz["ram"],
                     "state": state_bytes(spec),
-                    "stack_step": sum(v for k, v in su.items() if k not in ("bench_run", "bench_init")),
+                    "stack_step": sum(v for k, v in su.items() if k not in (f"bench_run_{sfx}", f"bench_init_{sfx}")),
                     "libgcc": [s for s in target.undefined_symbols(obj.obj)],
                     "warnings": obj.warnings,
                 }

@@ -73,20 +73,20 @@ EVERY_EFFECT = (HYSTERESIS, make_effect("extra_rc", r_ohm=0.01, tau_s=900.0),
 CG_MAIN = r"""
 #include <stdio.h>
 #include <stdlib.h>
-#include "bench_est.h"
+#include "bench_est_f32.h"
 int main(int argc, char **argv)
 {
     FILE *f = fopen(argv[1], "rb");
     size_t n = (size_t)atol(argv[2]), k;
     int est = atoi(argv[3]);
     float *i = malloc(4 * n * sizeof *i), *t = i + n, *dt = i + 2 * n, *v = i + 3 * n;
-    bench_est_t e;
+    bench_est_f32_t e;
     double acc = 0.0;
     if (!f || fread(i, sizeof *i, 4 * n, f) != 4 * n) return 1;
-    bench_est_init(&e, 0.8f);
+    bench_est_init_f32(&e, 0.8f);
     for (k = 0; k < n; k++) {
-        acc += est ? (double)bench_est_step(&e, i[k], t[k], dt[k], v[k])
-                   : (double)bench_step(&e.m, i[k], t[k], dt[k]);
+        acc += est ? (double)bench_est_step_f32(&e, i[k], t[k], dt[k], v[k])
+                   : (double)bench_step_f32(&e.m, i[k], t[k], dt[k]);
     }
     printf("%g %g\n", acc, (double)e.m.soc);
     (void)argc;
@@ -118,10 +118,11 @@ def instructions_per_step(model, n: int, cfg=None) -> dict:
                                             for a in arrays))
         (d / "main.c").write_text(CG_MAIN)
         subprocess.run([*cc, *cbuild.STRICT_CFLAGS, "-O2", "-I", str(d), "-c",
-                        str(d / "bench_ecm.c"), "-o", str(d / "m.o")], check=True)
+                        str(d / "bench_ecm_f32.c"), "-o", str(d / "m.o")], check=True)
         subprocess.run([*cc, "-O2", "-I", str(d), str(d / "main.c"), str(d / "m.o"), "-o",
                         str(d / "a.out")], check=True)
-        for label, fn, flag in (("est_step", "bench_est_step", "1"), ("model step", "bench_step", "0")):
+        for label, fn, flag in (("est_step", "bench_est_step_f32", "1"),
+                                ("model step", "bench_step_f32", "0")):
             cg = d / f"cg.{flag}"
             subprocess.run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={cg}",
                             f"--toggle-collect={fn}", str(d / "a.out"), str(d / "in.bin"),
@@ -138,10 +139,10 @@ def flash_ram(model, cfg=None) -> dict:
     sz = estimator_sizes(model, cfg, cpu="m4f", opt="-Os")
     fr = sz["stack_frames"]
     update = next((v for k, v in fr.items() if k.startswith("ecmrt_est_f32_update")), 0)
-    inner = max(fr.get("fe_step", 0) + fr.get("ecmrt_f32_locate", 0),
+    inner = max(fr.get("fe_step_f32", 0) + fr.get("ecmrt_f32_locate", 0),
                 next((v for k, v in fr.items() if k.startswith("ecmrt_est_f32_params")), 0)
                 + fr.get("ecmrt_f32_locate", 0), fr.get("ecmrt_est_f32_gain", 0))
-    sz["stack_est_step_path"] = fr.get("fe_est_step", 0) + update + inner
+    sz["stack_est_step_path"] = fr.get("fe_est_step_f32", 0) + update + inner
     return sz
 
 

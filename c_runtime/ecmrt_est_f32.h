@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * ecmrt_est_f32.h - ecmgen C runtime: the extended Kalman filter (SOC estimator) on the
  * model's own float32 step (hand-written, model-independent).

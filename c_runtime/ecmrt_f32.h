@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * ecmrt_f32.h - ecmgen C runtime, numeric = "float" (IEEE-754 binary32): the one step of
  * every model, with compile-time switches for what the model has.
@@ -55,11 +56,16 @@
     !defined(ECMRT_FX_XRC) || !defined(ECMRT_FX_CDR) || !defined(ECMRT_FX_ARR)
 #error "ecmrt_f32.h needs the ECMRT_* configuration macros of a generated <prefix>_ecm.c"
 #endif
+#include "ecmrt_state.h"    /* the state at init, the hints */
+
 #ifndef ECMRT_SURFACE
 #define ECMRT_SURFACE 0
 #endif
 #if ECMRT_SURFACE && (!ECMRT_DIFF || ECMRT_OCV_SHARED)
 #error "ECMRT_SURFACE needs ECMRT_DIFF and the OCV's own grid"
+#endif
+#if defined(__FAST_MATH__) && !defined(ECMRT_ALLOW_FAST_MATH)
+#error "-ffast-math reorders and contracts float arithmetic: the step is no longer bit-exact (build without it and with -ffp-contract=off, or define ECMRT_ALLOW_FAST_MATH)"
 #endif
 #if !defined(FLT_EVAL_METHOD) || FLT_EVAL_METHOD != 0
 #error "float expressions must be evaluated in float (FLT_EVAL_METHOD == 0), e.g. SSE or an FPv4-SP FPU"
@@ -273,11 +279,11 @@ ECMRT_F32_COLD void ecmrt_f32_segment(const float *yd, unsigned npar, unsigned n
         pc[j + 1u] = b - a;
     }
 }
-#define ECMRT_F32_AT(p, off) (s->pc[off] + s->pc[(off) + 1u] * w)
-#define ECMRT_F32_TV(b, j) ((b)[j] + (b)[(j) + 1u] * wt)
+#define ECMRT_F32_AT(s, p, off, w) ((s)->pc[off] + (s)->pc[(off) + 1u] * (w))
+#define ECMRT_F32_TV(b, j, wt) ((b)[j] + (b)[(j) + 1u] * (wt))
 #else
-#define ECMRT_F32_AT(p, off) ecmrt_f32_lerp((p) + (off), w)
-#define ECMRT_F32_TV(b, j) ((b)[j])
+#define ECMRT_F32_AT(s, p, off, w) ecmrt_f32_lerp((p) + (off), (w))
+#define ECMRT_F32_TV(b, j, wt) ((b)[j])
 #endif
 
 /* exp(-x) = s (1 + q) for 0 <= x < 87: x = n ln2 + r, |r| <= ln2/2 (Cody-Waite: n * LN2_HI
@@ -445,10 +451,10 @@ ECMRT_F32_COLD void ecmrt_f32_coefs(const ecmrt_f32_model_t *m, ECMRT_STATE *s, 
 #if ECMRT_DIFF
         const float *br = m->dir[d].branch + 2u * ECMRT_NB * kt;
 #endif
-        s->kc[d][ECMRT_K_F] = 1.0f / ECMRT_F32_TV(tk, 0u);
-        s->kc[d][ECMRT_K_S] = 1.0f / ECMRT_F32_TV(tk, 2u);
+        s->kc[d][ECMRT_K_F] = 1.0f / ECMRT_F32_TV(tk, 0u, wt);
+        s->kc[d][ECMRT_K_S] = 1.0f / ECMRT_F32_TV(tk, 2u, wt);
 #if ECMRT_DIFF
-        s->kc[d][ECMRT_K_D] = 1.0f / ECMRT_F32_TV(br, ECMRT_B_KD);
+        s->kc[d][ECMRT_K_D] = 1.0f / ECMRT_F32_TV(br, ECMRT_B_KD, wt);
 #endif
     }
     (void)wt;
@@ -532,14 +538,13 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
 #if ECMRT_DIFF
     float rd, ud;
 #endif
+    float socr;               /* the SOC the RC tables are read at */
 #if ECMRT_SURFACE
-    float wo, socr;
+    float wo;
 #if ECMRT_TEMP
     const float *sp;
     float sa;
 #endif
-#else
-#define socr soc
 #endif
 #if ECMRT_FX_HYST || ECMRT_FX_CDR || ECMRT_BV
     float ai;
@@ -623,14 +628,16 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
     }
 #if ECMRT_SURFACE
     wo = ECMRT_F32_OCV_LOCATE(&m->ocv_g, soc, &ko);
-    sp = m->sv + 2u * ((unsigned)m->ocv_g.n * ECMRT_KT(kt) + ko);    /* as ecmrt_f32_segment */
+    sp = m->sv + 2u * ((unsigned)m->ocv_g.n * ECMRT_KT(m, kt) + ko);    /* as ecmrt_f32_segment */
     sa = sp[0] + sp[1] * wt;
     socr = ecmrt_f32_surface(s, soc, sa + ((sp[2] + sp[3] * wt) - sa) * wo);
+#else
+    socr = soc;
 #endif
     w = ECMRT_F32_RC_LOCATE(&d->g, socr, &kd);
     key = (kd << 1) | dir;
     if (key != s->pc_key) {
-        ecmrt_f32_segment(d->rows + ECMRT_NPAR * ((unsigned)d->g.n * ECMRT_KT(kt) + kd), ECMRT_NPAR,
+        ecmrt_f32_segment(d->rows + ECMRT_NPAR * ((unsigned)d->g.n * ECMRT_KT(m, kt) + kd), ECMRT_NPAR,
                           ECMRT_NPAR, wt, s->pc);
         s->pc_key = (uint16_t)key;
     }
@@ -638,21 +645,23 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
 #if ECMRT_SURFACE
     wo = ECMRT_F32_OCV_LOCATE(&m->ocv_g, soc, &ko);
     socr = ecmrt_f32_surface(s, soc, ecmrt_f32_lerp(m->sv + 2u * ko, wo));
+#else
+    socr = soc;
 #endif
     w = ECMRT_F32_RC_LOCATE(&d->g, socr, &kd);
     row = d->rows + ECMRT_NPAR * kd;
 #endif
 #if ECMRT_BRANCHES
 #if ECMRT_TEMP
-    kt = ECMRT_KT(kt);
+    kt = ECMRT_KT(m, kt);
     br = d->branch + 2u * ECMRT_NB * kt;
 #else
     br = d->branch;
 #endif
 #endif
-    r0 = ECMRT_F32_AT(row, ECMRT_P_R0);
-    rf = ECMRT_F32_AT(row, ECMRT_P_RF);
-    rs = ECMRT_F32_AT(row, ECMRT_P_RS);
+    r0 = ECMRT_F32_AT(s, row, ECMRT_P_R0, w);
+    rf = ECMRT_F32_AT(s, row, ECMRT_P_RF, w);
+    rs = ECMRT_F32_AT(s, row, ECMRT_P_RS, w);
 #if ECMRT_TAU_T && ECMRT_VARIABLE_DT
     cf = ecmrt_f32_one_minus_exp_neg(dt * ECMRT_KC(s, dir, ECMRT_K_F));
     cs = ecmrt_f32_one_minus_exp_neg(dt * ECMRT_KC(s, dir, ECMRT_K_S));
@@ -660,11 +669,11 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
     cf = ECMRT_KC(s, dir, ECMRT_K_F);
     cs = ECMRT_KC(s, dir, ECMRT_K_S);
 #elif ECMRT_VARIABLE_DT
-    cf = ecmrt_f32_one_minus_exp_neg(dt / ECMRT_F32_AT(row, ECMRT_P_KF));
-    cs = ecmrt_f32_one_minus_exp_neg(dt / ECMRT_F32_AT(row, ECMRT_P_KS));
+    cf = ecmrt_f32_one_minus_exp_neg(dt / ECMRT_F32_AT(s, row, ECMRT_P_KF, w));
+    cs = ecmrt_f32_one_minus_exp_neg(dt / ECMRT_F32_AT(s, row, ECMRT_P_KS, w));
 #else
-    df = ECMRT_F32_AT(row, ECMRT_P_KF);
-    ds = ECMRT_F32_AT(row, ECMRT_P_KS);
+    df = ECMRT_F32_AT(s, row, ECMRT_P_KF, w);
+    ds = ECMRT_F32_AT(s, row, ECMRT_P_KS, w);
 #endif
     /* 3'. parameter effects and the Butler-Volmer branch, in this order */
 #if ECMRT_FX_CDR
@@ -681,12 +690,12 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
     rs = rs * f;
 #endif
 #if ECMRT_BV
-    x = ai / ECMRT_F32_TV(br, ECMRT_B_I0);  /* r_fast asinh(x)/x, x = max(|i|/i0(T), 1e-12) */
+    x = ai / ECMRT_F32_TV(br, ECMRT_B_I0, wt);  /* r_fast asinh(x)/x, x = max(|i|/i0(T), 1e-12) */
     g = ecmrt_f32_asinh(&x);
     rf = rf * (g / x);
 #endif
 #if ECMRT_OCV_SHARED
-    ocv = ECMRT_F32_AT(row, ECMRT_P_OCV);
+    ocv = ECMRT_F32_AT(s, row, ECMRT_P_OCV, w);
 #else
 #if ECMRT_SURFACE
     w = wo;                                 /* the OCV at the mean SOC, located above */
@@ -695,7 +704,7 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
 #endif
 #if ECMRT_TEMP
     if (ko != s->oc_key) {
-        ecmrt_f32_segment(m->ocv + 2u * ((unsigned)m->ocv_g.n * ECMRT_KT(kt) + ko), 2u, 2u, wt, s->oc);
+        ecmrt_f32_segment(m->ocv + 2u * ((unsigned)m->ocv_g.n * ECMRT_KT(m, kt) + ko), 2u, 2u, wt, s->oc);
         s->oc_key = (uint8_t)ko;
     }
     ocv = s->oc[0] + s->oc[1] * w;
@@ -718,16 +727,16 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
     /* 5. terminal voltage */
     v = ((ocv + r0 * i) + uf) + us;
 #if ECMRT_DIFF
-    rd = ECMRT_F32_TV(br, ECMRT_B_RD);      /* the diffusion pair: as the others */
+    rd = ECMRT_F32_TV(br, ECMRT_B_RD, wt);      /* the diffusion pair: as the others */
     ud = s->u_diff;
 #if ECMRT_TAU_T && ECMRT_VARIABLE_DT
     ud = ud + ecmrt_f32_one_minus_exp_neg(dt * ECMRT_KC(s, dir, ECMRT_K_D)) * (rd * i - ud);
 #elif ECMRT_TAU_T
     ud = ud + ECMRT_KC(s, dir, ECMRT_K_D) * (rd * i - ud);
 #elif ECMRT_VARIABLE_DT
-    ud = ud + ecmrt_f32_one_minus_exp_neg(dt / ECMRT_F32_TV(br, ECMRT_B_KD)) * (rd * i - ud);
+    ud = ud + ecmrt_f32_one_minus_exp_neg(dt / ECMRT_F32_TV(br, ECMRT_B_KD, wt)) * (rd * i - ud);
 #else
-    ud = ud + (rd * i - ud) / ECMRT_F32_TV(br, ECMRT_B_KD);
+    ud = ud + (rd * i - ud) / ECMRT_F32_TV(br, ECMRT_B_KD, wt);
 #endif
     s->u_diff = ud;
     v = v + ud;
@@ -764,7 +773,6 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
     ecmrt_hints_store(s, dir, kd, ko, kt);   /* last (see ecmrt_f32_locate) */
     return v;
 }
-#undef socr
 
 #undef ECMRT_F32_AT
 #undef ECMRT_F32_TV

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * ecmrt_q.h - ecmgen C runtime, numeric = "fixed": int32 Q formats, int64 intermediates,
  * no floating point and no 64-bit division anywhere; the one step of every model, with
@@ -58,6 +59,8 @@
     !defined(ECMRT_Q_RF) || !defined(ECMRT_Q_RS) || !defined(ECMRT_SH_DSOC)
 #error "ecmrt_q.h needs the ECMRT_* configuration macros of a generated <prefix>_ecm.c"
 #endif
+
+#include "ecmrt_state.h"    /* the state at init, the hints */
 
 #ifndef ECMRT_SURFACE
 #define ECMRT_SURFACE 0
@@ -290,13 +293,23 @@ ECMRT_Q_SHARED void ecmrt_q_segment(const int32_t *y, unsigned npar, unsigned np
         pc[2u * j + 1u] = ecmrt_q_lerp(y + npar + j, st, wt) - a;
     }
 }
-#define ECMRT_Q_AT(p, j) (s->pc[2u * (j)] + (int32_t)ECMRT_RSHR((int64_t)s->pc[2u * (j) + 1u] * w, ECMRT_Q30))
-#define ECMRT_Q_TV(b, j) ecmrt_q_lerp((b) + (j), ECMRT_NB, wt)
+#define ECMRT_Q_AT(s, p, j, w) ((s)->pc[2u * (j)] + (int32_t)ECMRT_RSHR((int64_t)(s)->pc[2u * (j) + 1u] * (w), ECMRT_Q30))
+#define ECMRT_Q_TV(b, j, wt) ecmrt_q_lerp((b) + (j), ECMRT_NB, (wt))
 #else
-#define ECMRT_Q_AT(p, off) ecmrt_q_lerp((p) + (off), ECMRT_NPAR, w)
-#define ECMRT_Q_TV(b, j) ((b)[j])
+#define ECMRT_Q_AT(s, p, off, w) ecmrt_q_lerp((p) + (off), ECMRT_NPAR, (w))
+#define ECMRT_Q_TV(b, j, wt) ((b)[j])
 #endif
 
+
+/* the format of the step's RC coefficients c_fast, c_slow: Q30 when computed at run time
+ * (variable dt), Q_CF / Q_CS when they are 1/D (fixed dt) */
+#if ECMRT_VARIABLE_DT
+#define ECMRT_QC_F ECMRT_Q30
+#define ECMRT_QC_S ECMRT_Q30
+#else
+#define ECMRT_QC_F ECMRT_Q_CF
+#define ECMRT_QC_S ECMRT_Q_CS
+#endif
 
 /* the reciprocal and 1 - exp(-x) (ecmrt_q_clz32, ecmrt_q_recip, ecmrt_q_horner,
  * ecmrt_q_one_minus_exp_neg_small / _big / _q26) */
@@ -618,7 +631,7 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
     /* the OCV located first; sv bilinear as the OCV (temperature first) */
     wo = ECMRT_Q_OCV_LOCATE(&m->ocv_g, soc, &ko);
 #if ECMRT_TEMP
-    sp = m->sv + (unsigned)m->ocv_g.n * ECMRT_KT(kt) + ko;
+    sp = m->sv + (unsigned)m->ocv_g.n * ECMRT_KT(m, kt) + ko;
     sa = ecmrt_q_lerp(sp, (unsigned)m->ocv_g.n, wt);
     socr = ecmrt_q_surface(soc, sa + (int32_t)ECMRT_RSHR((int64_t)(ecmrt_q_lerp(sp + 1u,
         (unsigned)m->ocv_g.n, wt) - sa) * wo, ECMRT_Q30), s->u_diff);
@@ -630,7 +643,7 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
 #if ECMRT_TEMP
     key = (kd << 1) | dir;
     if (key != s->pc_key) {
-        ecmrt_q_segment(d->rows + ECMRT_NPAR * ((unsigned)d->g.n * ECMRT_KT(kt) + kd), ECMRT_NPAR,
+        ecmrt_q_segment(d->rows + ECMRT_NPAR * ((unsigned)d->g.n * ECMRT_KT(m, kt) + kd), ECMRT_NPAR,
                         ECMRT_NPAR, ECMRT_NPAR * (unsigned)d->g.n, wt, s->pc);
         s->pc_key = (uint16_t)key;
     }
@@ -639,7 +652,7 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
 #endif
 #if ECMRT_BRANCHES
 #if ECMRT_TEMP
-    kt = ECMRT_KT(kt);
+    kt = ECMRT_KT(m, kt);
     br = d->branch + ECMRT_NB * kt;
 #else
     br = d->branch;
@@ -648,28 +661,20 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
 #if ECMRT_TAU_T && ECMRT_VARIABLE_DT
     cf = ecmrt_q_c_kr(dt, ECMRT_KC(s, dir, ECMRT_K_F));
     cs = ecmrt_q_c_kr(dt, ECMRT_KC(s, dir, ECMRT_K_S));
-#define ECMRT_QC_F ECMRT_Q30
-#define ECMRT_QC_S ECMRT_Q30
 #elif ECMRT_TAU_T
     cf = ECMRT_KC(s, dir, ECMRT_K_F);
     cs = ECMRT_KC(s, dir, ECMRT_K_S);
-#define ECMRT_QC_F ECMRT_Q_CF
-#define ECMRT_QC_S ECMRT_Q_CS
 #elif ECMRT_VARIABLE_DT
-    cf = ecmrt_q_c_dt_tau(dt, ECMRT_Q_AT(row, ECMRT_P_KF));
-    cs = ecmrt_q_c_dt_tau(dt, ECMRT_Q_AT(row, ECMRT_P_KS));
-#define ECMRT_QC_F ECMRT_Q30
-#define ECMRT_QC_S ECMRT_Q30
+    cf = ecmrt_q_c_dt_tau(dt, ECMRT_Q_AT(s, row, ECMRT_P_KF, w));
+    cs = ecmrt_q_c_dt_tau(dt, ECMRT_Q_AT(s, row, ECMRT_P_KS, w));
 #else
-    cf = ecmrt_q_inv_d(ECMRT_Q_AT(row, ECMRT_P_KF), ECMRT_Q_CF + ECMRT_Q_DF);
-    cs = ecmrt_q_inv_d(ECMRT_Q_AT(row, ECMRT_P_KS), ECMRT_Q_CS + ECMRT_Q_DS);
-#define ECMRT_QC_F ECMRT_Q_CF
-#define ECMRT_QC_S ECMRT_Q_CS
+    cf = ecmrt_q_inv_d(ECMRT_Q_AT(s, row, ECMRT_P_KF, w), ECMRT_Q_CF + ECMRT_Q_DF);
+    cs = ecmrt_q_inv_d(ECMRT_Q_AT(s, row, ECMRT_P_KS, w), ECMRT_Q_CS + ECMRT_Q_DS);
 #endif
     /* r i in Q_V (int64) */
-    t0 = ECMRT_RSHR((int64_t)ECMRT_Q_AT(row, ECMRT_P_R0) * i, ECMRT_Q_R0 + ECMRT_Q_I - ECMRT_Q_V);
-    tf = ECMRT_RSHR((int64_t)ECMRT_Q_AT(row, ECMRT_P_RF) * i, ECMRT_Q_RF + ECMRT_Q_I - ECMRT_Q_V);
-    ts = ECMRT_RSHR((int64_t)ECMRT_Q_AT(row, ECMRT_P_RS) * i, ECMRT_Q_RS + ECMRT_Q_I - ECMRT_Q_V);
+    t0 = ECMRT_RSHR((int64_t)ECMRT_Q_AT(s, row, ECMRT_P_R0, w) * i, ECMRT_Q_R0 + ECMRT_Q_I - ECMRT_Q_V);
+    tf = ECMRT_RSHR((int64_t)ECMRT_Q_AT(s, row, ECMRT_P_RF, w) * i, ECMRT_Q_RF + ECMRT_Q_I - ECMRT_Q_V);
+    ts = ECMRT_RSHR((int64_t)ECMRT_Q_AT(s, row, ECMRT_P_RS, w) * i, ECMRT_Q_RS + ECMRT_Q_I - ECMRT_Q_V);
     /* 3'. parameter effects and the Butler-Volmer branch, in this order */
 #if ECMRT_FX_CDR
     g = ecmrt_q_gtab(m->g_tab, (uint32_t)ecmrt_q_sat32(ECMRT_RSHR(ai * m->g_k, ECMRT_FX_SH_GX)),
@@ -684,7 +689,7 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
     ts = ECMRT_RSHR(ts * g, ECMRT_FX_ARR_QF);
 #endif
 #if ECMRT_BV
-    r = ecmrt_q_recip((uint32_t)ECMRT_Q_TV(br, ECMRT_B_I0), &sh);    /* x = |i| / i0(T) */
+    r = ecmrt_q_recip((uint32_t)ECMRT_Q_TV(br, ECMRT_B_I0, wt), &sh);    /* x = |i| / i0(T) */
     g = ecmrt_q_gtab(m->bv_tab, (uint32_t)ecmrt_q_sat32(ECMRT_RSHRV(ai * (int64_t)r,
                                                                     sh - ECMRT_BV_K)), ECMRT_BV_QX);
     tf = ECMRT_RSHR(tf * g, ECMRT_Q30);
@@ -694,11 +699,9 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
     s->u_fast = uf;
     us = ECMRT_Q_RC(s->u_slow, cs, ts, ECMRT_QC_S);
     s->u_slow = us;
-#undef ECMRT_QC_F
-#undef ECMRT_QC_S
     /* 5. v = ocv + r0 i + u_fast + u_slow */
 #if ECMRT_OCV_SHARED
-    ocv = ECMRT_Q_AT(row, ECMRT_P_OCV);
+    ocv = ECMRT_Q_AT(s, row, ECMRT_P_OCV, w);
 #else
 #if ECMRT_SURFACE
     w = wo;                                 /* the OCV at the mean SOC, located above */
@@ -707,7 +710,7 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
 #endif
 #if ECMRT_TEMP
     if (ko != s->oc_key) {
-        ecmrt_q_segment(m->ocv + (unsigned)m->ocv_g.n * ECMRT_KT(kt) + ko, 1u, 1u, (unsigned)m->ocv_g.n, wt,
+        ecmrt_q_segment(m->ocv + (unsigned)m->ocv_g.n * ECMRT_KT(m, kt) + ko, 1u, 1u, (unsigned)m->ocv_g.n, wt,
                         s->oc);
         s->oc_key = (uint8_t)ko;
     }
@@ -722,17 +725,17 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
 #if ECMRT_TAU_T
     cd = ecmrt_q_c_kr(dt, ECMRT_KC(s, dir, ECMRT_K_D));
 #else
-    cd = ecmrt_q_c_dt_tau(dt, ECMRT_Q_TV(br, ECMRT_B_KD));
+    cd = ecmrt_q_c_dt_tau(dt, ECMRT_Q_TV(br, ECMRT_B_KD, wt));
 #endif
-    ud = ECMRT_Q_RC(s->u_diff, cd, ECMRT_RSHR((int64_t)ECMRT_Q_TV(br, ECMRT_B_RD) * i,
+    ud = ECMRT_Q_RC(s->u_diff, cd, ECMRT_RSHR((int64_t)ECMRT_Q_TV(br, ECMRT_B_RD, wt) * i,
                                              ECMRT_Q_RD + ECMRT_Q_I - ECMRT_Q_V), ECMRT_Q30);
 #else
 #if ECMRT_TAU_T
     cd = ECMRT_KC(s, dir, ECMRT_K_D);
 #else
-    cd = ecmrt_q_inv_d(ECMRT_Q_TV(br, ECMRT_B_KD), ECMRT_Q_CD + ECMRT_Q_DD);
+    cd = ecmrt_q_inv_d(ECMRT_Q_TV(br, ECMRT_B_KD, wt), ECMRT_Q_CD + ECMRT_Q_DD);
 #endif
-    ud = ECMRT_Q_RC(s->u_diff, cd, ECMRT_RSHR((int64_t)ECMRT_Q_TV(br, ECMRT_B_RD) * i,
+    ud = ECMRT_Q_RC(s->u_diff, cd, ECMRT_RSHR((int64_t)ECMRT_Q_TV(br, ECMRT_B_RD, wt) * i,
                                              ECMRT_Q_RD + ECMRT_Q_I - ECMRT_Q_V), ECMRT_Q_CD);
 #endif
     s->u_diff = ud;
@@ -770,4 +773,6 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
 
 #undef ECMRT_Q_AT
 #undef ECMRT_Q_TV
+#undef ECMRT_QC_F
+#undef ECMRT_QC_S
 #endif /* ECMRT_Q_H */

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * ecmrt_q_exp.h - ecmgen C runtime, numeric = "fixed": the integer reciprocal and
  * 1 - exp(-x) in Q30, without division (hand-written, model-independent).

@@ -16,7 +16,9 @@ import pytest
 from ecmgen import __version__
 from ecmgen.c import cref
 from ecmgen.c.cbuild import STRICT_CFLAGS, host_cc
-from ecmgen.c.codegen import c_float, describe, generate_c, prepare, render, runtime_dir
+from ecmgen.c.codegen import (c_float, describe, file_names, generate_c, prepare, render,
+                              runtime_dir)
+from ecmgen.c.names import c_names
 from ecmgen.errors import InputError
 from test_codegen_helpers import realistic_model
 
@@ -35,22 +37,24 @@ def test_files_banner_and_byte_identical(tmp_path, synthetic_model, numeric, dt_
     a = generate_c(synthetic_model, tmp_path / "a", prefix="cell", numeric=numeric, dt_s=dt_s)
     b = generate_c(synthetic_model, tmp_path / "b", prefix="cell", numeric=numeric, dt_s=dt_s)
     names = sorted(p.name for p in a)
-    rt = ["ecmrt_f32.h"] if numeric == "float" else ["ecmrt_q_exp.h", "ecmrt_q.h"]
-    assert names == sorted(["cell_ecm.h", "cell_ecm.c", "ecmrt.h", *rt, "cell_ecm_files.mk",
-                            "cell_ecm_report.md"])
+    rt = ["ecmrt_state.h"] + (["ecmrt_f32.h"] if numeric == "float" else ["ecmrt_q_exp.h", "ecmrt_q.h"])
+    nm = file_names("cell", numeric)
+    assert names == sorted([nm["header"], nm["source"], "ecmrt.h", *rt, nm["filelist"],
+                            nm["report"]])
     for pa, pb in zip(a, b):
         assert pa.read_bytes() == pb.read_bytes(), pa.name
     # regenerating into the same folder leaves the files alone
     before = {p: p.stat().st_mtime_ns for p in a}
     generate_c(synthetic_model, tmp_path / "a", prefix="cell", numeric=numeric, dt_s=dt_s)
     assert {p: p.stat().st_mtime_ns for p in a} == before
-    header = (tmp_path / "a" / "cell_ecm.h").read_text()
+    header = (tmp_path / "a" / nm["header"]).read_text()
     if dt_s is None:
-        assert "Time step: variable" in header and "cell_step(cell_state_t *s, " in header
+        s = "f32" if numeric == "float" else "q"
+        assert "Time step: variable" in header and f"cell_step_{s}(cell_state_{s}_t *s, " in header
     else:
         assert f"Time step: fixed, dt = {dt_s} s - D = 1/(1 - exp(-dt/tau))" in header
     sha = synthetic_model.sha256()
-    for name in ("cell_ecm.h", "cell_ecm.c"):
+    for name in (nm["header"], nm["source"]):
         text = (tmp_path / "a" / name).read_text()
         assert f"ecmgen {__version__}" in text and sha in text
         assert text.isascii()
@@ -62,8 +66,8 @@ def test_files_banner_and_byte_identical(tmp_path, synthetic_model, numeric, dt_
 def test_different_model_different_bytes(tmp_path, synthetic_model):
     from dataclasses import replace
 
-    a = render(prepare(synthetic_model))["ecm_ecm.c"]
-    b = render(prepare(replace(synthetic_model, capacity_ah=3.0)))["ecm_ecm.c"]
+    a = render(prepare(synthetic_model))["ecm_ecm_f32.c"]
+    b = render(prepare(replace(synthetic_model, capacity_ah=3.0)))["ecm_ecm_f32.c"]
     assert a != b
 
 
@@ -79,7 +83,7 @@ def test_float_literals_round_trip(synthetic_model):
         assert np.float32(float(c_float(f)[:-1])).view(np.uint32) == f.view(np.uint32)
     # every literal of a generated file reads back to the spec's float32 values
     spec = prepare(synthetic_model, numeric="float", dt_s=0.1)
-    text = render(spec)["ecm_ecm.c"]
+    text = render(spec)["ecm_ecm_f32.c"]
     lits = re.findall(r"(?<![\w.])(-?\d+\.\d*(?:e[-+]?\d+)?|-?\d+e[-+]?\d+)f\b", text)
     values = {np.float32(float(s)).view(np.uint32).item() for s in lits}
     d = spec.dirs[0]
@@ -88,7 +92,7 @@ def test_float_literals_round_trip(synthetic_model):
         assert set(np.asarray(arr, np.float32).ravel().view(np.uint32).tolist()) <= values
     # and a model with searched grids and time constants over SOC
     spec = prepare(realistic_model(), numeric="float")
-    text = render(spec)["ecm_ecm.c"]
+    text = render(spec)["ecm_ecm_f32.c"]
     lits = re.findall(r"(?<![\w.])(-?\d+\.\d*(?:e[-+]?\d+)?|-?\d+e[-+]?\d+)f\b", text)
     values = {np.float32(float(s)).view(np.uint32).item() for s in lits}
     d = spec.dirs[0]
@@ -101,7 +105,8 @@ def test_float_literals_round_trip(synthetic_model):
 @pytest.mark.parametrize("opt", ["-O0", "-O2", "-Os"])
 def test_strict_flags_compile_without_warnings(tmp_path, synthetic_model, numeric, dt_s, opt):
     generate_c(synthetic_model, tmp_path, prefix="ecm", numeric=numeric, dt_s=dt_s)
-    proc = _cc([*STRICT_CFLAGS, opt, "-I", tmp_path, "-c", tmp_path / "ecm_ecm.c",
+    proc = _cc([*STRICT_CFLAGS, opt, "-I", tmp_path, "-c",
+                tmp_path / file_names("ecm", numeric)["source"],
                 "-o", tmp_path / "ecm.o"])
     assert proc.stderr == ""
 
@@ -110,11 +115,12 @@ def test_strict_flags_compile_without_warnings(tmp_path, synthetic_model, numeri
 def test_symbols_prefixed_and_no_mutable_globals(tmp_path, synthetic_model, numeric, dt_s):
     generate_c(synthetic_model, tmp_path, prefix="pk1", numeric=numeric, dt_s=dt_s)
     obj = tmp_path / "m.o"
-    _cc([*STRICT_CFLAGS, "-O2", "-fno-pic", "-I", tmp_path, "-c", tmp_path / "pk1_ecm.c", "-o", obj])
+    nm = c_names("pk1", numeric)
+    _cc([*STRICT_CFLAGS, "-O2", "-fno-pic", "-I", tmp_path, "-c", tmp_path / nm["source"], "-o", obj])
     out = subprocess.run(["nm", obj], capture_output=True, text=True, check=True).stdout
     syms = [line.split() for line in out.splitlines() if line.strip()]
     defined_global = [s[-1] for s in syms if len(s) == 3 and s[1].isupper()]
-    assert sorted(defined_global) == ["pk1_init", "pk1_run", "pk1_step"]
+    assert sorted(defined_global) == sorted([nm["init"], nm["run"], nm["step"]])
     undefined = [s[-1] for s in syms if s[0] == "U"]
     assert undefined == []                          # no libc, no libm, no malloc
     writable = [s for s in syms if len(s) == 3 and s[1] in "bBdDcC"]
@@ -123,20 +129,20 @@ def test_symbols_prefixed_and_no_mutable_globals(tmp_path, synthetic_model, nume
 
 TWO_MODEL_MAIN = r"""
 #include <stdio.h>
-#include "cellA_ecm.h"
-#include "cellB_ecm.h"
+#include "cellA_ecm_f32.h"
+#include "cellB_ecm_q.h"
 int main(void)
 {
-    cellA_state_t a;
-    cellB_state_t b;
+    cellA_state_f32_t a;
+    cellB_state_q_t b;
     float va = 0.0f;
     int32_t vb = 0;
     int k;
-    cellA_init(&a, 0.8f);
-    cellB_init(&b, (int32_t)(0.8 * 1073741824.0));
+    cellA_init_f32(&a, 0.8f);
+    cellB_init_q(&b, (int32_t)(0.8 * 1073741824.0));
     for (k = 0; k < 100; k++) {
-        va = cellA_step(&a, -2.0f, 25.0f, 0.1f);
-        vb = cellB_step(&b, (int32_t)(-2.0 * (double)(1L << CELLB_ECM_Q_I)), 25 << CELLB_ECM_Q_TEMP);
+        va = cellA_step_f32(&a, -2.0f, 25.0f, 0.1f);
+        vb = cellB_step_q(&b, (int32_t)(-2.0 * (double)(1L << CELLB_ECM_Q_I)), 25 << CELLB_ECM_Q_TEMP);
     }
     printf("%.6f %.6f\n", (double)va, (double)vb / (double)(1L << CELLB_ECM_Q_V));
     return 0;
@@ -149,7 +155,7 @@ def test_two_models_link_into_one_program(tmp_path, synthetic_model):
     generate_c(synthetic_model, tmp_path, prefix="cellB", numeric="fixed", dt_s=0.1)
     (tmp_path / "main.c").write_text(TWO_MODEL_MAIN)
     exe = tmp_path / "two"
-    _cc([*STRICT_CFLAGS, "-O2", "-I", tmp_path, tmp_path / "cellA_ecm.c", tmp_path / "cellB_ecm.c",
+    _cc([*STRICT_CFLAGS, "-O2", "-I", tmp_path, tmp_path / "cellA_ecm_f32.c", tmp_path / "cellB_ecm_q.c",
          tmp_path / "main.c", "-o", exe])
     out = subprocess.run([exe], capture_output=True, text=True, check=True).stdout.split()
     va, vb = float(out[0]), float(out[1])
@@ -166,12 +172,12 @@ def _strip_comments(text: str) -> str:
 def test_fixed_point_has_no_float(tmp_path, synthetic_model, dt_s):
     files = generate_c(synthetic_model, tmp_path, prefix="ecm", numeric="fixed", dt_s=dt_s)
     for p in files:
-        if p.name.startswith("ecm_ecm.") and p.suffix in (".c", ".h"):
+        if p.name.startswith("ecm_ecm_q.") and p.suffix in (".c", ".h"):
             code = _strip_comments(p.read_text())
             assert not re.search(r"\b(float|double)\b", code), p.name
             assert not re.search(r"\d\.\d*[fF]?\b|\d[eE][-+]?\d", code), p.name  # no FP literal
     # the whole translation unit after preprocessing, our files only (not libc headers)
-    pre = _cc(["-std=c99", "-E", "-I", tmp_path, tmp_path / "ecm_ecm.c"]).stdout
+    pre = _cc(["-std=c99", "-E", "-I", tmp_path, tmp_path / "ecm_ecm_q.c"]).stdout
     ours, keep = [], True
     for line in pre.splitlines():
         if line.startswith("# "):
@@ -186,18 +192,18 @@ def test_fixed_point_has_no_float(tmp_path, synthetic_model, dt_s):
                           input="int f(int a){return a;}\n", capture_output=True, text=True)
     if proc.returncode != 0:
         pytest.skip("compiler lacks -mgeneral-regs-only (not x86-64 gcc/clang)")
-    _cc([*STRICT_CFLAGS, "-O2", "-mgeneral-regs-only", "-I", tmp_path, "-c", tmp_path / "ecm_ecm.c",
+    _cc([*STRICT_CFLAGS, "-O2", "-mgeneral-regs-only", "-I", tmp_path, "-c", tmp_path / "ecm_ecm_q.c",
          "-o", tmp_path / "m.o"])
 
 
 def test_fixed_header_documents_q_formats(synthetic_model):
     for dt_s in (None, 0.1):
         spec = prepare(synthetic_model, numeric="fixed", dt_s=dt_s)
-        h = render(spec)["ecm_ecm.h"]
+        h = render(spec)["ecm_ecm_q.h"]
         for key, val in spec.q.items():
             if key in ("Q_K", "Q_RATE"):
                 continue
-            assert f"#define ECM_ECM_{key} {val}" in h, key
+            assert f"#define ECM_ECM_Q_{key.removeprefix('Q_')} {val}" in h, key
         assert "Saturation:" in h and "Rounding:" in h and f"Q{spec.q['Q_I']}" in h
         tables = [getattr(d, f) for d in spec.dirs for f in cref.PARAMS]
         for arr in (spec.ocv, spec.ocv_grid.x, spec.ocv_grid.inv_dx, *tables):
@@ -244,12 +250,13 @@ def test_make_file_list(tmp_path, synthetic_model):
         pytest.skip("make not installed")
     generate_c(synthetic_model, tmp_path / "gen", prefix="bms", numeric="fixed")
     (tmp_path / "Makefile").write_text(
-        "include gen/bms_ecm_files.mk\n"
-        "show:\n\t@echo $(BMS_ECM_SRCS)\n\t@echo $(BMS_ECM_HDRS)\n\t@echo $(BMS_ECM_INC)\n")
+        "include gen/bms_ecm_q_files.mk\n"
+        "show:\n\t@echo $(BMS_ECM_Q_SRCS)\n\t@echo $(BMS_ECM_Q_HDRS)\n\t@echo $(BMS_ECM_Q_INC)\n")
     out = subprocess.run(["make", "-s", "show"], cwd=tmp_path, capture_output=True, text=True,
                          check=True).stdout.split("\n")
-    assert out[0] == "gen/bms_ecm.c"
-    assert out[1].split() == ["gen/bms_ecm.h", "gen/ecmrt.h", "gen/ecmrt_q_exp.h", "gen/ecmrt_q.h"]
+    assert out[0] == "gen/bms_ecm_q.c"
+    assert out[1].split() == ["gen/bms_ecm_q.h", "gen/ecmrt.h", "gen/ecmrt_state.h", "gen/ecmrt_q_exp.h",
+                              "gen/ecmrt_q.h"]
     assert out[2] == "gen"
     for p in [*out[0].split(), *out[1].split()]:
         assert (tmp_path / p).exists()
@@ -264,7 +271,7 @@ def test_report(tmp_path, synthetic_model):
 def test_generate_from_path(tmp_path, synthetic_model):
     path = synthetic_model.save(tmp_path / "model.json")
     files = generate_c(path, tmp_path / "out", numeric="float")
-    assert (tmp_path / "out" / "ecm_ecm.c").exists() and len(files) == 6
+    assert (tmp_path / "out" / "ecm_ecm_f32.c").exists() and len(files) == 7
 
 
 # --- refusal ----------------------------------------------------------------------------
@@ -391,7 +398,8 @@ def test_build_c_outputs_for_the_pipeline(tmp_path, synthetic_model):
         for n, r in block.items():
             assert r["bit_exact_vs_reference"] and r["cycle"] == "cycle.csv"
             assert abs(r["mae_v"] - 0.002) < 2e-4 and r["max_abs_diff_vs_python_v"] < 1e-4
-            assert r["dir"] == f"c/{n}" and "c/" + n + "/pk_ecm.c" in r["files"]
-            rep = (out / "c" / n / "pk_ecm_report.md").read_text()
+            nm = file_names("pk", n)
+            assert r["dir"] == f"c/{n}" and f"c/{n}/{nm['source']}" in r["files"]
+            rep = (out / "c" / n / nm["report"]).read_text()
             assert "| yes |" in rep
         json.dumps(block)

@@ -100,16 +100,16 @@ def test_generated_files_deterministic_and_absent_by_default(model, tmp_path):
     b = generate_c(model, tmp_path / "b", estimator=EstimatorConfig())
     names = sorted(p.name for p in a)
     assert names == sorted(p.name for p in b)
-    assert "ecm_est.h" in names and "ecmrt_est_f32.h" in names
+    assert "ecm_est_f32.h" in names and "ecmrt_est_f32.h" in names
     for p in a:
         assert p.read_bytes() == (tmp_path / "b" / p.name).read_bytes()
-    src = (tmp_path / "a" / "ecm_ecm.c").read_text()
-    assert "void ecm_est_init(ecm_est_t *e, float soc0)" in src
+    src = (tmp_path / "a" / "ecm_ecm_f32.c").read_text()
+    assert "void ecm_est_init_f32(ecm_est_f32_t *e, float soc0)" in src
     assert ".model_error = 0.189999998f" in src          # the settings, baked in
     plain = render(prepare(model, "float", None, "ecm"))
-    assert "est" not in "".join(plain) and "_est_" not in plain["ecm_ecm.c"]
-    mk = (tmp_path / "a" / "ecm_ecm_files.mk").read_text()
-    assert "ecm_est.h" in mk and "ecmrt_est_f32.h" in mk
+    assert "est" not in "".join(plain) and "_est_" not in plain["ecm_ecm_f32.c"]
+    mk = (tmp_path / "a" / "ecm_ecm_f32_files.mk").read_text()
+    assert "ecm_est_f32.h" in mk and "ecmrt_est_f32.h" in mk
 
 
 def test_strict_flags_at_every_optimisation_level_give_the_same_bits(model):
@@ -145,7 +145,7 @@ def test_cli_codegen_estimator(tmp_path):
                           str(out), "--estimator", "ekf", "--prefix", "cell"],
                          capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
-    assert (out / "cell_est.h").is_file() and "cell_est_step" in (out / "cell_ecm.c").read_text()
+    assert (out / "cell_est_f32.h").is_file() and "cell_est_step_f32" in (out / "cell_ecm_f32.c").read_text()
     res = subprocess.run([sys.executable, "-m", "ecmgen.cli", "codegen", str(MODEL), "--out",
                           str(tmp_path / "d"), "--estimator", "ekf", "--numeric", "fixed"],
                          capture_output=True, text=True)
@@ -343,14 +343,14 @@ def test_build_json_reports_the_estimator(synthetic_project):
     assert est["bit_exact_vs_reference"] is True and est["steps"] == t.size
     assert est["max_abs_soc_diff_vs_python"] < 1e-4 and est["states"][0] == "soc"
     assert c["float"]["bit_exact_vs_reference"] is True
-    assert "c/float/ecm_est.h" in c["float"]["files"] and "estimator" not in c["fixed"]
+    assert "c/float/ecm_est_f32.h" in c["float"]["files"] and "estimator" not in c["fixed"]
     assert (out / "c" / "float" / "ecmrt_est_f32.h").is_file()
-    assert not (out / "c" / "fixed" / "ecm_est.h").exists()
+    assert not (out / "c" / "fixed" / "ecm_est_f32.h").exists()
     # model_error / error_correlation_s not in the config: measured on the validation cycle
     # and baked in
     from ecmgen.c.codegen import c_float
 
     assert est["settings_from"] == "validation cycles" and est["model_error"] != 0.19
-    src = (out / "c" / "float" / "ecm_ecm.c").read_text()
+    src = (out / "c" / "float" / "ecm_ecm_f32.c").read_text()
     assert f".model_error = {c_float(est['model_error'])}" in src
     assert f".corr_s = {c_float(est['error_correlation_s'])}" in src

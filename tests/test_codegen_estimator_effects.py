@@ -102,14 +102,14 @@ def step_derivatives(cm, x0, i_k, temp_k, dt_k, steps: dict):
     fields, N = est.fields, est.n
 
     def run(x):
-        s = ffi.new(f"{p}_state_t *")
-        getattr(lib, f"{p}_init")(s, 0.5)
+        s = ffi.new(f"{p}_state_f32_t *")
+        getattr(lib, f"{p}_init_f32")(s, 0.5)
         b = x[-1] if est.offset else 0.0
         for f, val in zip(fields, x):
             if f.startswith("m."):
                 setattr(s, f[2:], float(val))
         s.charging = int(i_k - b > 0)
-        vk = getattr(lib, f"{p}_step")(s, float(np.float32(i_k) - np.float32(b)),
+        vk = getattr(lib, f"{p}_step_f32")(s, float(np.float32(i_k) - np.float32(b)),
                                        float(temp_k), float(dt_k))
         return np.array([getattr(s, f[2:]) for f in fields if f.startswith("m.")]
                         + ([b] if est.offset else [])), vk

@@ -123,7 +123,7 @@ def test_chunked_runs_equal_one_run(numeric):
     i_n, dt_n, s0 = cm.native_inputs(cur, dts, 0.6)
     whole = cm.run_native(i_n, dt_n, s0)
     s = cm.new_state(s0)
-    step = getattr(cm.lib, "prop_step")
+    step = getattr(cm.lib, cm.names["step"])
     parts = [step(s, int(a) if numeric == "fixed" else float(a), 0,
                   int(b) if numeric == "fixed" else float(b)) for a, b in zip(i_n, dt_n)]
     assert np.array_equal(np.asarray(parts, dtype=whole.dtype), whole)

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from ecmgen.c import cbuild, cref
-from ecmgen.c.codegen import generate_c
+from ecmgen.c.codegen import file_names, generate_c
+from conftest import REPO
 from test_codegen_helpers import realistic_model
 
 VARIANTS = [("float", None), ("float", 0.1), ("fixed", None), ("fixed", 0.1)]
@@ -155,111 +156,43 @@ def test_currents_beyond_limit_equal_python_on_the_saturated_current():
 
 # --- sanitizer build ---------------------------------------------------------------------
 
-SAN_MAIN = r"""
-#include <stdio.h>
-#include <stdint.h>
-#include <float.h>
-#include "fv_ecm.h"
-#include "fd_ecm.h"
-#include "qv_ecm.h"
-#include "qd_ecm.h"
-
-/* cell temperatures, every one a legal input (float: NaN and inf too) */
-static const float ftemps[8] = {25.0f, -20.0f, -60.0f, 90.0f, 1e30f, -1e30f, 0.5f, 17.3f};
-static const int32_t qtemps[8] = {25 * 256, -20 * 256, INT32_MIN, INT32_MAX, 0, 4423, -5000, 30000};
-#define FT(r) ftemps[(unsigned)(r) & 7u]
-#define QT(r) qtemps[(unsigned)(r) & 7u]
-
-static uint32_t rnd(uint32_t *x) { *x ^= *x << 13; *x ^= *x >> 17; *x ^= *x << 5; return *x; }
-static int bad_f(float v) { return !(v == v) || v > 1e6f || v < -1e6f; }
-static long fails = 0;
-
-int main(int argc, char **argv)
-{
-    static const float cur[] = {0.0f, 1e30f, -1e30f, FLT_MAX, -FLT_MAX, 1e-45f, -1e-45f,
-                                127.0f, -500.0f, 3.0f, -3.0f};
-    static const float dts[] = {0.0f, -1.0f, 1e-45f, 0.1f, 1e30f, FLT_MAX, 32767.0f};
-    static const float socs[] = {-1e30f, -2.5f, 0.0f, 0.5f, 1.0f, 3.0f, 1e30f};
-    static const int32_t qcur[] = {INT32_MIN, INT32_MAX, 0, 1, -1, 486539, -486539, 1 << 24};
-    static const int32_t qdts[] = {INT32_MIN, -1, 0, 1, 6554, INT32_MAX};
-    static const int32_t qsocs[] = {INT32_MIN, -1, 0, 1 << 29, 1 << 30, INT32_MAX};
-    const float nan = 0.0f / (argc > 99 ? 1.0f : 0.0f);   /* NaN without a constant fold warning */
-    const float inf = 1.0f / (argc > 99 ? 1.0f : 0.0f);
-    long n = argc > 1 ? atol(argv[1]) : 1000000L;
-    size_t a, b, c;
-    long k;
-    uint32_t x = 2463534242u;
-    int32_t lo = INT32_MAX, hi = INT32_MIN;
-    (void)argv;
-    for (a = 0; a < sizeof socs / sizeof socs[0]; a++)
-        for (b = 0; b < sizeof cur / sizeof cur[0]; b++)
-            for (c = 0; c < sizeof dts / sizeof dts[0]; c++) {
-                fv_state_t s; fd_state_t t;
-                int r;
-                fv_init(&s, socs[a]); fd_init(&t, socs[a]);
-                for (r = 0; r < 20; r++) {
-                    fails += bad_f(fv_step(&s, r % 3 ? cur[b] : -cur[b], FT(r + b), dts[c]));
-                    fails += bad_f(fv_step(&s, nan, nan, nan)) + bad_f(fv_step(&s, inf, inf, inf));
-                    fails += bad_f(fv_step(&s, -inf, -inf, -inf));
-                    fails += bad_f(fd_step(&t, cur[b], FT(r + c))) + bad_f(fd_step(&t, nan, nan));
-                    fails += bad_f(fd_step(&t, -inf, -inf));
-                }
-            }
-    for (a = 0; a < sizeof qsocs / sizeof qsocs[0]; a++)
-        for (b = 0; b < sizeof qcur / sizeof qcur[0]; b++)
-            for (c = 0; c < sizeof qdts / sizeof qdts[0]; c++) {
-                qv_state_t s; qd_state_t t;
-                int r;
-                qv_init(&s, qsocs[a]); qd_init(&t, qsocs[a]);
-                for (r = 0; r < 20; r++) {
-                    int32_t v = qv_step(&s, r % 2 ? qcur[b] : -(qcur[b] + 1), QT(r + b), qdts[c]);
-                    int32_t w = qd_step(&t, qcur[b], QT(r + c));
-                    if (v < lo) lo = v;
-                    if (v > hi) hi = v;
-                    (void)w;
-                }
-            }
-    {
-        fv_state_t s; fd_state_t t; qv_state_t q; qd_state_t u;
-        fv_init(&s, 0.5f); fd_init(&t, 0.5f); qv_init(&q, 1 << 29); qd_init(&u, 1 << 29);
-        for (k = 0; k < n; k++) {
-            const uint32_t r1 = rnd(&x), r2 = rnd(&x);
-            const float fi = (float)(int32_t)r1 * (1.0f / 8388608.0f);     /* +-256 A */
-            const float fdt = (float)(r2 >> 8) * (1.0f / 1677721.6f);     /* 0..10 s */
-            fails += bad_f(fv_step(&s, fi, FT(r2 >> 29), fdt)) + bad_f(fd_step(&t, fi, FT(r1 >> 29)));
-            (void)qv_step(&q, (int32_t)r1, QT(r2 >> 29), (int32_t)(r2 >> 13));
-            (void)qd_step(&u, (int32_t)r2, QT(r1 >> 29));
-        }
-        printf("soc %g %g %ld %ld\n", (double)s.soc, (double)t.soc, (long)q.soc, (long)u.soc);
-    }
-    printf("fails %ld range %ld %ld\n", fails, (long)lo, (long)hi);
-    return fails != 0;
-}
-"""
+SAN_MAIN = (REPO / "tests" / "data" / "codegen_sanitize_main.c").read_text()
 
 
 def test_sanitized_build_has_no_undefined_behaviour(tmp_path):
+    cc = _sanitizer_cc(tmp_path)
+    srcs = []
+    for prefix, (numeric, dt_s) in zip(("fv", "fd", "qv", "qd"), VARIANTS):
+        generate_c(_model(), tmp_path, prefix=prefix, numeric=numeric, dt_s=dt_s)
+        srcs.append(tmp_path / file_names(prefix, numeric)["source"])
+    run = _sanitized_run(cc, tmp_path, srcs, SAN_MAIN, "10000000")
+    assert "fails 0" in run.stdout
+
+
+def _sanitizer_cc(tmp_path) -> list[str]:
+    """The host compiler, or a skip when it cannot build with the sanitizers."""
     cc = cbuild.host_cc()
     probe = subprocess.run([*cc, *cbuild.SANITIZE_FLAGS, "-x", "c", "-", "-o", tmp_path / "probe"],
                            input="int main(void){return 0;}\n", capture_output=True, text=True)
     if probe.returncode != 0:
         pytest.skip(f"compiler cannot build with sanitizers: {probe.stderr.strip()[:200]}")
-    srcs = []
-    for prefix, (numeric, dt_s) in zip(("fv", "fd", "qv", "qd"), VARIANTS):
-        generate_c(_model(), tmp_path, prefix=prefix, numeric=numeric, dt_s=dt_s)
-        srcs.append(tmp_path / f"{prefix}_ecm.c")
-    (tmp_path / "main.c").write_text(SAN_MAIN.replace("#include <stdio.h>",
-                                                      "#include <stdio.h>\n#include <stdlib.h>"))
+    return cc
+
+
+def _sanitized_run(cc, tmp_path, srcs, main: str, steps: str) -> subprocess.CompletedProcess:
+    """The generated sources and ``main`` built with the sanitizers and run for ``steps``:
+    no runtime error, exit status 0."""
+    (tmp_path / "main.c").write_text(main)
     exe = tmp_path / "san"
     flags = [f for f in cbuild.STRICT_CFLAGS if f != "-Werror"]
     proc = subprocess.run([*cc, *flags, *cbuild.SANITIZE_FLAGS, "-O1", "-I", str(tmp_path),
                            *map(str, srcs), str(tmp_path / "main.c"), "-o", str(exe)],
                           capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
-    run = subprocess.run([str(exe), "10000000"], capture_output=True, text=True, timeout=300)
+    run = subprocess.run([str(exe), steps], capture_output=True, text=True, timeout=300)
     assert "runtime error" not in run.stderr and "AddressSanitizer" not in run.stderr, run.stderr
     assert run.returncode == 0, run.stdout + run.stderr
-    assert "fails 0" in run.stdout
+    return run
 
 
 # --- models with effects -----------------------------------------------------------------------
@@ -390,101 +323,7 @@ def test_effects_float_input_sanitising():
     assert z.charging.tolist() == [0, 1, 1] and z.v[1] == z.v[2]
 
 
-SAN_FX_MAIN = r"""
-#include <stdio.h>
-#include <stdlib.h>
-#include <stdint.h>
-#include <float.h>
-#include "fv_ecm.h"
-#include "fd_ecm.h"
-#include "qv_ecm.h"
-#include "qd_ecm.h"
-
-/* cell temperatures, every one a legal input (float: NaN and inf too) */
-static const float ftemps[8] = {25.0f, -20.0f, -60.0f, 90.0f, 1e30f, -1e30f, 0.5f, 17.3f};
-static const int32_t qtemps[8] = {25 * 256, -20 * 256, INT32_MIN, INT32_MAX, 0, 4423, -5000, 30000};
-#define FT(r) ftemps[(unsigned)(r) & 7u]
-#define QT(r) qtemps[(unsigned)(r) & 7u]
-
-static uint32_t rnd(uint32_t *x) { *x ^= *x << 13; *x ^= *x >> 17; *x ^= *x << 5; return *x; }
-static long fails = 0, qfails = 0;
-static int bad_f(float v) { return !(v == v) || v > 1e6f || v < -1e6f; }
-/* float state: every field finite, SOC in [-2, 2], h in [-1, 1] */
-#define BAD_FS(s) (bad_f((s).soc) || bad_f((s).u_fast) || bad_f((s).u_slow) || bad_f((s).u_x) || \
-                   !((s).soc >= -2.0f && (s).soc <= 2.0f) || !((s).h >= -1.0f && (s).h <= 1.0f))
-/* fixed state: h in Q30 [-1, 1] */
-#define BAD_QS(s) ((s).h < -(1 << 30) || (s).h > (1 << 30))
-
-int main(int argc, char **argv)
-{
-    static const float cur[] = {0.0f, 1e30f, -1e30f, FLT_MAX, -FLT_MAX, 1e-45f, -1e-45f,
-                                127.0f, -500.0f, 3.0f, -3.0f, 0.02f};
-    static const float dts[] = {0.0f, -1.0f, 1e-45f, 0.1f, 1e30f, FLT_MAX, 32767.0f};
-    static const float socs[] = {-1e30f, -2.5f, 0.0f, 0.5f, 1.0f, 3.0f, 1e30f};
-    static const int32_t qcur[] = {INT32_MIN, INT32_MAX, 0, 1, -1, 486539, -486539, 1 << 24};
-    static const int32_t qdts[] = {INT32_MIN, -1, 0, 1, 6554, INT32_MAX};
-    static const int32_t qsocs[] = {INT32_MIN, -1, 0, 1 << 29, 1 << 30, INT32_MAX};
-    const float nan = 0.0f / (argc > 99 ? 1.0f : 0.0f);   /* NaN without a constant fold warning */
-    const float inf = 1.0f / (argc > 99 ? 1.0f : 0.0f);
-    long n = argc > 1 ? atol(argv[1]) : 1000000L;
-    size_t a, b, c;
-    long k;
-    uint32_t x = 2463534242u;
-    for (a = 0; a < sizeof socs / sizeof socs[0]; a++)
-        for (b = 0; b < sizeof cur / sizeof cur[0]; b++)
-            for (c = 0; c < sizeof dts / sizeof dts[0]; c++) {
-                fv_state_t s; fd_state_t t;
-                int r;
-                fv_init(&s, socs[a]); fd_init(&t, socs[a]);
-                for (r = 0; r < 20; r++) {
-                    fails += bad_f(fv_step(&s, r % 3 ? cur[b] : -cur[b], FT(r + b), dts[c]));
-                    fails += bad_f(fv_step(&s, nan, nan, nan)) + bad_f(fv_step(&s, inf, inf, inf));
-                    fails += bad_f(fv_step(&s, -inf, -inf, -inf)) + bad_f(fv_step(&s, nan, FT(r), inf));
-                    fails += bad_f(fd_step(&t, r % 3 ? cur[b] : -cur[b], FT(r + c))) + bad_f(fd_step(&t, nan, nan));
-                    fails += bad_f(fd_step(&t, -inf, -inf)) + bad_f(fd_step(&t, inf, inf));
-                    fails += BAD_FS(s) + BAD_FS(t);
-                }
-            }
-    for (a = 0; a < sizeof qsocs / sizeof qsocs[0]; a++)
-        for (b = 0; b < sizeof qcur / sizeof qcur[0]; b++)
-            for (c = 0; c < sizeof qdts / sizeof qdts[0]; c++) {
-                qv_state_t s; qd_state_t t;
-                int r;
-                qv_init(&s, qsocs[a]); qd_init(&t, qsocs[a]);
-                for (r = 0; r < 20; r++) {
-                    (void)qv_step(&s, r % 2 ? qcur[b] : -(qcur[b] + 1), QT(r + b), qdts[c]);
-                    (void)qd_step(&t, r % 2 ? qcur[b] : -(qcur[b] + 1), QT(r + c));
-                    qfails += BAD_QS(s) + BAD_QS(t);
-                }
-            }
-    {
-        fv_state_t s; fd_state_t t; qv_state_t q; qd_state_t u;
-        fv_init(&s, 0.5f); fd_init(&t, 0.5f); qv_init(&q, 1 << 29); qd_init(&u, 1 << 29);
-        for (k = 0; k < n; k++) {
-            const uint32_t r1 = rnd(&x), r2 = rnd(&x), r3 = rnd(&x);
-            float fi = (float)(int32_t)r1 * (1.0f / 8388608.0f);          /* +-256 A */
-            float fdt = (float)(r2 >> 8) * (1.0f / 1677721.6f);          /* 0..10 s */
-            int32_t qi = (int32_t)r1;
-            if ((r3 & 1023u) == 0u) fi = (r3 & 1024u) ? nan : fi * 1e30f;  /* absurd inputs */
-            if ((r3 & 4095u) == 1u) fdt = (r3 & 4096u) ? nan : 1e30f;
-            if ((r3 & 3u) != 0u) qi >>= (r3 >> 2) % 24u;                   /* mostly moderate */
-            fails += bad_f(fv_step(&s, fi, FT(r2 >> 29), fdt)) + bad_f(fd_step(&t, fi, FT(r1 >> 29)));
-            (void)qv_step(&q, qi, QT(r2 >> 29), (int32_t)(r2 >> 13));
-            (void)qd_step(&u, qi, QT(r1 >> 29));
-            if ((k & 63) == 0) {
-                fails += BAD_FS(s) + BAD_FS(t);
-                qfails += BAD_QS(q) + BAD_QS(u);
-            }
-        }
-        fails += BAD_FS(s) + BAD_FS(t);
-        qfails += BAD_QS(q) + BAD_QS(u);
-        printf("state %g %g %g %g %ld %ld %ld %ld\n", (double)s.soc, (double)s.h, (double)s.u_x,
-               (double)t.h, (long)q.soc, (long)q.h, (long)q.u_x, (long)u.h);
-    }
-    printf("fails %ld qfails %ld\n", fails, qfails);
-    return fails != 0 || qfails != 0;
-}
-"""
+SAN_FX_MAIN = (REPO / "tests" / "data" / "codegen_sanitize_fx_main.c").read_text()
 
 
 def _temperature_fx_model(numeric):
@@ -507,33 +346,20 @@ def test_effects_sanitized_build_has_no_undefined_behaviour(tmp_path, family):
     5*10^6 (temperature: 2*10^6) random steps: no sanitizer report, no non-finite output,
     every state finite, h within [-1, 1]. "surface": the temperature family with the surface
     SOC (surface_soc_gain 0.5) in every variant."""
-    cc = cbuild.host_cc()
-    probe = subprocess.run([*cc, *cbuild.SANITIZE_FLAGS, "-x", "c", "-", "-o", tmp_path / "probe"],
-                           input="int main(void){return 0;}\n", capture_output=True, text=True)
-    if probe.returncode != 0:
-        pytest.skip(f"compiler cannot build with sanitizers: {probe.stderr.strip()[:200]}")
+    cc = _sanitizer_cc(tmp_path)
     srcs = []
     for prefix, (numeric, dt_s) in zip(("fv", "fd", "qv", "qd"), VARIANTS):
         model = _fx_model(numeric) if family == "effects" else _temperature_fx_model(numeric)
         if family == "surface":
             model = replace(model, surface_soc_gain=0.5)
         generate_c(model, tmp_path, prefix=prefix, numeric=numeric, dt_s=dt_s)
-        src = (tmp_path / f"{prefix}_ecm.c").read_text()
+        src = (tmp_path / file_names(prefix, numeric)["source"]).read_text()
         assert "ECMRT_FX_HYST 1" in src
         assert ("ECMRT_SURFACE 1" in src) == (family == "surface")
         if family != "effects":
             assert all(f"ECMRT_{k} 1" in src for k in ("TEMP", "DIFF", "BV", "FX_ARR")), prefix
-        srcs.append(tmp_path / f"{prefix}_ecm.c")
-    (tmp_path / "main.c").write_text(SAN_FX_MAIN)
-    exe = tmp_path / "san_fx"
-    flags = [f for f in cbuild.STRICT_CFLAGS if f != "-Werror"]
-    proc = subprocess.run([*cc, *flags, *cbuild.SANITIZE_FLAGS, "-O1", "-I", str(tmp_path),
-                           *map(str, srcs), str(tmp_path / "main.c"), "-o", str(exe)],
-                          capture_output=True, text=True)
-    assert proc.returncode == 0, proc.stderr
-    steps = "5000000" if family == "effects" else "2000000"
-    run = subprocess.run([str(exe), steps], capture_output=True, text=True, timeout=300)
+        srcs.append(tmp_path / file_names(prefix, numeric)["source"])
+    run = _sanitized_run(cc, tmp_path, srcs, SAN_FX_MAIN,
+                         "5000000" if family == "effects" else "2000000")
     print("\n", run.stdout)
-    assert "runtime error" not in run.stderr and "AddressSanitizer" not in run.stderr, run.stderr
-    assert run.returncode == 0, run.stdout + run.stderr
     assert "fails 0 qfails 0" in run.stdout

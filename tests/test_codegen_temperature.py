@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ecmgen.c import cbuild, cref
-from ecmgen.c.codegen import generate_c, prepare, render
+from ecmgen.c.codegen import file_names, generate_c, prepare, render
 from ecmgen.c.spec import state_fields
 from ecmgen.errors import InputError
 from ecmgen.model import effects as fx
@@ -278,7 +278,7 @@ def test_one_temperature_model_ignores_the_temperature(numeric):
     runs = [cm.trace_native(i_n, dt_n, s0, cm.native_temperature(t, n)).v
             for t in (-30.0, 25.0, 60.0)]
     assert np.array_equal(runs[0], runs[1]) and np.array_equal(runs[1], runs[2])
-    assert "_ECM_USES_TEMPERATURE 0" in render(cm.spec)["one_ecm.h"]
+    assert "_USES_TEMPERATURE 0" in render(cm.spec)[file_names("one", cm.spec.numeric)["header"]]
 
 
 def test_temperature_dependence_effect_close_to_python():
@@ -337,11 +337,13 @@ def test_header_documents_temperature_and_state(tmp_path):
     m = _synthetic("everything")
     for numeric in ("float", "fixed"):
         spec = prepare(m, numeric=numeric, prefix="bt")
-        h = render(spec)["bt_ecm.h"]
-        assert "BT_ECM_TEMPERATURE_ROWS 5" in h and "BT_ECM_USES_TEMPERATURE 1" in h
-        assert "bt_step(bt_state_t *s, " + ("int32_t i, int32_t temperature, int32_t dt)" if
-                                            numeric == "fixed" else
-                                            "float i, float temperature, float dt)") in h
+        h = render(spec)[file_names("bt", numeric)["header"]]
+        M = "BT_ECM_Q" if numeric == "fixed" else "BT_ECM_F32"
+        assert f"{M}_TEMPERATURE_ROWS 5" in h and f"{M}_USES_TEMPERATURE 1" in h
+        q = spec.q if numeric == "fixed" else {}
+        assert ("bt_step_q(bt_state_q_t *s, bt_amp_q{Q_I}_t i, bt_degc_q8_t temperature, "
+                "bt_sec_q16_t dt)".format(**q) if numeric == "fixed" else
+                "bt_step_f32(bt_state_f32_t *s, float i, float temperature, float dt)") in h
         for _, name, _ in state_fields(spec):
             assert f" {name};" in h, name
         if numeric == "fixed":

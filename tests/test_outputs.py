@@ -115,17 +115,17 @@ def test_reused_out_keeps_no_file_of_the_earlier_build(project, capsys):
     manifest = json.loads(first[MANIFEST])
     assert set(manifest["files"]) == set(first) - {MANIFEST}
     (out / "notes.txt").write_text("my own notes")          # not ecmgen's: stays
-    (out / "c" / "float" / "ecm_ecm_report.md").write_text("edited")   # changed: stays
+    (out / "c" / "float" / "ecm_ecm_f32_report.md").write_text("edited")   # changed: stays
     cfg.write_text(CONFIG.replace("relax_s = 900", "relax_s = 600") + '[c]\nnumeric = []\n')
     assert main(["build", str(cfg), "--out", str(out), "-q", "--no-plots"]) == 0
     second = snapshot(out)
     assert not [k for k in second if k.startswith("c/") and not k.endswith("report.md")]
     assert second["notes.txt"] == b"my own notes"
-    assert second["c/float/ecm_ecm_report.md"] == b"edited"
+    assert second["c/float/ecm_ecm_f32_report.md"] == b"edited"
     manifest = json.loads(second[MANIFEST])
-    assert manifest["kept_changed"] == ["c/float/ecm_ecm_report.md"]
+    assert manifest["kept_changed"] == ["c/float/ecm_ecm_f32_report.md"]
     assert set(manifest["files"]) == set(second) - {MANIFEST, "notes.txt",
-                                                    "c/float/ecm_ecm_report.md"}
+                                                    "c/float/ecm_ecm_f32_report.md"}
 
 
 def test_a_manifest_naming_paths_outside_out_removes_nothing_there(project):

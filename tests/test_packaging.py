@@ -22,6 +22,7 @@ from pathlib import Path
 import pytest
 
 from conftest import REPO
+from ecmgen.c.codegen import file_names
 
 EXAMPLE = REPO / "examples" / "panasonic-25degC"
 # what a wheel is built from: everything else in the checkout (tests, examples, bench) is
@@ -130,7 +131,14 @@ def test_wheel_in_a_fresh_venv_generates_c(tmp_path):
         result = json.loads(r.stdout)
         for numeric in ("float", "fixed"):
             assert result["c"][numeric]["bit_exact_vs_reference"] is True
-            assert (tmp_path / "out" / "c" / numeric / "pan18650pf_ecm.c").is_file()
+            src = file_names("pan18650pf", numeric)["source"]
+            assert (tmp_path / "out" / "c" / numeric / src).is_file()
+            # the generated equivalence test, with the wheel alone, outside the source tree
+            test = tmp_path / "out" / "c" / numeric / f"test_{src[:-2]}_equivalence.py"
+            r = _run([py, test], tmp_path)
+            assert r.stdout.strip().endswith("equivalent to the golden vectors"), r.stdout
+        r = _run([venv / "bin" / "ecmgen", "verify", tmp_path / "out"], tmp_path)
+        assert r.stdout.splitlines()[-1] == "ecmgen verify: 2 of 2 passed", r.stdout
         assert (tmp_path / "out" / "c" / "float" / "ecmrt_f32.h").read_text() == \
             (REPO / "c_runtime" / "ecmrt_f32.h").read_text()
     finally:

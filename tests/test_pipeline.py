@@ -217,8 +217,8 @@ def test_codegen_cli_writes_c_for_a_model_and_refuses_bad_ones(tmp_path):
     path = model.save(tmp_path / "model.json")
     res = run_cli("codegen", path, "--out", tmp_path / "c", "--prefix", "cell1")
     assert res.returncode == 0, res.stderr
-    assert (tmp_path / "c" / "cell1_ecm.h").exists() and (tmp_path / "c" / "cell1_ecm.c").exists()
-    assert "extra_rc" in (tmp_path / "c" / "cell1_ecm.h").read_text()
+    assert (tmp_path / "c" / "cell1_ecm_f32.h").exists() and (tmp_path / "c" / "cell1_ecm_f32.c").exists()
+    assert "extra_rc" in (tmp_path / "c" / "cell1_ecm_f32.h").read_text()
     bad = tmp_path / "bad.json"
     bad.write_text(path.read_text().replace('"schema_version": 2', '"schema_version": 99'))
     err = _fails(["codegen", bad, "--out", tmp_path / "c2"], "bad.json", "schema_version")

@@ -87,6 +87,11 @@ def cmd_build(args) -> int:
             print(pulse_test_table(result))
             print()
         print(cycle_table(validation_rows(result), result.best))
+        for numeric, r in (result.c_report or {}).items():
+            same = {True: "bit-exact to its reference", False: "NOT bit-exact"}.get(
+                r.get("bit_exact_vs_reference"), "not checked")
+            print(f"C {numeric}: {r['table_bytes']} bytes of tables (flash), {same}; golden "
+                  f"vectors and test in {r['dir']}/ (ecmgen verify {r['dir']})")
     print(build_summary(result))
     return 0
 
@@ -330,6 +335,21 @@ def _settings_from_validation(cfg, model, settings, cycle: Path):
     return replace(settings, **{k: v for k, v in figures.as_dict().items() if k not in given})
 
 
+def cmd_verify(args) -> int:
+    from .c.verify import verify
+
+    verdicts = verify(args.golden, args.csrc, args.cc, args.cflags, args.run)
+    for v in verdicts:
+        print(v.line)
+    failed = [v.name for v in verdicts if not v.passed]
+    inexact = failed or any(" 0 differ" not in v.line for v in verdicts)
+    if inexact and args.cflags is not None and "-ffp-contract=off" not in args.cflags:
+        print("note: the float C is bit-exact only with -ffp-contract=off (and no -ffast-math)")
+    print(f"ecmgen verify: {len(verdicts) - len(failed)} of {len(verdicts)} passed"
+          + (f"; failed: {', '.join(failed)}" if failed else ""))
+    return 1 if failed else 0
+
+
 def cmd_codegen(args) -> int:
     from .c.codegen import file_names, generate_c, prepare
     from .c.spec import check_options
@@ -503,6 +523,19 @@ def parser() -> argparse.ArgumentParser:
                         "variable dt; the [estimator] defaults)")
     c.add_argument("-q", "--quiet", action="store_true", help="do not list the files written")
     c.set_defaults(func=cmd_codegen)
+
+    v = sub.add_parser("verify", help="check your copy of the generated C against the build's "
+                       "golden vectors (exit 0 pass, 1 fail, 2 bad input)")
+    v.add_argument("golden", help="a build's c/float or c/fixed folder (or the build folder, "
+                   "or one <prefix>_ecm_<s>_vectors.h)")
+    v.add_argument("--c", dest="csrc", help="folder of your copy of the C (<prefix>_ecm_<s>.c "
+                   "and its headers; default: the golden folder)")
+    v.add_argument("--cc", help="C compiler command (default: cc)")
+    v.add_argument("--cflags", help="compiler flags, one string (default: "
+                   "'-std=c99 -O2 -ffp-contract=off')")
+    v.add_argument("--run", help="command that runs the test program, e.g. an emulator "
+                   "(default: run it directly)")
+    v.set_defaults(func=cmd_verify)
 
     g = sub.add_parser("diagnose", help="find, add and check missing model effects")
     g.add_argument("config")

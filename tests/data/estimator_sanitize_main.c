@@ -4,12 +4,12 @@
 #include <stdlib.h>
 #include <stdint.h>
 #include <float.h>
-#include "fe_est.h"
+#include "fe_est_f32.h"
 
 static uint32_t rnd(uint32_t *x) { *x ^= *x << 13; *x ^= *x >> 17; *x ^= *x << 5; return *x; }
 static long fails = 0;
 static int finite(float v) { return v == v && v <= FLT_MAX && v >= -FLT_MAX; }
-static void check(const fe_est_t *e, float vp)
+static void check(const fe_est_f32_t *e, float vp)
 {
     unsigned a, b;
     int bad = !(e->m.soc >= 0.0f && e->m.soc <= 1.0f) || !finite(e->m.u_fast) ||
@@ -17,11 +17,11 @@ static void check(const fe_est_t *e, float vp)
 #if defined(FE_FX) && FE_FX     /* effects and offset state: h in [-1, 1], u_x, offset finite */
     bad |= !(e->m.h >= -1.0f && e->m.h <= 1.0f) || !finite(e->m.u_x) || !finite(e->offset_a);
 #endif
-    for (a = 0; a < FE_EST_STATES; a++) {
-        bad |= !(e->p[a * FE_EST_STATES + a] >= 0.0f);
-        for (b = 0; b < FE_EST_STATES; b++) {
-            bad |= !finite(e->p[a * FE_EST_STATES + b]);
-            bad |= e->p[a * FE_EST_STATES + b] != e->p[b * FE_EST_STATES + a];
+    for (a = 0; a < FE_EST_F32_STATES; a++) {
+        bad |= !(e->p[a * FE_EST_F32_STATES + a] >= 0.0f);
+        for (b = 0; b < FE_EST_F32_STATES; b++) {
+            bad |= !finite(e->p[a * FE_EST_F32_STATES + b]);
+            bad |= e->p[a * FE_EST_F32_STATES + b] != e->p[b * FE_EST_F32_STATES + a];
         }
     }
     if (bad && fails < 5) {
@@ -43,29 +43,29 @@ int main(int argc, char **argv)
     long n = argc > 1 ? atol(argv[1]) : 100000L, k;
     size_t a, b, c, d, s;
     uint32_t x = 2463534242u;
-    fe_est_t e;
+    fe_est_f32_t e;
     float vp;
     (void)argv;
     for (s = 0; s < sizeof socs / sizeof socs[0]; s++)
       for (a = 0; a < sizeof cur / sizeof cur[0]; a++)
         for (b = 0; b < sizeof dts / sizeof dts[0]; b++) {
-            fe_est_init(&e, socs[s]);
+            fe_est_init_f32(&e, socs[s]);
             for (c = 0; c < sizeof tmp / sizeof tmp[0]; c++)
                 for (d = 0; d < sizeof vs / sizeof vs[0]; d++) {
-                    vp = fe_est_step(&e, (c + d) % 2 ? cur[a] : -cur[a], tmp[c], dts[b], vs[d]);
+                    vp = fe_est_step_f32(&e, (c + d) % 2 ? cur[a] : -cur[a], tmp[c], dts[b], vs[d]);
                     check(&e, vp);
-                    vp = fe_est_step(&e, 1.0f, 25.0f, 0.1f, 3.7f);
+                    vp = fe_est_step_f32(&e, 1.0f, 25.0f, 0.1f, 3.7f);
                     check(&e, vp);
                 }
         }
-    fe_est_init(&e, 0.5f);
+    fe_est_init_f32(&e, 0.5f);
     for (k = 0; k < n; k++) {
         const uint32_t r1 = rnd(&x), r2 = rnd(&x), r3 = rnd(&x);
         const float fi = (float)(int32_t)r1 * (1.0f / 67108864.0f);       /* +-32 A */
         const float fdt = (r3 & 255u) == 0u ? (float)(r2 >> 16) : (float)(r2 >> 8) * (1.0f / 16777216.0f);
         const float ft = (float)(r3 >> 8) * (1.0f / 167772.16f) - 40.0f;   /* -40 .. 60 degC */
         const float fv = 2.5f + (float)(r3 >> 16) * (1.7f / 65536.0f);
-        vp = fe_est_step(&e, fi, ft, fdt, (r2 & 1023u) == 0u ? nan : fv);
+        vp = fe_est_step_f32(&e, fi, ft, fdt, (r2 & 1023u) == 0u ? nan : fv);
         check(&e, vp);
     }
     printf("soc %g p00 %g fails %ld\n", (double)e.m.soc, (double)e.p[0], fails);

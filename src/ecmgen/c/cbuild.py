@@ -30,6 +30,7 @@ import numpy as np
 
 from . import cref
 from .codegen import CSpec, file_names, prepare, render, state_fields
+from .names import c_names
 
 STRICT_CFLAGS = ("-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Wconversion", "-Wshadow",
                  "-Wdouble-promotion", "-Werror", "-ffp-contract=off")
@@ -104,24 +105,25 @@ def extra_states(spec: CSpec) -> tuple[str, ...]:
 
 def _signatures(spec: CSpec) -> tuple[str, str]:
     """(trace, stress) prototypes of the harness."""
-    p, t = spec.prefix, _vt(spec)
+    p, t = c_names(spec.prefix, spec.numeric)["state"], _vt(spec)
     dt_arg = f"const {t} *dt, " if spec.variable_dt else ""
     extra = "".join(f", {t} *{f}" for f in extra_states(spec))
-    trace = (f"void ecmh_trace({p}_state_t *s, const {t} *i, const {t} *temp, {dt_arg}{t} *v, "
+    trace = (f"void ecmh_trace({p} *s, const {t} *i, const {t} *temp, {dt_arg}{t} *v, "
              f"{t} *soc, {t} *uf, {t} *us, uint8_t *chg{extra}, size_t n)")
     if spec.fixed:
-        stress = (f"void ecmh_stress({p}_state_t *s, uint32_t seed, size_t n, int32_t dt_max, "
+        stress = (f"void ecmh_stress({p} *s, uint32_t seed, size_t n, int32_t dt_max, "
                   "int32_t *lo, int32_t *hi, uint32_t *bad)")
     else:
-        stress = (f"void ecmh_stress({p}_state_t *s, uint32_t seed, size_t n, float i_amp, "
+        stress = (f"void ecmh_stress({p} *s, uint32_t seed, size_t n, float i_amp, "
                   "float dt_max, float *lo, float *hi, uint32_t *bad)")
     return trace, stress
 
 
 def harness_source(spec: CSpec) -> str:
-    p = spec.prefix
+    nm = c_names(spec.prefix, spec.numeric)
+    p = nm["step"]
     vdt = spec.variable_dt
-    call = f"{p}_step(s, i[k], temp[k], dt[k])" if vdt else f"{p}_step(s, i[k], temp[k])"
+    call = f"{p}(s, i[k], temp[k], dt[k])" if vdt else f"{p}(s, i[k], temp[k])"
     trace_sig, stress_sig = _signatures(spec)
     extra = "".join(f"        {f}[k] = s->{f};\n" for f in extra_states(spec))
     if spec.fixed:
@@ -135,7 +137,7 @@ def harness_source(spec: CSpec) -> str:
             t = (int32_t)ecmh_rand(&x);                       /* the odd absurd temperature */
         }}
         {"int32_t dt = (int32_t)(ecmh_rand(&x) % ((uint32_t)dt_max + 1u));" if vdt else ""}
-        const int32_t v = {f"{p}_step(s, i, t, dt)" if vdt else f"{p}_step(s, i, t)"};
+        const int32_t v = {f"{p}(s, i, t, dt)" if vdt else f"{p}(s, i, t)"};
         if (v < lo[0]) lo[0] = v;
         if (v > hi[0]) hi[0] = v;
         if (s->soc < lo[1]) lo[1] = s->soc;
@@ -152,7 +154,7 @@ def harness_source(spec: CSpec) -> str:
             i = i * 1.0e30f;                                    /* occasional absurd current */
             t = t * 1.0e30f;                                    /* and temperature */
         }}
-        v = {f"{p}_step(s, i, t, dt)" if vdt else f"{p}_step(s, i, t)"};
+        v = {f"{p}(s, i, t, dt)" if vdt else f"{p}(s, i, t)"};
         if (!(v == v) || v > 1.0e6f || v < -1.0e6f || !(s->u_fast == s->u_fast) ||
             !(s->u_slow == s->u_slow) || !(s->soc >= -2.0f && s->soc <= 2.0f)) {{
             (*bad)++;
@@ -164,12 +166,12 @@ def harness_source(spec: CSpec) -> str:
         if (s->soc > hi[1]) hi[1] = s->soc;
 """
     unused = "" if vdt else "    (void)dt_max;\n"
-    return f"""/* test harness for {p}: traces and a pseudo-random stress loop (not shipped) */
+    return f"""/* test harness for {spec.prefix}: traces and a pseudo-random stress loop (not shipped) */
 #include "ecmh_harness.h"
 
 size_t ecmh_state_size(void)
 {{
-    return sizeof({p}_state_t);
+    return sizeof({nm['state']});
 }}
 
 {trace_sig}
@@ -210,7 +212,7 @@ def harness_header(spec: CSpec) -> str:
     trace, stress = _signatures(spec)
     return f"""#ifndef ECMH_HARNESS_H
 #define ECMH_HARNESS_H
-#include "{spec.prefix}_ecm.h"
+#include "{file_names(spec.prefix, spec.numeric)['header']}"
 {trace};
 {stress};
 size_t ecmh_state_size(void);
@@ -219,16 +221,17 @@ size_t ecmh_state_size(void);
 
 
 def _cdef(spec: CSpec) -> str:
-    p, t = spec.prefix, _vt(spec)
+    nm, t = c_names(spec.prefix, spec.numeric), _vt(spec)
+    st = nm["state"]
     fields = " ".join(f"{ct} {name};" for ct, name, _ in state_fields(spec))
     trace, stress = _signatures(spec)
     dt_arg = f"const {t} *dt, " if spec.variable_dt else ""
     return "\n".join([
-        f"typedef struct {{ {fields} }} {p}_state_t;",
-        f"void {p}_init({p}_state_t *s, {t} soc0);",
-        (f"{t} {p}_step({p}_state_t *s, {t} i, {t} temperature, {t} dt);" if spec.variable_dt
-         else f"{t} {p}_step({p}_state_t *s, {t} i, {t} temperature);"),
-        f"void {p}_run({p}_state_t *s, const {t} *i, const {t} *temperature, {dt_arg}{t} *v, "
+        f"typedef struct {{ {fields} }} {st};",
+        f"void {nm['init']}({st} *s, {t} soc0);",
+        (f"{t} {nm['step']}({st} *s, {t} i, {t} temperature, {t} dt);" if spec.variable_dt
+         else f"{t} {nm['step']}({st} *s, {t} i, {t} temperature);"),
+        f"void {nm['run']}({st} *s, const {t} *i, const {t} *temperature, {dt_arg}{t} *v, "
         "size_t n);",
         trace + ";",
         stress + ";",
@@ -361,9 +364,13 @@ class CModel:
     def _t(self):
         return np.int32 if self.spec.fixed else np.float32
 
+    @property
+    def names(self) -> dict[str, str]:
+        return c_names(self.spec.prefix, self.spec.numeric)
+
     def new_state(self, soc0):
-        s = self.ffi.new(f"{self.spec.prefix}_state_t *")
-        getattr(self.lib, f"{self.spec.prefix}_init")(s, soc0)
+        s = self.ffi.new(f"{self.names['state']} *")
+        getattr(self.lib, self.names["init"])(s, soc0)
         return s
 
     def _buf(self, a):
@@ -414,7 +421,7 @@ class CModel:
         s = self.new_state(soc0)
         v = np.empty(i.size, dtype=t)
         temp = self._temp(temp, i.size)
-        run = getattr(self.lib, f"{self.spec.prefix}_run")
+        run = getattr(self.lib, self.names["run"])
         if self.spec.variable_dt:
             dt = np.ascontiguousarray(dt, dtype=t)
             run(s, self._buf(i), self._buf(temp), self._buf(dt), self._buf(v), i.size)

@@ -13,7 +13,8 @@ from ..console import detail_of
 from ..data.measure import TimeSeries
 from ..errors import InputError
 from .cbuild import CBuildError, CToolchainMissing, c_equivalence
-from .codegen import describe, generate_c, prepare
+from .codegen import describe, file_names, generate_c, prepare
+from .golden import write_golden
 
 
 def build_c_outputs(cfg, result, out_dir, progress=lambda msg: None) -> dict:
@@ -43,6 +44,7 @@ def build_c_outputs(cfg, result, out_dir, progress=lambda msg: None) -> dict:
         est = prepare_estimator(model, specs["float"], est_cfg)           # checks first
     eq: dict = {}
     est_eq: dict | None = None
+    series = None
     if val is not None:
         progress(f"checking the C against Python on {Path(val.source).name or 'the cycle'}")
         series = TimeSeries(val.sim.time_s, val.sim.current_a, val.measured_v,
@@ -67,10 +69,12 @@ def build_c_outputs(cfg, result, out_dir, progress=lambda msg: None) -> dict:
     out_dir = Path(out_dir)
     block = {}
     for n in numerics:
-        detail_of(progress)(f"writing {n} C ({prefix}_ecm.c)")
+        detail_of(progress)(f"writing {n} C ({file_names(prefix, n)['source']})")
         files = generate_c(model, out_dir / "c" / n, prefix=prefix, numeric=n, dt_s=dt_s,
                            equivalence={n: eq[n]} if n in eq else None,
                            estimator=est_cfg if n == "float" else None)
+        files += write_golden(specs[n], out_dir / "c" / n, series if val is not None else None,
+                              val.soc0 if val is not None else 1.0)
         entry = dict(eq.get(n, {"skipped": "no validation cycle to compare on"}))
         if est is not None and n == "float":
             entry["estimator"] = est_eq or {"skipped": "no validation cycle to compare on"}

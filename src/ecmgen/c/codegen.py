@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from ..files import write_atomic
+from .names import c_names
 from .qformat import INT32_MAX, Q30, Q_D, Q_TEMP, quantize
 from .spec import (C_EFFECTS, FX_FIXED_KEYS, FX_FLOAT_KEYS, NUMERICS, CDir, CGrid, CSpec,
                    _as_model, begin, prepare_float, state_fields)
@@ -51,8 +52,8 @@ __all__ = ["C_EFFECTS", "NUMERICS", "CDir", "CGrid", "CSpec", "c_float", "descri
            "_as_model"]
 
 # the runtime headers a model's .c needs, the one it includes last
-RUNTIME_FILES = {"float": ("ecmrt.h", "ecmrt_f32.h"),
-                 "fixed": ("ecmrt.h", "ecmrt_q_exp.h", "ecmrt_q.h")}
+RUNTIME_FILES = {"float": ("ecmrt.h", "ecmrt_state.h", "ecmrt_f32.h"),
+                 "fixed": ("ecmrt.h", "ecmrt_state.h", "ecmrt_q_exp.h", "ecmrt_q.h")}
 
 
 def _find_dir(name: str) -> Path:
@@ -261,9 +262,28 @@ def _ranges(spec: CSpec) -> list[dict]:
     return rows
 
 
+def _qtypes(spec: CSpec) -> list[dict]:
+    """The fixed-point API's value types: name (its format in it), Q and 2^(Q+1)."""
+    q = spec.q
+    rows = [("amp", q["Q_I"]), ("volt", q["Q_V"]), ("soc", Q30), ("degc", Q_TEMP)] + \
+        ([("sec", Q_D)] if spec.variable_dt else [])
+    return [{"name": f"{name}_q{qf}", "q": qf, "twice": 2 ** (qf + 1)} for name, qf in rows]
+
+
+def _api_types(spec: CSpec) -> dict[str, str]:
+    """The C types of the API's arguments: float, or the fixed-point value types."""
+    if not spec.fixed:
+        return dict.fromkeys(("i", "v", "t", "dt", "soc"), "float")
+    p, q = spec.prefix, spec.q
+    return {"i": f"{p}_amp_q{q['Q_I']}_t", "v": f"{p}_volt_q{q['Q_V']}_t", "t": f"{p}_degc_q8_t",
+            "dt": f"{p}_sec_q16_t", "soc": f"{p}_soc_q30_t"}
+
+
 def _context(spec: CSpec) -> dict:
     p = spec.prefix
     fixed = spec.fixed
+    nm = c_names(p, spec.numeric)
+    qfmt: list = []
     fmt = (lambda v: str(int(v))) if fixed else c_float
     arrays = _Arrays("int32_t" if fixed else "float", fmt, 5)
     kname = ("tau_fast_s", "tau_slow_s") if spec.variable_dt else ("inv_c_fast", "inv_c_slow")
@@ -336,14 +356,17 @@ def _context(spec: CSpec) -> dict:
         names += (["Q_RD"] + ([] if spec.variable_dt else ["Q_DD", "Q_CD"])) if spec.diff else []
         names += ["Q_I0"] if spec.has_bv else []
         names += ["Q_SV"] if spec.surface is not None else []
-        fmts = {n: f"{p.upper()}_ECM_{n}" for n in names}
+        fmts = {n: f"{nm['M']}_{n[2:] if n.startswith('Q_') else n}" for n in names}
         macros.update({f"ECMRT_{n}": v for n, v in fmts.items()})
+        qfmt = [(v, spec.q[n]) for n, v in fmts.items() if n not in ("Q_I", "Q_V")]
         if spec.has_bv:
             macros.update(ECMRT_BV_QX=spec.bv["QX"], ECMRT_BV_K=spec.bv["K"])
         macros.update({f"ECMRT_FX_{k}": v for k, v in spec.fx.items()
                        if k.startswith(("SH_", "CDR_Q", "ARR_Q"))})
     return {
-        "p": p, "P": p.upper(), "fixed": fixed, "variable_dt": spec.variable_dt,
+        "p": p, "P": p.upper(), "nm": nm, "M": nm["M"], "fixed": fixed,
+        "qtypes": _qtypes(spec) if fixed else [], "qfmt_macros": qfmt,
+        "ty": _api_types(spec), "variable_dt": spec.variable_dt,
         "dt_s": spec.dt_s, "dt_s_c": None if spec.dt_s is None or fixed else c_float(spec.dt_s),
         "dt_q16": None if spec.dt_s is None else int(quantize([spec.dt_s], Q_D)[0]),
         "version": spec.tool_version, "sha": spec.model_sha256, "capacity_ah": spec.capacity_ah,
@@ -390,10 +413,11 @@ def _env():
 
 
 def file_names(prefix: str, numeric: str) -> dict[str, str]:
-    """Names of the generated files (the runtime headers are the same for every model)."""
-    return {"header": f"{prefix}_ecm.h", "source": f"{prefix}_ecm.c",
-            "filelist": f"{prefix}_ecm_files.mk", "report": f"{prefix}_ecm_report.md",
-            "runtime": list(RUNTIME_FILES[numeric])}
+    """Names of the generated files (the runtime headers are the same for every model;
+    the naming rule is :mod:`ecmgen.c.names`)."""
+    nm = c_names(prefix, numeric)
+    return {k: nm[k] for k in ("header", "source", "filelist", "report")} | \
+        {"runtime": list(RUNTIME_FILES[numeric])}
 
 
 def _equivalence_rows(eq: dict | None) -> list[dict]:

@@ -1,9 +1,9 @@
 """The SOC estimator in C (``[c] estimator = "ekf"``): its spec, its rendering next to the
 model's step, and its cffi harness.
 
-``<prefix>_est.h`` declares ``<prefix>_est_t`` (the model's state, the covariance, a
-first-sample flag) and ``<prefix>_est_init`` / ``<prefix>_est_step``; their bodies are
-appended to ``<prefix>_ecm.c`` (same translation unit as the model's ``static const``
+``<prefix>_est_f32.h`` declares ``<prefix>_est_f32_t`` (the model's state, the covariance, a
+first-sample flag) and ``<prefix>_est_init_f32`` / ``<prefix>_est_step_f32``; their bodies are
+appended to ``<prefix>_ecm_f32.c`` (same translation unit as the model's ``static const``
 tables, so the filter's table accessor reads them and the model's step inlines), with the
 filter itself in the hand-written ``c_runtime/ecmrt_est_f32.h``. The filter is the extended
 Kalman filter of :mod:`ecmgen.estimate.ekf` (chosen over the sigma-point filter by
@@ -28,6 +28,7 @@ import numpy as np
 from ..config import EstimatorConfig
 from ..errors import InputError
 from ..estimate.ekf import NoiseModel
+from .names import c_names
 from .spec import CSpec, state_bytes
 
 ESTIMATORS = ("ekf",)
@@ -114,7 +115,7 @@ def prepare_estimator(model, spec: CSpec, cfg: EstimatorConfig | None = None,
 
 
 def est_file_names(prefix: str) -> dict[str, str]:
-    return {"est_header": f"{prefix}_est.h", "est_runtime": RUNTIME_FILE}
+    return {"est_header": c_names(prefix, "float")["est_header"], "est_runtime": RUNTIME_FILE}
 
 
 def render_estimator(env, ctx: dict, est: EstSpec, c_float) -> tuple[str, str]:
@@ -131,22 +132,23 @@ def render_estimator(env, ctx: dict, est: EstSpec, c_float) -> tuple[str, str]:
 # --------------------------------------------------------------------------------------
 
 def _trace_sig(spec: CSpec) -> str:
-    p = spec.prefix
-    return (f"void ecmh_est_trace({p}_est_t *e, const float *i, const float *temp, "
+    nm = c_names(spec.prefix, "float")
+    return (f"void ecmh_est_trace({nm['est_t']} *e, const float *i, const float *temp, "
             "const float *dt, const float *v, float *vp, float *x, float *pm, size_t n)")
 
 
 def harness_source(spec: CSpec, est: EstSpec) -> str:
     n = est.n
+    nm = c_names(spec.prefix, "float")
     rec = "".join(f"        x[{n}u * k + {j}u] = e->{f};\n" for j, f in enumerate(est.fields))
     return f"""
-#include "{spec.prefix}_est.h"
+#include "{nm['est_header']}"
 {_trace_sig(spec)}
 {{
     size_t k;
     unsigned j;
     for (k = 0u; k < n; k++) {{
-        vp[k] = {spec.prefix}_est_step(e, i[k], temp[k], dt[k], v[k]);
+        vp[k] = {nm['est_step']}(e, i[k], temp[k], dt[k], v[k]);
 {rec}        for (j = 0u; j < {n * n}u; j++) {{
             pm[{n * n}u * k + j] = e->p[j];
         }}
@@ -155,22 +157,23 @@ def harness_source(spec: CSpec, est: EstSpec) -> str:
 
 size_t ecmh_est_size(void)
 {{
-    return sizeof({spec.prefix}_est_t);
+    return sizeof({nm['est_t']});
 }}
 """
 
 
 def harness_decls(spec: CSpec, est: EstSpec) -> str:
-    return f'#include "{spec.prefix}_est.h"\n{_trace_sig(spec)};\nsize_t ecmh_est_size(void);\n'
+    return f'#include "{c_names(spec.prefix, "float")["est_header"]}"\n{_trace_sig(spec)};\nsize_t ecmh_est_size(void);\n'
 
 
 def cdef(spec: CSpec, est: EstSpec) -> str:
-    p = spec.prefix
+    nm = c_names(spec.prefix, "float")
+    et = nm["est_t"]
     return "\n".join([
-        f"typedef struct {{ {p}_state_t m; float p[{est.n * est.n}]; "
-        + ("float offset_a; " if est.offset else "") + f"uint8_t first; }} {p}_est_t;",
-        f"void {p}_est_init({p}_est_t *e, float soc0);",
-        f"float {p}_est_step({p}_est_t *e, float i, float temperature, float dt, float v);",
+        f"typedef struct {{ {nm['state']} m; float p[{est.n * est.n}]; "
+        + ("float offset_a; " if est.offset else "") + f"uint8_t first; }} {et};",
+        f"void {nm['est_init']}({et} *e, float soc0);",
+        f"float {nm['est_step']}({et} *e, float i, float temperature, float dt, float v);",
         _trace_sig(spec) + ";",
         "size_t ecmh_est_size(void);",
     ])

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .names import c_names
+
 from ..config import EstimatorConfig
 from . import cref
 from .estref import EstRef, simulate_estimator_f32
@@ -28,9 +30,9 @@ def run_estimator_c(cm, current_a, dt_s, voltage_v, soc0: float, temperature_c=N
         0.0 if temperature_c is None else temperature_c, dtype=np.float64), (n,)).astype(f32))
     if not (dt.size == v.size == n):
         raise ValueError("current, dt and voltage differ in length")
-    p = cm.spec.prefix
-    e = cm.ffi.new(f"{p}_est_t *")
-    getattr(cm.lib, f"{p}_est_init")(e, float(f32(soc0)))
+    nm = c_names(cm.spec.prefix, "float")
+    e = cm.ffi.new(f"{nm['est_t']} *")
+    getattr(cm.lib, nm["est_init"])(e, float(f32(soc0)))
     vp = np.empty(n, dtype=f32)
     x = np.empty((n, est.n), dtype=f32)
     pm = np.empty((n, est.n, est.n), dtype=f32)

@@ -13,6 +13,7 @@ import numpy as np
 from . import target
 from .cbuild import STRICT_CFLAGS, CBuildError, compile_spec
 from .codegen import CSpec, file_names, prepare, render
+from .names import c_names
 from .estc import EstSpec, prepare_estimator
 from .estcheck import run_estimator_c
 from .target import CPUS, GCC, SECTION_FLAGS, _array, _run
@@ -35,7 +36,7 @@ def cross_compile_estimator(spec: CSpec, est: EstSpec, out_dir, cpu: str = "m4f"
 def firmware_main(spec: CSpec, est: EstSpec, i, temp, dt, v, soc0: float) -> str:
     """main(): est_init, est_step over the inputs, then the predicted voltages, states and
     covariances (n x (1 + N + N^2) floats) written through semihosting."""
-    p, n, N = spec.prefix, int(np.size(i)), est.n
+    nm, n, N = c_names(spec.prefix, "float"), int(np.size(i)), est.n
     rec = "".join(f"        out[{1 + N + N * N}u * k + {1 + j}u] = e.{f};\n"
                   for j, f in enumerate(est.fields))
     arrays = "".join(_array(name, a, False) for name, a in
@@ -43,7 +44,7 @@ def firmware_main(spec: CSpec, est: EstSpec, i, temp, dt, v, soc0: float) -> str
     w = 1 + N + N * N
     return f"""#include <stdint.h>
 #include <stddef.h>
-#include "{p}_est.h"
+#include "{nm['est_header']}"
 typedef union {{ uint32_t u; float f; }} ecmh_f32_t;
 int ecmh_semihost(int op, void *arg);
 {arrays}
@@ -61,14 +62,14 @@ static int write_all(int h, const void *buf, size_t len)
 int main(void)
 {{
     static const char name[] = "{target.OUT_NAME}";
-    {p}_est_t e;
+    {nm['est_t']} e;
     uint32_t blk[3];
     size_t k;
     unsigned j;
     int h;
-    {p}_est_init(&e, {float(np.float32(soc0)).hex()}f);
+    {nm['est_init']}(&e, {float(np.float32(soc0)).hex()}f);
     for (k = 0; k < {n}u; k++) {{
-        out[{w}u * k] = {p}_est_step(&e, in_i[k].f, in_t[k].f, in_dt[k].f, in_v[k].f);
+        out[{w}u * k] = {nm['est_step']}(&e, in_i[k].f, in_t[k].f, in_dt[k].f, in_v[k].f);
 {rec}        for (j = 0u; j < {N * N}u; j++) {{
             out[{w}u * k + {1 + N}u + j] = e.p[j];
         }}
@@ -154,7 +155,7 @@ def estimator_sizes(model, cfg=None, cpu: str = "m4f", opt: str = "-Os") -> dict
         a, b = target.sizes(with_est.obj), target.sizes(plain.obj)
         su = target.stack_usage(with_est.obj)
         funcs = target.undefined_symbols(with_est.obj)
-    frames = {k: v for k, v in su.items() if not k.endswith(("_init", "_run"))}
+    frames = {k: v for k, v in su.items() if not k.endswith(("_init_f32", "_run_f32"))}
     return {"cpu": CPUS[cpu]["name"], "opt": opt,
             "code_total": a["code"], "code_estimator": a["code"] - b["code"],
             "tables_total": a["tables"], "tables_estimator": a["tables"] - b["tables"],

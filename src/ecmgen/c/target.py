@@ -28,6 +28,7 @@ import numpy as np
 
 from .cbuild import STRICT_CFLAGS, CBuildError, compile_spec, extra_states
 from .codegen import CSpec, file_names, prepare, render
+from .names import c_names
 
 INSTALL_HINT = "sudo apt-get install gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm"
 GCC, SIZE, NM, OBJDUMP, QEMU = ("arm-none-eabi-gcc", "arm-none-eabi-size", "arm-none-eabi-nm",
@@ -256,10 +257,11 @@ def firmware_main(runs: list[TargetRun]) -> str:
     calls = []
     for r in runs:
         p, fixed = r.spec.prefix, r.spec.fixed
+        nm = c_names(p, r.spec.numeric)
         n = int(r.i.size)
         t = "int32_t" if fixed else "float"
         get = (lambda a: f"{a}[k]") if fixed else (lambda a: f"{a}[k].f")
-        parts.append(f'#include "{p}_ecm.h"\n')
+        parts.append(f'#include "{nm["header"]}"\n')
         parts.append(_array(f"{p}_in_i", r.i, fixed))
         temp = np.zeros(n) if r.temp is None else r.temp
         parts.append(_array(f"{p}_in_t", temp, fixed))
@@ -272,11 +274,11 @@ def firmware_main(runs: list[TargetRun]) -> str:
         parts.append(f"""static {t} {p}_out[{len(r.fields)} * {n}];
 static void run_{p}(void)
 {{
-    {p}_state_t s;
+    {nm['state']} s;
     size_t k;
-    {p}_init(&s, {soc0});
+    {nm['init']}(&s, {soc0});
     for (k = 0; k < {n}u; k++) {{
-        {p}_out[k] = {p}_step(&s, {get(p + '_in_i')}{dt_arg});
+        {p}_out[k] = {nm['step']}(&s, {get(p + '_in_i')}{dt_arg});
         {p}_out[{n}u + k] = s.soc;
 {fx_rec}    }}
 }}

@@ -1,0 +1,209 @@
+"""The firmware team's kit: float, fixed and estimator C in one image under one prefix,
+golden vectors with their C test program, and ``ecmgen verify`` on a copy of the C."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from ecmgen.c import target
+from ecmgen.c.cbuild import STRICT_CFLAGS, host_cc
+from ecmgen.c.codegen import generate_c, prepare
+from ecmgen.c.golden import vector_names, write_golden
+from ecmgen.config import EstimatorConfig
+from ecmgen.data.measure import TimeSeries
+from test_codegen_helpers import temperature_model
+
+LINK_MAIN = r"""
+#include "pan_ecm_f32.h"
+#include "pan_ecm_q.h"
+#include "pan_est_f32.h"
+
+PAN_ECM_Q_ASSERT_FORMATS(PAN_ECM_Q_I, PAN_ECM_Q_V);
+
+int main(void)
+{
+    pan_state_f32_t f;
+    pan_state_q_t q;
+    pan_est_f32_t e;
+    float vf = 0.0f, ve = 0.0f;
+    int32_t vq = 0;
+    int k;
+    pan_init_f32(&f, 0.8f);
+    pan_init_q(&q, PAN_ECM_Q_SOC_Q30_FROM(0.8));
+    pan_est_init_f32(&e, 0.7f);
+    for (k = 0; k < 50; k++) {
+        vf = pan_step_f32(&f, -2.0f, 25.0f, 1.0f);
+        vq = pan_step_q(&q, PAN_ECM_Q_AMP_Q{QI}_FROM(-2), PAN_ECM_Q_DEGC_Q8_FROM(25),
+                        PAN_ECM_Q_SEC_Q16_FROM(1));
+        ve = pan_est_step_f32(&e, -2.0f, 25.0f, 1.0f, vf);
+    }
+    /* the three agree to a millivolt or so, and the fixed output reads in mV */
+    return (vf > 2.5f && vf < 4.5f && ve > 2.5f && ve < 4.5f &&
+            PAN_ECM_Q_VOLT_Q{QV}_TO_MILLI(vq) > 2500 && PAN_ECM_Q_VOLT_Q{QV}_TO_MILLI(vq) < 4500) ? 0 : 1;
+}
+"""
+
+
+@pytest.fixture(scope="module")
+def kit(tmp_path_factory):
+    """A model over temperature with branches, its float (+ estimator) and fixed C in one
+    folder under one prefix, and golden vectors over a drive with rests."""
+    d = tmp_path_factory.mktemp("kit")
+    m = temperature_model(branches=True)
+    t = np.cumsum(np.full(1500, 0.5))
+    cur = np.where((t % 120) < 60, -6.0, np.where((t % 120) < 90, 3.0, 0.0))
+    series = TimeSeries(t, cur, None, np.linspace(5.0, 35.0, t.size), source="drive")
+    specs = {}
+    for numeric in ("float", "fixed"):
+        generate_c(m, d, prefix="pan", numeric=numeric,
+                   estimator=EstimatorConfig() if numeric == "float" else None)
+        specs[numeric] = prepare(m, numeric=numeric, prefix="pan")
+        write_golden(specs[numeric], d, series, 0.9)
+    return d, specs
+
+
+def _cli(*args):
+    return subprocess.run([sys.executable, "-m", "ecmgen.cli", *map(str, args)],
+                          capture_output=True, text=True, timeout=600)
+
+
+def _link_main(specs) -> str:
+    q = specs["fixed"].q
+    return LINK_MAIN.replace("{QI}", str(q["Q_I"])).replace("{QV}", str(q["Q_V"]))
+
+
+def test_float_fixed_and_estimator_link_into_one_program(kit, tmp_path):
+    d, specs = kit
+    (tmp_path / "main.c").write_text(_link_main(specs))
+    exe = tmp_path / "all"
+    srcs = [d / "pan_ecm_f32.c", d / "pan_ecm_q.c", tmp_path / "main.c"]
+    proc = subprocess.run([*host_cc(), *STRICT_CFLAGS, "-O2", "-I", d, *srcs, "-o", exe],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert subprocess.run([exe]).returncode == 0
+
+
+def test_one_image_and_the_c_test_on_cortex_m4f(kit, tmp_path):
+    reason = target.skip_reason(qemu=True)
+    if reason:
+        pytest.skip(reason)
+    d, specs = kit
+    flags = target.CPUS["m4f"]["flags"]
+    (tmp_path / "startup.c").write_text(target.STARTUP)
+    (tmp_path / "link.ld").write_text(target.LINKER_SCRIPT)
+    (tmp_path / "main.c").write_text(_link_main(specs))
+    start = tmp_path / "startup.o"
+    subprocess.run([target.GCC, *flags, "-std=gnu99", "-O2", "-c", tmp_path / "startup.c", "-o",
+                    start], check=True)
+    progs = {"all": [d / "pan_ecm_f32.c", d / "pan_ecm_q.c", tmp_path / "main.c"]}
+    for numeric in ("float", "fixed"):
+        stem = vector_names("pan", numeric)["test"][:-2]
+        progs[stem] = [d / f"{stem}.c", d / f"{stem[:-5]}.c"]
+    for name, srcs in progs.items():
+        elf = tmp_path / f"{name}.elf"
+        proc = subprocess.run([target.GCC, *flags, *STRICT_CFLAGS, "-O2", "-DECMV_HOSTED=0",
+                               "-nostartfiles", "-T", tmp_path / "link.ld", "-I", d, *srcs, start,
+                               "-lgcc", "-o", elf], capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr
+        run = subprocess.run([target.QEMU, "-M", target.CPUS["m4f"]["machine"], "-nographic",
+                              "-monitor", "none", "-serial", "none", "-semihosting-config",
+                              "enable=on,target=native", "-kernel", elf],
+                             capture_output=True, text=True, timeout=300)
+        assert run.returncode == 0, (name, run.returncode, run.stderr)   # main's return
+
+
+def test_the_c_test_program_alone(kit, tmp_path):
+    d, _ = kit
+    for numeric in ("float", "fixed"):
+        names = vector_names("pan", numeric)
+        exe = tmp_path / numeric
+        src = d / (names["test"][:-len("_test.c")] + ".c")
+        proc = subprocess.run([*host_cc(), *STRICT_CFLAGS, "-O2", "-I", d, d / names["test"],
+                               src, "-o", exe], capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr
+        run = subprocess.run([exe], capture_output=True, text=True)
+        assert run.returncode == 0 and ": PASS: 1564 steps, 0 differ" in run.stdout, run.stdout
+
+
+def test_verify_passes_and_names_the_first_differing_step(kit, tmp_path):
+    d, _ = kit
+    res = _cli("verify", d)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert res.stdout.splitlines()[-1] == "ecmgen verify: 2 of 2 passed"
+    for numeric, stem in (("fixed", "pan_ecm_q"), ("float", "pan_ecm_f32")):
+        mine = tmp_path / numeric
+        shutil.copytree(d, mine)
+        src = (mine / f"{stem}.c").read_text()
+        # one character of the model's constants: the last digit of the SOC's coefficient
+        m = re.search(r"\.k_soc = (-?[0-9.e+-]+?)(\d)(f?)[,\s]", src)
+        digit = str((int(m.group(2)) + 5) % 10)
+        (mine / f"{stem}.c").write_text(src[:m.start(2)] + digit + src[m.end(2):])
+        res = _cli("verify", d, "--c", mine, "--cflags", "-std=c99 -O1 -ffp-contract=off")
+        assert res.returncode == 1, res.stdout + res.stderr
+        line = next(ln for ln in res.stdout.splitlines() if ln.startswith(stem))
+        assert ": FAIL: " in line and re.search(r"first at step \d+", line), line
+        assert "failed: " + stem in res.stdout.splitlines()[-1]
+
+
+def test_verify_bad_input_is_one_line_exit_2(kit, tmp_path):
+    d, _ = kit
+    for args in ([tmp_path / "nothing"], [tmp_path], [d, "--c", tmp_path / "nothing"],
+                 [d, "--cc", "no-such-compiler-xyz"]):
+        res = _cli("verify", *args)
+        assert res.returncode == 2, (args, res.stdout, res.stderr)
+        assert res.stderr.count("\n") == 1 and "Traceback" not in res.stderr
+    empty = tmp_path / "mine"
+    empty.mkdir()
+    (empty / "x.c").write_text("")
+    res = _cli("verify", d / "pan_ecm_q_vectors.h", "--c", empty)
+    assert res.returncode == 2 and "pan_ecm_q.c" in res.stderr
+
+
+FORMATS_MAIN = r"""
+#include "pan_ecm_q.h"
+PAN_ECM_Q_ASSERT_FORMATS(QI, QV);
+int main(void)
+{
+    const pan_amp_q{QI}_t i = PAN_ECM_Q_AMP_Q{QI}_FROM(-2.5);
+    const pan_volt_q{QV}_t v = PAN_ECM_Q_VOLT_Q{QV}_FROM(3);
+    const pan_degc_q8_t t = PAN_ECM_Q_DEGC_Q8_FROM(-10.25);
+    const pan_soc_q30_t s = PAN_ECM_Q_SOC_Q30_FROM(0.5);
+    return (i == -(int32_t)(5 << ({QI} - 1)) && v == (int32_t)(3 << {QV}) && t == -2624 &&
+            s == (1 << 29) && PAN_ECM_Q_VOLT_Q{QV}_TO_MILLI(v) == 3000 &&
+            PAN_ECM_Q_AMP_Q{QI}_TO_MILLI(i) == -2500 && PAN_ECM_Q_DEGC_Q8_TO_MILLI(t) == -10250) ? 0 : 1;
+}
+"""
+
+
+def test_fixed_point_types_and_formats_break_the_build_when_they_change(kit, tmp_path):
+    """The conversion macros are exact; code written for other formats does not compile."""
+    d, specs = kit
+    q = specs["fixed"].q
+    qi, qv = q["Q_I"], q["Q_V"]
+
+    def build(qi_, qv_):
+        text = FORMATS_MAIN.replace("{QI}", str(qi_)).replace("{QV}", str(qv_))
+        (tmp_path / "f.c").write_text(text.replace("QI, QV", f"{qi_}, {qv_}"))
+        return subprocess.run([*host_cc(), *STRICT_CFLAGS, "-I", d, tmp_path / "f.c",
+                               d / "pan_ecm_q.c", "-o", tmp_path / "f"], capture_output=True,
+                              text=True)
+
+    ok = build(qi, qv)
+    assert ok.returncode == 0, ok.stderr
+    assert subprocess.run([tmp_path / "f"]).returncode == 0
+    for other in ((qi, qv - 1), (qi + 1, qv)):          # a refit that moved a format
+        assert build(*other).returncode != 0
+
+
+def test_fast_math_is_refused(kit, tmp_path):
+    d, _ = kit
+    proc = subprocess.run([*host_cc(), "-std=c99", "-ffast-math", "-I", d, "-c",
+                           d / "pan_ecm_f32.c", "-o", tmp_path / "x.o"], capture_output=True,
+                          text=True)
+    assert proc.returncode != 0 and "-ffast-math" in proc.stderr
