@@ -90,10 +90,19 @@ def cmd_build(args) -> int:
         for numeric, r in (result.c_report or {}).items():
             same = {True: "bit-exact to its reference", False: "NOT bit-exact"}.get(
                 r.get("bit_exact_vs_reference"), "not checked")
+            where = _shown_path(result.out_dir / r["dir"])
             print(f"C {numeric}: {r['table_bytes']} bytes of tables (flash), {same}; golden "
-                  f"vectors and test in {r['dir']}/ (ecmgen verify {r['dir']})")
+                  f"vectors and test in {where}/ (ecmgen verify {where})")
     print(build_summary(result))
     return 0
+
+
+def _shown_path(path: Path) -> str:
+    """``path`` relative to the working directory where it lies below it."""
+    try:
+        return str(Path(path).resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(path)
 
 
 def _dcir_with_config(args):
