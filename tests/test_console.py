@@ -42,3 +42,19 @@ def test_one_line_per_cycle():
     assert "curve*" in text[0] and len(text) == 5
     assert text[2].split() == ["us06.mat", "25.6..33.0", "37.80", "15.70"]
     assert text[3].split() == ["hwfet.mat", "-", "-", "10.60"]
+
+
+def test_build_quiet_prints_nothing_but_warnings(tmp_path):
+    """`build -q` on success: no line on stdout; on stderr warnings only."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    example = Path(__file__).resolve().parents[1] / "examples" / "panasonic-25degC" / "config.toml"
+    ecmgen = Path(sys.executable).with_name("ecmgen")
+    res = subprocess.run([str(ecmgen), "build", str(example), "--out",
+                          str(tmp_path / "out"), "-q", "--no-plots", "--no-c"],
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout == ""
+    assert all(line.startswith("warning") for line in res.stderr.splitlines()), res.stderr

@@ -93,7 +93,7 @@ def cmd_build(args) -> int:
             where = _shown_path(result.out_dir / r["dir"])
             print(f"C {numeric}: {r['table_bytes']} bytes of tables (flash), {same}; golden "
                   f"vectors and test in {where}/ (ecmgen verify {where})")
-    print(build_summary(result))
+        print(build_summary(result))
     return 0
 
 
@@ -451,7 +451,8 @@ def parser() -> argparse.ArgumentParser:
     b.add_argument("config")
     b.add_argument("--out", help="output folder (default: ecmgen-out beside the config)")
     b.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    b.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
+    b.add_argument("-q", "--quiet", action="store_true",
+                   help="print nothing on success but warnings (on stderr)")
     b.add_argument("--no-plots", action="store_true")
     b.add_argument("--no-c", action="store_true", help="skip C generation")
     b.add_argument("--strict", action="store_true",
