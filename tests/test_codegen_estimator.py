@@ -30,7 +30,7 @@ MODEL = REPO / "tests" / "data" / "panasonic-temperature-model.json"
 CYCLES = [("25degC", "us06"), ("25degC", "hwfet-a"), ("0degC", "us06"), ("0degC", "hwfet"),
           ("n10degC", "us06"), ("n10degC", "hwfet"), ("n20degC", "us06"), ("n20degC", "hwfet")]
 SOC_TOL = 2e-4            # |SOC(float32 C) - SOC(float64 Python filter)| on the slices
-SCENARIO = dict(guess=0.8, offset=0.029, gain=1.01)   # issue 10's sensor scenario
+SCENARIO = dict(guess=0.8, offset=0.029, gain=1.01)   # the full-cell sensor scenario
 
 
 @pytest.fixture(scope="module")
@@ -246,7 +246,7 @@ def test_dt_zero_changes_nothing_and_a_long_gap_relaxes(built):
 
 @pytest.mark.parametrize("folder, name", CYCLES)
 def test_real_cycle_slices_bit_identical(model, built, folder, name):
-    """The start of every shared cycle in issue 10's scenario (guess 0.8 for a full cell,
+    """The start of every shared cycle in the full-cell scenario (guess 0.8 for a full cell,
     current offset 29 mA and gain 1.01 in what the filter sees), and a slice from the middle
     started from 0.5: C == float32 reference at every step; SOC within SOC_TOL of the float64
     filter."""
@@ -286,7 +286,7 @@ def test_a_loaded_first_sample_leaves_the_rc_voltages_unknown(model, built, firs
 
 @pytest.mark.slow
 def test_whole_cycles_bit_identical(model, built):
-    """Every shared cycle, whole, in issue 10's scenario: bit-identical at every step and
+    """Every shared cycle, whole, in the full-cell scenario: bit-identical at every step and
     covariance entry; the largest SOC difference from the float64 filter is printed."""
     worst = 0.0
     for folder, name in CYCLES:

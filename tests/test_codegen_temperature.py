@@ -1,4 +1,4 @@
-"""The generated C over temperature (issue 8): tables over (temperature, SOC), the
+"""The generated C over temperature : tables over (temperature, SOC), the
 diffusion pair, the Butler-Volmer fast branch and temperature_dependence, float and fixed.
 
 C == float32 / bit-true references on every step and state; within 0.5 mV (float) and 2 mV
@@ -107,7 +107,7 @@ def _run_both(cm, cur, dts, temps, soc0):
 @pytest.mark.slow
 @pytest.mark.parametrize("folder,name", CYCLES, ids=[f"{f.split('-')[-1]}-{n[:-4]}" for f, n in CYCLES])
 def test_real_cycles_every_temperature(folder, name):
-    """The acceptance figures of issue 8 item 5: the 14 x 21 test model with diffusion and
+    """The acceptance figures of the C over temperature: the 14 x 21 test model with diffusion and
     Butler-Volmer branches, variable dt, on the cycle's own time stamps and cell temperature
     (Battery_Temp_degC), started full (the files start from a full charge); as fitted (time
     constants over SOC, the OCV on the RC grid) and in the curve fit's layout."""

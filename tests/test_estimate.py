@@ -419,7 +419,7 @@ def test_cli_estimate_bad_input(cycle_files, args, needles):
     assert after == before          # nothing written, no input touched
 
 
-# -- real cycles (issue 10's targets, two of the eight; bench/bench_estimator.py runs all) --
+# -- real cycles (the full-cell targets, two of the eight; bench/bench_estimator.py runs all) --
 
 @pytest.mark.slow
 @pytest.mark.parametrize("folder, name", [("0degC", "us06"), ("n20degC", "us06")])

@@ -1,4 +1,4 @@
-"""The surface SOC (model.surface_soc_gain, issue 8): the RC tables read at
+"""The surface SOC (model.surface_soc_gain): the RC tables read at
 soc + lam * u_diff / max(dOCV/dSOC, 0.3 V). Known truth against a plain loop, the
 model.json round trip, the config key, the C estimator and the Python filter taking it."""
 

@@ -53,7 +53,7 @@ class EstimatorConfig:
     model_error: float = 0.19
     error_correlation_s: float = 800.0
     # RC-state process noise, fraction of the branch's steady voltage r |i|: chosen
-    # leave-one-cycle-out on the same cycles (the smallest meeting issue 10's targets)
+    # leave-one-cycle-out on the same cycles (the smallest meeting the full-cell targets)
     polarization_error: float = 1.5
     # 0: a record starts from a rested cell (its first sample counts fully). Above 0 it may
     # start anywhere (under load, mid-relaxation): the RC voltages start unknown, sigma r_j

@@ -7,7 +7,7 @@ appended to ``<prefix>_ecm_f32.c`` (same translation unit as the model's ``stati
 tables, so the filter's table accessor reads them and the model's step inlines), with the
 filter itself in the hand-written ``c_runtime/ecmrt_est_f32.h``. The filter is the extended
 Kalman filter of :mod:`ecmgen.estimate.ekf` (chosen over the sigma-point filter by
-measurement, issue 10), its noise settings (:class:`ecmgen.config.EstimatorConfig`) baked
+measurement), its noise settings (:class:`ecmgen.config.EstimatorConfig`) baked
 in as float32 constants. A model's diagnose effects are taken: the hysteresis state and the
 extra RC pair are states of the filter (the layout of :mod:`ecmgen.estimate.process`), the
 parameter effects scale the resistances in its Jacobians; ``offset_state`` adds the current
