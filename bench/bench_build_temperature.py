@@ -9,7 +9,7 @@ breakdown (wall seconds).
   c           C generation and the host equivalence check of the best model
   plots       PNGs; write: model.json, DC-IR tables, report
 
-Target (issue 8): under 30 s on the 2-core machine.
+Target: under 30 s on the 2-core machine.
 
 Run:  python bench/bench_build_temperature.py [--workers 2] [--methods ga lm curve]
                                                [--no-c] [--no-plots] [--config CFG]

@@ -25,7 +25,7 @@
    VDIV, 2-12 (12 counted) per SDIV): an estimate, as QEMU has no cycle model.
 
 Usage: python bench/bench_c.py [--steps N] [--json]
-Targets (issue 8): <= 200 instructions per step for float with variable dt and <= 250 for
+Targets: <= 200 instructions per step for float with variable dt and <= 250 for
 fixed point, 4 x 20 table (checked on the fitter's 4 x 21 layout); < 2 KiB of code on
 Cortex-M4F and M0. The x86-64 count is the target's measure; 4. gives Cortex-M4 figures.
 Missing tools (valgrind, arm-none-eabi-gcc) are reported and their part skipped.

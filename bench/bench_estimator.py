@@ -1,4 +1,4 @@
-"""The SOC filter on every shared Panasonic drive cycle (issue 10), one run:
+"""The SOC filter on every shared Panasonic drive cycle, one run:
 
     .venv/bin/python bench/bench_estimator.py [--model MODEL.json] [--ukf] [--json OUT]
 
@@ -8,11 +8,11 @@ the settings a cycle is filtered with come from the OTHER seven cycles only.
 1. The model's voltage residual (validation from the true start SOC 1.0) gives
    model_error and error_correlation_s (ecmgen.estimate.residual), pooled over the others.
 2. polarization_error is chosen from a grid on the others: the smallest value that meets
-   the issue's targets on all of them (else the one closest to meeting them), because the
+   the full-cell targets on all of them (else the one closest to meeting them), because the
    smaller it is the more the voltage corrects a drifting current sensor (the stress
    scenario below measures that).
 3. Figures of the held-out cycle:
-   - the issue's scenario, `ecmgen estimate MODEL CYCLE --soc0 1 --soc0-guess 0.8
+   - the full-cell scenario, `ecmgen estimate MODEL CYCLE --soc0 1 --soc0-guess 0.8
      --current-offset-a 0.029 --current-gain 1.01`: SOC RMSE, max |error| after 600 s and
      converge_s, against coulomb counting from the guess with the same sensor errors
      (targets: RMSE <= 1 %, max after 600 s <= 3 %);
@@ -50,7 +50,7 @@ def cycle_path(folder: str, name: str) -> Path:
 
 
 def target_ratio(r: dict) -> float:
-    """Worst of the issue's three figures over its target (<= 1: all met)."""
+    """Worst of the three full-cell figures over its target (<= 1: all met)."""
     return max(r["rmse"] / 0.01, r["max600"] / 0.03, r["exact"] / 0.01)
 
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Benchmark of the generated C SOC estimator (issue 10, item 4), in one run:
+"""Benchmark of the generated C SOC estimator, in one run:
 
 1. instructions per estimator step (valgrind callgrind, host x86-64 gcc -O2 with the strict
    flags, only what runs inside <prefix>_est_step, the model's step included), beside the
@@ -7,7 +7,7 @@
 2. flash and RAM on Cortex-M4F (arm-none-eabi-gcc -Os): the estimator's code (object with it
    minus object without it), the caller's <prefix>_est_t, the stack frames on the
    est_step call path (-fstack-usage);
-3. per shared Panasonic cycle (25, 0, -10, -20 degC; US06 and HWFET), issue 10's scenario
+3. per shared Panasonic cycle (25, 0, -10, -20 degC; US06 and HWFET), the full-cell scenario
    (--soc0 1 --soc0-guess 0.8 --current-offset-a 0.029 --current-gain 1.01): SOC RMSE and
    max |error| after 600 s of the float32 C and of the float64 Python filter against the
    reference (coulomb counting the measured current from the true start), the largest

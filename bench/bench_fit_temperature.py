@@ -1,4 +1,4 @@
-"""Bench (issue 8): identification of each Panasonic pulse test, stage times and fit RMS.
+"""Bench: identification of each Panasonic pulse test, stage times and fit RMS.
 
 For every temperature folder of ../shared/data/panasonic-18650pf-*: read hppc.mat (and
 hppc-soc-steps.mat), find the pulses, DC-IR table and rest OCV, fit the Butler-Volmer i0

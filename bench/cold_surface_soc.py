@@ -1,4 +1,4 @@
-"""Issue 8, the cold cycles: does a surface SOC explain the error of an hour of cold discharge?
+"""The cold cycles: does a surface SOC explain the error of an hour of cold discharge?
 
 Diagnosis, not a model change. Late in the cold drive cycles the cell behaves as if it were
 near its empty end (the voltage dives to the 2.5 V limit at 10 A and recovers in tens of

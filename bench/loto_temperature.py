@@ -1,4 +1,4 @@
-"""Issue 8 accuracy: per-temperature curve fits, assembled over temperature, on the 8 cycles.
+"""Accuracy over temperature: per-temperature curve fits, assembled over temperature, on the 8 cycles.
 
 Builds the whole-test ("curve") fit of each shared Panasonic pulse test
 (bench_fit_temperature.fit_pulse_test), assembles the multi-temperature model the way the

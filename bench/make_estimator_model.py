@@ -1,6 +1,6 @@
-"""The four-temperature Panasonic 18650PF test model of the estimator (issue 10).
+"""The four-temperature Panasonic 18650PF test model of the estimator.
 
-Until the multi-temperature fitter (issue 8) lands, the estimator is developed and tested on
+Built from one-temperature fits, the estimator is developed and tested on
 this stand-in: one curve-fit model per shared pulse test (``ocv = "pulses"``, today's
 pipeline), stacked over temperature with ``stack_rc_tables`` / ``OcvOverTemperature``, plus
 the per-temperature diffusion RC pair and Butler-Volmer i0 measured in

@@ -1,4 +1,4 @@
-"""The build's inputs on cells it was not shaped around (issue 9): OCV sources combined
+"""The build's inputs on cells it was not shaped around: OCV sources combined
 and cross-checked, a flat OCV refused, a flat-OCV LFP cell with hysteresis built and
 diagnosed without a start SOC, and what --json tells about them."""
 

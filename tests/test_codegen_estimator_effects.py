@@ -223,7 +223,7 @@ def test_a123_with_hysteresis_from_diagnose():
 @pytest.mark.parametrize("folder, name", [("25degC", "us06"), ("n20degC", "hwfet")])
 def test_offset_state_on_real_cycles(folder, name):
     """The current-offset state on the test model over the first 3000 samples of shared
-    Panasonic cycles in issue 10's scenario (guess 0.8 for a full cell, 29 mA offset, gain
+    Panasonic cycles in the full-cell scenario (guess 0.8 for a full cell, 29 mA offset, gain
     1.01): C == float32 reference at every step, state and covariance entry, SOC within
     5e-4 of the float64 filter with the same state."""
     from ecmgen.model.model import load_model

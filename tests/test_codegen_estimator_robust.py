@@ -58,7 +58,7 @@ def _cm(which: str):
 # -- QEMU ------------------------------------------------------------------------------
 
 def test_qemu_cortex_m4f_bit_identical_to_the_host():
-    """A real cycle's start in issue 10's scenario (guess 0.8, 29 mA offset, gain 1.01) and a
+    """A real cycle's start in the full-cell scenario (guess 0.8, 29 mA offset, gain 1.01) and a
     synthetic profile with dt = 0, gaps, temperatures beyond the tables and missing
     voltages, on a model without and one with every diagnose effect and the current-offset
     state (the hysteresis state, the extra RC pair and the offset in the filter): every

@@ -104,7 +104,7 @@ def test_jacobians_are_those_of_the_c_step(case):
 @pytest.mark.parametrize("folder, name", [("25degC", "us06"), ("n20degC", "hwfet")])
 def test_real_cycle_slices(folder, name):
     """The test model with surface_soc_gain 0.5 over the first 3000 samples of shared
-    Panasonic cycles in issue 10's scenario (guess 0.8, 29 mA offset, gain 1.01): C ==
+    Panasonic cycles in the full-cell scenario (guess 0.8, 29 mA offset, gain 1.01): C ==
     float32 reference at every step, state and covariance entry; SOC within 2e-4 of the
     float64 Python filter."""
     m = replace(load_model(MODEL), surface_soc_gain=0.5)

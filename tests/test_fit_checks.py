@@ -1,4 +1,4 @@
-"""Honest fits (issue 9): time constants longer than the data or on a search bound are
+"""Honest fits: time constants longer than the data or on a search bound are
 flagged for every method, levels left out are named, RC tables used beyond their
 measured SOC span are noted, and the progress line tells the relaxation really used."""
 

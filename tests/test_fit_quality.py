@@ -14,7 +14,7 @@ from ecmgen.fit.quality import ROUGHNESS_LIMIT, model_quality, quality_words, ro
 def test_roughness_is_zero_on_a_log_linear_table_and_large_on_a_zig_zag():
     soc = np.linspace(0.0, 1.0, 21)
     assert roughness(soc, 0.02 * np.exp(-2.0 * soc))[0] == pytest.approx(0.0, abs=1e-12)
-    zig = 0.002 * np.where(np.arange(21) % 2 == 0, 1.06, 3.31)     # the Leaf nodes
+    zig = 0.002 * np.where(np.arange(21) % 2 == 0, 1.06, 3.31)     # the Leaf's nodes as first fitted
     value, at = roughness(soc, zig)
     assert value == pytest.approx(np.log(3.31 / 1.06))
     # uneven nodes: the neighbours are interpolated at the node, not averaged

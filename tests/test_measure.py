@@ -126,7 +126,7 @@ def test_bundled_examples_match_shared_data():
                 for k, v in small.items():
                     np.testing.assert_array_equal(v, full[k][cell])
             read_timeseries(f, capacity_ah=2.9)      # every bundled file reads
-    assert total < 15e6                       # the budget for bundled data
+    assert total < 15e6                       # the budget for bundled data
     for source in (EXAMPLE / "SOURCE.md", REPO / "examples" / "panasonic-temperature" /
                    "SOURCE.md"):
         assert "10.17632/wykht8y7tg.1" in source.read_text()

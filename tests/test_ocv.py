@@ -75,7 +75,7 @@ def test_fast_test_is_not_an_ocv_test():
         ocv_from_low_rate(s, 2.9)
 
 
-# --------------------------------------------------------------------------- issue 9 B
+# --------------------------------------------------------------------------- OCV sources
 
 def _lfp_like(s):
     from ecmgen.diagnosis.synthcell import lfp_like_ocv

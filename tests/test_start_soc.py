@@ -1,4 +1,4 @@
-"""Start SOC from all the evidence (issue 9): a pulse test's start SOC fitted on all its
+"""Start SOC from all the evidence: a pulse test's start SOC fitted on all its
 rests with a hysteresis offset; a record's start SOC robust to a top-up charge and to
 an LFP cell's flat OCV; a warning when the simulated SOC leaves [0, 1]."""
 

@@ -96,7 +96,7 @@ def test_soft_float_cores_fixed_point_has_no_float(tmp_path, cpu, dt_s):
 @pytest.mark.parametrize("cpu", ["m4f", "m0"])
 @pytest.mark.parametrize("dt_s", [None, 0.1], ids=["vdt", "dt0.1"])
 def test_fixed_point_has_no_64_bit_division(tmp_path, name, cpu, dt_s):
-    """Issue 8: the fixed-point step divides nothing (reciprocals come from a seed table and
+    """The fixed-point step divides nothing (reciprocals come from a seed table and
     a Newton step): the Cortex-M4F and M0 objects reference no __aeabi_ldivmod /
     __aeabi_uldivmod / __divdi3 (nor any 32-bit division helper), at -Os and -O2; and the
     code stays under 2 KiB at -Os without the branches (with them it is reported by

@@ -1,4 +1,4 @@
-"""A user's own files (issue 9, part A): headerless CSVs read by column position, a
+"""A user's own files: headerless CSVs read by column position, a
 per-role column mapping that extends the global one (and covers extra_cycles and judge),
 ``ecmgen dcir --config``, both names of both current-sign conventions, layouts named by
 what they match, a time window for validation files, ``-q`` everywhere, and no Python

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Make tests/data/panasonic-temperature-model.json: a realistic model over temperature for
-the C tests, until the temperature fitter lands (issue 8).
+the C tests, from one-temperature fits.
 
 How it is made (run from the repository root; needs ../shared/data, about 2 minutes):
 
