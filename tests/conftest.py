@@ -149,23 +149,29 @@ def make_usabc_hppc(model, *, levels=(0.9, 0.7, 0.5, 0.3), dis_s=30.0, chg_s=10.
     return TimeSeries(t, i, v, None, None, "usabc-hppc.csv")
 
 
-@pytest.fixture(scope="module")
-def cell_files(tmp_path_factory):
-    """A small synthetic cell (pulse test, OCV table, a drive cycle) and its model."""
+def write_synthetic_cell(folder, cycle_s: float):
+    """A small synthetic cell into ``folder``: pulses.csv, ocv.csv and a discharge drive
+    cycle.csv of ``cycle_s`` seconds (from SOC 0.8); returns its true model."""
     from ecmgen.data.measure import TimeSeries, write_timeseries_csv
     from ecmgen.model.simulate import simulate
 
-    folder = tmp_path_factory.mktemp("cell")
     truth = synthetic_nca_model(tau_fast_s=2.0, tau_slow_s=60.0)
     series, _ = make_pulse_test(truth, soc_levels=(0.9, 0.6, 0.3), c_rates=(1.0, 3.0),
                                 noise_v=0.0005, rest_s=900.0)
     write_timeseries_csv(series, folder / "pulses.csv")
     np.savetxt(folder / "ocv.csv", np.column_stack([truth.ocv.soc, truth.ocv.ocv_v[0]]),
                delimiter=",", header="soc,ocv_v", comments="")
-    t = np.arange(0, 1200.0, 1.0)
-    i = np.repeat(np.random.default_rng(0).uniform(-8, 0, t.size // 20), 20)
+    t = np.arange(0, cycle_s, 1.0)
+    i = np.repeat(np.random.default_rng(0).uniform(-8, 0, t.size // 20), 20)  # the pulses too
     i[:60] = 0.0
     write_timeseries_csv(TimeSeries(t, i, simulate(truth, t, i, 0.8).voltage_v),
                          folder / "cycle.csv")
-    truth.save(folder / "model.json")
+    return truth
+
+
+@pytest.fixture(scope="module")
+def cell_files(tmp_path_factory):
+    """A small synthetic cell (pulse test, OCV table, a drive cycle) and its model."""
+    folder = tmp_path_factory.mktemp("cell")
+    write_synthetic_cell(folder, 1200.0).save(folder / "model.json")
     return folder

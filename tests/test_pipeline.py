@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import REPO, make_pulse_test, synthetic_nca_model
+from conftest import REPO, synthetic_nca_model, write_synthetic_cell
 from ecmgen.cli import main
 from ecmgen.data.measure import TimeSeries, write_timeseries_csv
 
@@ -25,20 +25,7 @@ def run_cli(*args):
 @pytest.fixture
 def synthetic_project(tmp_path):
     """A small synthetic cell: pulse test CSV, OCV table, a drive cycle and a config."""
-    truth = synthetic_nca_model(tau_fast_s=2.0, tau_slow_s=60.0)
-    series, _ = make_pulse_test(truth, soc_levels=(0.9, 0.6, 0.3), c_rates=(1.0, 3.0),
-                                noise_v=0.0005, rest_s=900.0)
-    write_timeseries_csv(series, tmp_path / "pulses.csv")
-    np.savetxt(tmp_path / "ocv.csv", np.column_stack([truth.ocv.soc, truth.ocv.ocv_v[0]]),
-               delimiter=",", header="soc,ocv_v", comments="")
-    from ecmgen.model.simulate import simulate
-
-    t = np.arange(0, 1800.0, 1.0)
-    rng = np.random.default_rng(0)
-    i = np.repeat(rng.uniform(-8, 0, t.size // 20), 20)  # discharge: the pulses are too
-    i[:60] = 0.0
-    v = simulate(truth, t, i, 0.8).voltage_v
-    write_timeseries_csv(TimeSeries(t, i, v), tmp_path / "cycle.csv")
+    truth = write_synthetic_cell(tmp_path, 1800.0)
     cfg = tmp_path / "cell.toml"
     cfg.write_text('[cell]\ncapacity_ah = 2.9\n[data]\npulses = "pulses.csv"\n'
                    'ocv = "ocv.csv"\ncycle = "cycle.csv"\n[fit]\nrelax_s = 900\n[c]\nnumeric = []\n')

@@ -234,13 +234,20 @@ def find_pulses(series: TimeSeries, capacity_ah: float, *, soc0: float,
         raise InputError(series.source, f"no pulses found (current steps above {thr:.3g} A "
                                         f"after at least {min_rest_s:g} s of rest, lasting at "
                                         f"most {max_pulse_s:g} s): not a pulse test?")
+    check_soc_span(series, pulses, "pulse", soc0, capacity_ah)
+    return flag_cut_short(series, pulses)
+
+
+def check_soc_span(series: TimeSeries, pulses: list[Pulse], what: str, soc0: float,
+                   capacity_ah: float) -> None:
+    """InputError when coulomb counting puts a pulse (or block) far outside SOC 0..1: the
+    start SOC or the capacity is wrong."""
     socs = np.array([p.soc for p in pulses])
     if socs.min() < -0.05 or socs.max() > 1.05:
-        raise InputError(series.source, f"pulse SOC runs from {socs.min():.3f} to {socs.max():.3f} "
-                                        f"by coulomb counting from soc0 = {soc0:g} with "
-                                        f"{capacity_ah:g} Ah: check the start SOC "
-                                        "(data.pulses_soc0) and cell.capacity_ah")
-    return flag_cut_short(series, pulses)
+        raise InputError(series.source, f"{what} SOC runs from {socs.min():.3f} to "
+                                        f"{socs.max():.3f} by coulomb counting from soc0 = "
+                                        f"{soc0:g} with {capacity_ah:g} Ah: check the start "
+                                        "SOC (data.pulses_soc0) and cell.capacity_ah")
 
 
 def flag_cut_short(series: TimeSeries, pulses: list[Pulse], *, rel_duration: float = 0.95,

@@ -23,7 +23,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import InputError
-from .dcir import DcirTable, Pulse
+from .dcir import DcirTable, Pulse, check_soc_span
 from .measure import TimeSeries
 from .ocv import MIN_OCV_REST_S
 
@@ -93,12 +93,7 @@ def find_blocks(series: TimeSeries, capacity_ah: float, *, soc0: float,
                          soc=float(soc0 + q_ah[a - 1] / capacity_ah),
                          duration_s=float(t[b - 1] - t[a - 1]), cut_short=False))
     out = _flag_cut_short(series, out)
-    socs = np.array([p.soc for p in out])
-    if socs.min() < -0.05 or socs.max() > 1.05:
-        raise InputError(series.source, f"block SOC runs from {socs.min():.3f} to "
-                                        f"{socs.max():.3f} by coulomb counting from soc0 = "
-                                        f"{soc0:g} with {capacity_ah:g} Ah: check the start "
-                                        "SOC (data.pulses_soc0) and cell.capacity_ah")
+    check_soc_span(series, out, "block", soc0, capacity_ah)
     return out
 
 

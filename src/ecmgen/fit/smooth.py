@@ -13,9 +13,9 @@ where D2 is the second difference over the levels' SOC (:func:`ecmgen.fit.curve.
 second_difference`). lam is chosen by leaving one level out: each interior level in turn is
 dropped from the data, its parameters then follow from the smoothness alone, and its
 measured R(t) is compared with the curve they give; the largest lam within CV_TIE of the
-smallest held-out error is kept. The refit starts from the method's own per-level result, so
-GA and LM keep their own solutions where the data decide; R0 stays R(t_0) minus what the two
-branches add by t_0, as in the paper.
+smallest held-out error is kept. The refit starts from the method's own per-level result;
+where the joint problem has one optimum (the demo, the Leaf) GA and LM end at the same
+tables. R0 stays R(t_0) minus what the two branches add by t_0, as in the paper.
 """
 
 from __future__ import annotations
@@ -24,11 +24,11 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .curve import second_difference
-from .points import Bounds, PointFit, _prepare, _r0, _result, default_bounds
+from .curve_levels import CV_TIE
+from .points import Bounds, PointFit, _phi, _prepare, _r0, _result, default_bounds
 
 # candidate smoothing weights (relative squared units: a residual of 1 is one data scale)
 SMOOTHING = tuple(10.0 ** np.arange(-4.0, 2.01, 1.0))
-CV_TIE = 0.01
 _BARRIER = 1e3            # weight of R0 < 0 against a data scale
 
 
@@ -36,7 +36,6 @@ class _Direction:
     """The joint problem of one direction's levels (sorted by SOC)."""
 
     def __init__(self, data, ix: np.ndarray, soc: np.ndarray, b: Bounds):
-        self.ix = ix
         self.n = ix.size
         self.t0 = data.t0[ix]
         self.ra = data.ra[ix]
@@ -59,9 +58,7 @@ class _Direction:
         tf, ts, rf, rs = self.parts(x)
         col = lambda a: a[:, None]  # noqa: E731
         t0 = col(self.t0)
-        fit = col(rf) * (-np.exp(-t0 / col(tf)) * np.expm1(-(self.tm - t0) / col(tf))) + \
-            col(rs) * (-np.exp(-t0 / col(ts)) * np.expm1(-(self.tm - t0) / col(ts)))
-        return fit
+        return col(rf) * _phi(self.tm, t0, col(tf)) + col(rs) * _phi(self.tm, t0, col(ts))
 
     def residual(self, x, lam: float, weight: np.ndarray):
         fit = self.curves(x)
