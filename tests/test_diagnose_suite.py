@@ -16,12 +16,9 @@ from conftest import REPO
 
 SUITE = REPO.parent / "shared" / "diagnose-suite"
 CELLS = sorted(p.parent.name for p in SUITE.glob("*/truth.json"))
-# named wrong today: c02 and c08 (current-dependent resistance: the effect's form, the
-# resistance scaled by asinh(x)/x, takes little of a charge-transfer part that is 60 % of R0;
-# c02's base leaves 2.6 mV against 0.31 mV of noise, c08's gain is under the noise floor:
-# both said to be unexplained) and c12 (an extra RC of 391 s that the base's slow pair takes
-# up: held-out error 1.7 mV against 1.15 mV of noise)
-KNOWN_MISSES = {"c02", "c08", "c12"}
+# named wrong today: c12 (an extra RC of 391 s that the base's slow pair takes up: held-out
+# error 1.7 mV against 1.15 mV of noise)
+KNOWN_MISSES = {"c12"}
 
 
 def _bench():
@@ -43,8 +40,6 @@ def test_diagnose_suite_cell(cell):
     assert row["non_positive"] == 0, row
     if truth == "none":
         assert row["named"] == [] and not row["unexplained"], row
-    elif cell in ("c02", "c08"):     # missed, but said: the error left is 4-8 x the noise
-        assert row["unexplained"] and row["verdict"].startswith("unexplained: "), row
     elif cell not in KNOWN_MISSES:
         assert row["named"][:1] == [truth], row
         assert row["drop"] >= 0.4, row

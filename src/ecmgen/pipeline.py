@@ -18,10 +18,11 @@ from typing import Callable
 
 import numpy as np
 
-from .config import COLUMN_ROLE_FALLBACK, WINDOW_ROLES, BuildConfig, PulseTest
+from .config import BuildConfig, PulseTest
 from .data import dcir as dcir_mod
 from .data.dynamic import dynamic_levels
-from .data.measure import ColumnMap, TimeSeries, read_timeseries
+from .data.measure import TimeSeries
+from .data.sources import ocv_file_curves, read_series
 from .data import ocv as ocv_mod
 from .data.ocv import OcvTable
 from .console import detail_of
@@ -79,77 +80,6 @@ class BuildResult:
     quality: dict = field(default_factory=dict)      # method -> fit.quality.ModelQuality
 
 
-def read_series(cfg: BuildConfig, path: Path, role: str = "") -> TimeSeries:
-    """Read a measurement file of the config. ``[data.columns]`` maps CSV columns from
-    another cycler, for every CSV; ``[data.columns.<role>]`` extends it for one file role
-    (``extra_cycles`` and ``judge`` fall back to ``cycle``'s); .mat files carry their own
-    names. A validation file is cut to ``data.cycle_window_s`` when the config gives one."""
-    roles = (role, COLUMN_ROLE_FALLBACK[role]) if role in COLUMN_ROLE_FALLBACK else (role,)
-    columns = ColumnMap.for_file(cfg.columns, roles, cfg.path, path)
-    series = read_timeseries(path, columns, capacity_ah=cfg.capacity_ah)
-    temp = cfg.temperature_for(path) if series.temperature_c is None else None
-    if isinstance(temp, Path):
-        from .data.templog import with_temperature_log
-
-        series = with_temperature_log(series, temp)
-    elif temp is not None:
-        series = replace(series, temperature_c=np.full(len(series), temp),
-                         notes=series.notes + (f"no temperature column: the cell taken to "
-                                               f"be at {temp:g} degC (the config's "
-                                               f"temperature_c)",))
-    window = cfg.window_for(path) if role in WINDOW_ROLES else None
-    return series if window is None else series.window(*window)
-
-
-def _ocv_file_curve(cfg: BuildConfig, path: Path, progress: Progress,
-                    low: TimeSeries | None = None) -> ocv_mod.OcvCurve:
-    """The OCV curve of one file source: a soc,ocv_v table or a low-rate test (``low``:
-    that test, already read or joined from its parts)."""
-    if low is None and ocv_mod.looks_like_ocv_table(path):
-        return ocv_mod.curve_from_table(ocv_mod.read_ocv_table(path), path.name)
-    if low is None:
-        progress(f"reading low-rate OCV test {path.name}")
-        low = read_series(cfg, path, "ocv")
-    name = Path(low.source).name if low.source else path.name
-    return ocv_mod.curve_from_low_rate(low, cfg.capacity_ah, name, soc0=cfg.ocv_soc0,
-                                       branch=cfg.ocv_branch, cycle=cfg.ocv_cycle)
-
-
-def _ocv_file_curves(cfg: BuildConfig, sources, progress: Progress
-                     ) -> tuple[list, dict, list[str]]:
-    """The curves of data.ocv's file sources, in order: the sources left (a run of
-    consecutive low-rate files, none a discharge + charge cycle alone, becomes its first
-    file: their records joined end to end into one test), their curves, and notes."""
-    from .data.lowrate import join_records, split_low_rate
-
-    lows: dict = {}
-    for src in sources:
-        if src != "pulses" and not ocv_mod.looks_like_ocv_table(src):
-            progress(f"reading low-rate OCV test {src.name}")
-            low = read_series(cfg, src, "ocv")
-            lows[src] = (low, not split_low_rate(low, cfg.capacity_ah).cycles)
-    groups: list[tuple[list, bool]] = []      # ([sources], joinable), in order
-    for src in sources:
-        joinable = src in lows and lows[src][1]
-        if joinable and groups and groups[-1][1]:
-            groups[-1][0].append(src)
-        else:
-            groups.append(([src], joinable))
-    kept, curves, notes = [], {}, []
-    for group, _ in groups:
-        first = group[0]
-        kept.append(first)
-        if len(group) > 1:
-            joined, note = join_records([lows[p][0] for p in group])
-            notes.append(note)
-            curves[first] = _ocv_file_curve(cfg, first, progress, joined)
-        elif first in lows:
-            curves[first] = _ocv_file_curve(cfg, first, progress, lows[first][0])
-        elif first != "pulses":
-            curves[first] = _ocv_file_curve(cfg, first, progress)
-    return kept, curves, notes
-
-
 def pulse_test_soc0(cfg: BuildConfig, series: TimeSeries, rests, reference: OcvTable | None,
                     given: float | None) -> tuple[float, str, float]:
     """Start SOC of one pulse test and the capacity of its SOC axis: ``given``
@@ -183,7 +113,7 @@ def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
     for src in sources:
         if src != "pulses":
             records.append(InputRecord("ocv", src.name, file_sha256(src)))
-    sources, file_curves, joined = _ocv_file_curves(cfg, sources, progress)
+    sources, file_curves, joined = ocv_file_curves(cfg, sources, progress)
     notes.extend(joined)
     reference = None
     if file_curves:
@@ -231,7 +161,7 @@ def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
 def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
                ) -> tuple[dict[str, EcmModel], dict]:
     """Fit every method of the config; returns the models and the raw fits (for plots)."""
-    from .fit.checks import curve_fit_flags, flag_notes, point_fit_flags
+    from .fit.checks import flag_notes, point_fit_flags
     from .fit.ga import fit_ga
     from .fit.lm import fit_lm
     from .fit.points import five_point_rows
@@ -240,8 +170,7 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
 
     models: dict[str, EcmModel] = {}
     raw: dict = {"flags": {}}
-    common = dict(capacity_ah=inputs.capacity_ah, ocv=inputs.ocv, seed=cfg.seed,
-                  inputs=inputs.records, direction_deadband_a=0.01 * inputs.capacity_ah)
+    common = _common(cfg, inputs)
     point_methods = [m for m in cfg.methods if m in ("ga", "lm")]
     if point_methods:
         rows, n = five_point_rows(inputs.dcir, cfg.c_rate)
@@ -273,39 +202,52 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
             models[m] = replace(model, notes=inputs.notes + tuple(n) + tuple(n3))
         raw["point_fits"] = fits
     if "curve" in cfg.methods:
-        from .fit.curve import fit_pulse_curves
-        from .data.dynamic import DYNAMIC_TAU_RANGES
-        from .fit.rate import fit_exchange_current
-
-        # the diffusion pair and the Butler-Volmer fast branch: [fit] curve_branches
-        branches = cfg.curve_branches
-        # i0 comes from the C-rates of pulses at one level: a dynamic test has no DC-IR
-        bv = fit_exchange_current(inputs.dcir, inputs.capacity_ah) \
-            if branches and len(inputs.dcir) else None
-        relax = dcir_mod.relaxation_s(inputs.pulses_series,
-                                      [p for p in inputs.pulses if not p.cut_short], cfg.relax_s)
-        progress(f"whole-test fit of the pulse test ({len(inputs.pulses)} pulses, "
-                 f"{_relax_words(relax, cfg.relax_s)}"
-                 f"{', SOC steps merged' if inputs.steps is not None else ''})")
-        cf = fit_pulse_curves(inputs.pulses_series, list(inputs.pulses), inputs.ocv,
-                              inputs.soc_capacity_ah or inputs.capacity_ah, i0_a=bv.i0_a if bv else None,
-                              diffusion=branches, steps=inputs.steps,
-                              relax_s=cfg.relax_s,
-                              direction_deadband_a=common["direction_deadband_a"],
-                              blocks_both_ways=cfg.dynamic,
-                              **(DYNAMIC_TAU_RANGES if cfg.dynamic else {}))
-        flags = curve_fit_flags(cf, float(relax.max()) if relax.size else None)
-        raw["flags"]["curve"] = flags
-        model = EcmModel(charge=RcTable(**cf.rc_columns("charge")),
-                         discharge=RcTable(**cf.rc_columns("discharge")), method="curve",
-                         **common)
-        copied = set() if len(cf.directions) > 1 else \
-            {"charge", "discharge"} - set(cf.directions)
-        extra = tuple(flag_notes(flags)) + tuple(model_span_notes(model, copied))
-        models["curve"] = replace(model, notes=inputs.notes + (bv.notes if bv else ()) +
-                                  cf.notes + extra)
-        raw["curve_fit"] = cf
+        models["curve"], raw["curve_fit"], raw["flags"]["curve"] = curve_model(
+            cfg, inputs, common, progress)
     return models, raw
+
+
+def _common(cfg: BuildConfig, inputs: Inputs) -> dict:
+    """The EcmModel fields every method's model of a prepared test shares."""
+    return dict(capacity_ah=inputs.capacity_ah, ocv=inputs.ocv, seed=cfg.seed,
+                inputs=inputs.records, direction_deadband_a=0.01 * inputs.capacity_ah)
+
+
+def curve_model(cfg: BuildConfig, inputs: Inputs, common: dict, progress: Progress = _quiet,
+                current_factor=None, tau_ranges: dict | None = None):
+    """The curve method's model of a prepared test: (model, its CurveFit, its flags).
+    ``current_factor``: a current-dependent resistance the fit takes as given
+    (:func:`ecmgen.fit.curve.fit_pulse_curves`; then no Butler-Volmer branch);
+    ``tau_ranges``: time-constant search ranges in place of the defaults."""
+    from .fit.checks import curve_fit_flags, flag_notes
+    from .fit.curve import fit_pulse_curves
+    from .data.dynamic import DYNAMIC_TAU_RANGES
+    from .fit.rate import fit_exchange_current
+    from .model.spans import model_span_notes
+
+    # the diffusion pair and the Butler-Volmer fast branch: [fit] curve_branches
+    branches = cfg.curve_branches
+    # i0 comes from the C-rates of pulses at one level: a dynamic test has no DC-IR
+    bv = fit_exchange_current(inputs.dcir, inputs.capacity_ah) \
+        if branches and len(inputs.dcir) and current_factor is None else None
+    relax = dcir_mod.relaxation_s(inputs.pulses_series,
+                                  [p for p in inputs.pulses if not p.cut_short], cfg.relax_s)
+    progress(f"whole-test fit of the pulse test ({len(inputs.pulses)} pulses, "
+             f"{_relax_words(relax, cfg.relax_s)}"
+             f"{', SOC steps merged' if inputs.steps is not None else ''})")
+    cf = fit_pulse_curves(inputs.pulses_series, list(inputs.pulses), inputs.ocv,
+                          inputs.soc_capacity_ah or inputs.capacity_ah,
+                          i0_a=bv.i0_a if bv else None, diffusion=branches, steps=inputs.steps,
+                          relax_s=cfg.relax_s, direction_deadband_a=common["direction_deadband_a"],
+                          blocks_both_ways=cfg.dynamic, current_factor=current_factor,
+                          **{**(DYNAMIC_TAU_RANGES if cfg.dynamic else {}), **(tau_ranges or {})})
+    flags = curve_fit_flags(cf, float(relax.max()) if relax.size else None)
+    model = EcmModel(charge=RcTable(**cf.rc_columns("charge")),
+                     discharge=RcTable(**cf.rc_columns("discharge")), method="curve", **common)
+    copied = set() if len(cf.directions) > 1 else {"charge", "discharge"} - set(cf.directions)
+    extra = tuple(flag_notes(flags)) + tuple(model_span_notes(model, copied))
+    return (replace(model, notes=inputs.notes + (bv.notes if bv else ()) + cf.notes + extra),
+            cf, flags)
 
 
 @dataclass
@@ -763,16 +705,48 @@ def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _qu
         fit_cfg = replace(fit_cfg, curve_branches=False)
         progress("base model: the plain 2RC (no diffusion pair, no Butler-Volmer branch; "
                  "[fit] curve_branches = true fits them into the base)")
-    models, _, _, _ = fit_all(fit_cfg, progress)
+    models, raw, inputs, _ = fit_all(fit_cfg, progress)
     base = models[cfg.best]
     fit_series = read_series(cfg, cfg.cycle, "cycle")
     judge = read_series(cfg, judge_path, "judge") if judge_path is not None else None
-    result = diagnose(base, fit_series, judge, soc0=cfg.soc0, progress=progress, **options)
+    refits = {}
+    if cfg.best == "curve" and not cfg.over_temperature:
+        refits["current_dependent_resistance"] = lambda: _refit_with_current_dependence(
+            fit_cfg, inputs, raw["curve_fit"], progress)
+    result = diagnose(base, fit_series, judge, soc0=cfg.soc0, progress=progress,
+                      base_refits=refits, **options)
 
     with staged(out_dir, given) as (staging, files):
         base.save(staging / "model-base.json")
         write_diagnose_outputs(result, staging, plots=plots)
     return result, out_dir, files
+
+
+def _refit_with_current_dependence(cfg: BuildConfig, inputs: Inputs, base_fit, progress):
+    """The pulse test refitted with a current-dependent resistance (g = asinh(x) / x on r0
+    and r_fast, i0 searched with the base fit's time constants, then all refitted): (model,
+    effect, note), or None when the test fits no better with it (1 % of its RMS)."""
+    from .fit.rate import best_exchange_current
+    from .model.effects import CurrentDependentResistance
+
+    common = _common(cfg, inputs)
+    near = {f"tau_{k}_s": (t / 1.02, t * 1.02) for k, t in
+            (("fast", base_fit.tau_fast_s), ("slow", base_fit.tau_slow_s))}
+
+    def rms_at(i0_a):
+        effect = CurrentDependentResistance(scale_at_zero=1.0, i0_a=i0_a)
+        return curve_model(cfg, inputs, common, current_factor=effect.factor,
+                           tau_ranges=near)[1].rms_error_v, effect
+
+    i0_a, rms, effect = best_exchange_current(rms_at, inputs.capacity_ah)
+    if not rms < 0.99 * base_fit.rms_error_v:
+        return None
+    model, cf, _ = curve_model(cfg, inputs, common, current_factor=effect.factor)
+    progress(f"pulse test refitted with a current-dependent resistance, i0 {i0_a:.3g} A: "
+             f"fit RMS {1e3 * base_fit.rms_error_v:.2f} -> {1e3 * cf.rms_error_v:.2f} mV")
+    return model, effect, (f"current_dependent_resistance: the base tables refitted on the "
+                           f"pulse test with it (i0 {i0_a:.3g} A; fit RMS "
+                           f"{1e3 * base_fit.rms_error_v:.2f} -> {1e3 * cf.rms_error_v:.2f} mV)")
 
 
 def _only_method(cfg: BuildConfig, method: str) -> BuildConfig:

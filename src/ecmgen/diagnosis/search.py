@@ -399,7 +399,8 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
              min_gain_noise: float = 1.0, min_gain_v: float = 2e-4, confidence: float = 0.99,
              block_s: float | None = None, max_fit_samples: int = 12000, max_nfev: int = 40,
              loss_scale_v: float | None = None, seed: int = 0,
-             progress: Callable[[str], None] | None = None) -> DiagnoseResult:
+             progress: Callable[[str], None] | None = None,
+             base_refits: dict | None = None) -> DiagnoseResult:
     """Find the effects missing from ``base_model`` on ``fit_series`` (see module doc).
 
     judge_series     a second cycle to judge on; None: the last ``1 - split`` of the
@@ -418,9 +419,16 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
     loss_scale_v     scale of the soft-L1 loss of the fits (default: max(3 x noise,
                      half the base MAE on the fit part, 1 mV))
     progress         called with one line of text per step
+    base_refits      effect name -> callable returning (base model refitted with the
+                     effect, the effect, a note) or None: the candidate is that model, judged
+                     as it is (the test that made the base shows the effect's parameters
+                     better than the cycle's fit part); None: fitted on the cycle as others
     Raises ValueError for unknown candidates, a bad split or too short records."""
     t_start = _time.perf_counter()
     say = progress or (lambda _m: None)
+    base0 = base_model
+    refits = dict(base_refits or {})
+    refitted: dict = {}
     unknown = [c for c in candidates if c not in fx.EFFECT_TYPES]
     if unknown:
         raise ValueError(f"unknown effect(s) {unknown}; known: {list(fx.EFFECT_NAMES)}")
@@ -503,9 +511,10 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
     judge_sim = base_judge_sim
     fit_mae_cur = fit_mae0
     rnd = 0
+    notes: list[str] = []
 
-    def judged(effects):
-        model = base_model.with_effects(effects)
+    def judged(effects, base=None):
+        model = (base or base_model).with_effects(effects)
         sj = sim_judge(model)
         e1 = sj.voltage_v[judge_start:] - vj
         sf = sj if same else sim_fit(model)
@@ -535,14 +544,23 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
             starts = _starts(name, sigs[name], ctx, specs)
             # the effects added so far keep their parameters while a candidate is fitted
             layout = fixed_effects + [(n, dict(v), {}) for n, v, _ in added]
+            if name in refits and name not in refitted:
+                refitted[name] = refits[name]()
+            new_base = None
             try:
-                vals, effects = fitted(layout + [(name, None, specs)], starts, fixed)
+                if refitted.get(name) is not None:
+                    new_base, effect, note = refitted[name]
+                    specs = {}
+                    vals = [dict(v) for _, v, _ in layout] + [effect.params()]
+                    effects = list(current.effects) + [effect]
+                else:
+                    vals, effects = fitted(layout + [(name, None, specs)], starts, fixed)
             except (ValueError, ArithmeticError, RuntimeError) as exc:
                 cands.append(Candidate(rnd, name, None, float("nan"), float("nan"), float("nan"),
                                        float("nan"), float("nan"), False,
                                        _time.perf_counter() - t0, f"fit failed: {exc}"))
                 continue
-            model, sj, e1, mae1, fit_mae1 = judged(effects)
+            model, sj, e1, mae1, fit_mae1 = judged(effects, new_base)
             d = np.abs(e_cur) - np.abs(e1)
             d = np.where(np.isfinite(d), d, 0.0)
             low = block_bootstrap_low(d, block, confidence, seed=seed + rnd)
@@ -571,15 +589,19 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
                 f"{gain * 1e3:.2f} mV, {100 * rel:.1f} %, lower bound {low * 1e3:.2f} mV), "
                 f"fit MAE {fit_mae1 * 1e3:.2f} mV [{_time.perf_counter() - t0:.1f} s] "
                 f"{new.summary()}")
-            tried.append((ok, mae1, name, vals, specs, model, sj, e1, low, fit_mae1))
+            tried.append((ok, mae1, name, vals, specs, model, sj, e1, low, fit_mae1, new_base))
         passing = [c for c in tried if c[0]]
         if not passing:
             break
         # of the candidates that pass the held-out test, the one with the lowest MAE over
         # all the data (fit part and held-out part, weighted by their samples)
         n_fit, n_judge = fit_stop, len(vj)
-        _, mae1, name, vals, specs, model, sj, e1, low, fit_mae1 = min(
+        _, mae1, name, vals, specs, model, sj, e1, low, fit_mae1, new_base = min(
             passing, key=lambda c: (n_judge * c[1] + n_fit * c[9]) / (n_judge + n_fit))
+        if new_base is not None:
+            # the effect came with its own base tables: later candidates build on them
+            base_model = new_base
+            notes.append(refitted[name][2])
         n_fixed = len(fixed_effects)
         new_added = [(n, v, sp) for (n, _, sp), v in
                      zip(added + [(name, None, specs)], vals[n_fixed:])]
@@ -607,15 +629,15 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
     # each step reports the effect as it is in the final model (parameters refitted jointly)
     final = {e.name: e for e in current.effects}
     steps = [replace(st, effect=final.get(st.name, st.effect)) for st in steps]
+    if factor > 1:
+        notes.append(f"fit on {len(fit_data)} samples (block averages of {factor})")
     return DiagnoseResult(
-        base_model=base_model, model=current, steps=tuple(steps), candidates=tuple(cands),
+        base_model=base0, model=current, steps=tuple(steps), candidates=tuple(cands),
         signatures=sigs, mae_before_v=mae0, mae_after_v=mae_cur, fit_mae_before_v=fit_mae0,
         fit_mae_after_v=fit_mae_cur, noise_v=noise, split=split_words, fit_series=fit_series,
         judge_series=judge, fit_stop=fit_stop, judge_start=judge_start, soc0=soc0,
         judge_soc0=judge_soc0, base_fit_sim=base_fit_sim, base_judge_sim=base_judge_sim,
-        judge_sim=judge_sim, seconds=_time.perf_counter() - t_start,
-        notes=(f"fit on {len(fit_data)} samples (block averages of {factor})",)
-        if factor > 1 else ())
+        judge_sim=judge_sim, seconds=_time.perf_counter() - t_start, notes=tuple(notes))
 
 
 # -- the [diagnose] section of the build config ----------------------------------------------

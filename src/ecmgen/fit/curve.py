@@ -185,7 +185,8 @@ class _Problem:
 
     def __init__(self, rec: Record, bases: dict, ocv_nodes: np.ndarray, i0_a: float | None,
                  r0_spans: dict | None = None, levels: np.ndarray | None = None,
-                 split_ocv: bool = False, soc_span: tuple | None = None):
+                 split_ocv: bool = False, soc_span: tuple | None = None,
+                 current_factor=None):
         self.rec = rec
         self.dirs = list(rec.dir_mask)
         self.ndir = len(self.dirs)
@@ -205,11 +206,16 @@ class _Problem:
         hd = np.hstack([hats(rec.soc, b) * m[:, None]
                         for b, m in zip(self.bases, rec.dir_mask.values())])
         drive = rec.i if i0_a is None else i0_a * np.arcsinh(rec.i / i0_a)
+        if current_factor is not None:
+            # a resistance factor of the current (a current-dependent resistance effect)
+            # on r0 and r_fast, as the model's step applies it
+            drive = rec.i * current_factor(rec.i)
         self.u_fast = np.multiply(hd, drive[:, None], order="F")
         self.u_slow = np.multiply(hd, rec.i[:, None], order="F")
         self.u_diff = np.asfortranarray(np.column_stack([m * rec.i for m in rec.dir_mask.values()]))
         # r0 * i on the node basis, then the OCV correction
-        self.r0_full = np.asfortranarray(np.hstack([self.u_slow, ocv_cols]))
+        u_r0 = self.u_slow if current_factor is None else self.u_fast
+        self.r0_full = np.asfortranarray(np.hstack([u_r0, ocv_cols]))
         inside = np.ones(rec.t.size, bool) if soc_span is None else \
             (rec.soc >= soc_span[0]) & (rec.soc <= soc_span[1])
         self.rows = np.flatnonzero(rec.row & (rec.w > 0) & inside)
@@ -406,7 +412,7 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
                      tau_diff_s: tuple[float, float] = (150.0, 3000.0),
                      soc_nodes: np.ndarray = SOC_NODES,
                      direction_deadband_a: float | None = None, progress=None,
-                     blocks_both_ways: bool = False) -> CurveFit:
+                     blocks_both_ways: bool = False, current_factor=None) -> CurveFit:
     """Fit one pulse test as a whole (module docstring): the curve method.
 
     series, pulses   the pulse test and its pulses (:func:`ecmgen.data.dcir.find_pulses`;
@@ -424,7 +430,12 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
                      each is a level of both directions where the record runs both ways
                      (:func:`_both_ways`), and the OCV offsets are not split by the last
                      current's direction (a drive profile flips it every few seconds)
+    current_factor   f(i) -> resistance factor at current i (array in, array out) applied
+                     to r0 and r_fast as a ``current_dependent_resistance`` effect of the
+                     model does; the tables are then its values at zero current (not with i0_a)
     """
+    if i0_a is not None and current_factor is not None:
+        raise ValueError("give i0_a or current_factor, not both")
     if i0_a is not None and not (np.isfinite(i0_a) and i0_a > 0):
         raise ValueError(f"i0_a must be positive, got {i0_a!r}")
     ranges = {"fast": tau_fast_s, "slow": tau_slow_s}
@@ -458,7 +469,8 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
     notes.extend(n)
     spans = _r0_spans(complete, directions)
     prob, got, n = _fit_problem(rec, complete, directions, capacity_ah, i0_a, spans, ranges,
-                                series, progress, may_split=not blocks_both_ways)
+                                series, progress, may_split=not blocks_both_ways,
+                                current_factor=current_factor)
     notes.extend(n)
     taus, x, cost, n_eval, search_notes, ranges = got
     notes.extend(search_notes)
@@ -493,7 +505,8 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
 
 
 def _fit_problem(rec: Record, complete, directions, capacity_ah: float, i0_a, spans: dict,
-                 ranges: dict, series: TimeSeries, progress=None, may_split: bool = True):
+                 ranges: dict, series: TimeSeries, progress=None, may_split: bool = True,
+                 current_factor=None):
     """The linear problem of the record and its fit (:func:`_fit_time_constants`), with the
     OCV offsets at the levels or also half-way between them (a SOC move passes where the
     OCV table is interpolated between the rests, and its curvature there must not go into
@@ -513,7 +526,7 @@ def _fit_problem(rec: Record, complete, directions, capacity_ah: float, i0_a, sp
     fits = []
     for nodes_ocv in _ocv_node_sets(ocv_nodes):
         prob = _Problem(rec, bases, nodes_ocv, i0_a, spans, levels, split_ocv=split,
-                        soc_span=span)
+                        soc_span=span, current_factor=current_factor)
         if prob.rows.size < 4 * (prob.jd + prob.n_ocv):
             raise InputError(series.source, f"only {prob.rows.size} samples to fit the curve "
                                             "method on")

@@ -117,3 +117,37 @@ def fit_exchange_current(table, capacity_ah: float, *, t_s: float = 1.0,
     return ExchangeCurrentFit(i0, rms, rms_lin, n, (
         head + f"i0 {i0:.3g} A (relative RMS {rms * 100:.1f} %, {rms_lin * 100:.1f} % "
                "without current dependence) on the fast branch",))
+
+
+# ln(i0 / capacity) searched by best_exchange_current: from a tenth of 1 C (strongly curved
+# over a pulse test's currents) to 30 C (g = 1 - x^2/6 within 0.4 % at 2 C: no dependence)
+I0_SEARCH_C = (0.1, 30.0)
+
+
+def best_exchange_current(rms_at, capacity_ah: float, *, grid: int = 6, refine: int = 5):
+    """The i0 (A) of a current-dependent resistance that a whole-test fit supports best.
+
+    ``rms_at(i0_a) -> (rms, result)`` refits the test with the resistance factor
+    g = asinh(x) / x, x = |i| / i0 (r0 and r_fast) and returns its fit RMS. A log-spaced
+    grid of ``grid`` points over I0_SEARCH_C x capacity, then a bounded scalar search
+    (``refine`` evaluations) between the best point's neighbours. Returns
+    (i0_a, rms, result) of the best evaluation."""
+    from scipy.optimize import minimize_scalar
+
+    seen: dict[float, tuple] = {}
+
+    def at(ln_i0: float) -> float:
+        key = round(float(ln_i0), 6)
+        if key not in seen:
+            seen[key] = rms_at(float(np.exp(key)))
+        return float(seen[key][0])
+
+    lo, hi = np.log(np.asarray(I0_SEARCH_C) * capacity_ah)
+    pts = np.linspace(lo, hi, grid)
+    k = int(np.argmin([at(p) for p in pts]))
+    a, b = pts[max(k - 1, 0)], pts[min(k + 1, grid - 1)]
+    if refine > 0 and b > a:
+        minimize_scalar(at, bounds=(a, b), method="bounded",
+                        options={"maxiter": refine, "xatol": 0.05})
+    key = min(seen, key=lambda s: seen[s][0])
+    return float(np.exp(key)), float(seen[key][0]), seen[key][1]

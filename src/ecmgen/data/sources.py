@@ -1,0 +1,88 @@
+"""Measurement files of a build config read as the config says: its column maps, its
+temperatures (a number or a time-stamped log per file), its windows, and the OCV of its
+file sources (tables or low-rate tests, consecutive low-rate parts joined)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ..config import COLUMN_ROLE_FALLBACK, WINDOW_ROLES, BuildConfig
+from . import ocv as ocv_mod
+from .measure import ColumnMap, TimeSeries, read_timeseries
+
+Progress = Callable[[str], None]
+
+
+def read_series(cfg: BuildConfig, path: Path, role: str = "") -> TimeSeries:
+    """Read a measurement file of the config. ``[data.columns]`` maps CSV columns from
+    another cycler, for every CSV; ``[data.columns.<role>]`` extends it for one file role
+    (``extra_cycles`` and ``judge`` fall back to ``cycle``'s); .mat files carry their own
+    names. A validation file is cut to ``data.cycle_window_s`` when the config gives one."""
+    roles = (role, COLUMN_ROLE_FALLBACK[role]) if role in COLUMN_ROLE_FALLBACK else (role,)
+    columns = ColumnMap.for_file(cfg.columns, roles, cfg.path, path)
+    series = read_timeseries(path, columns, capacity_ah=cfg.capacity_ah)
+    temp = cfg.temperature_for(path) if series.temperature_c is None else None
+    if isinstance(temp, Path):
+        from .templog import with_temperature_log
+
+        series = with_temperature_log(series, temp)
+    elif temp is not None:
+        series = replace(series, temperature_c=np.full(len(series), temp),
+                         notes=series.notes + (f"no temperature column: the cell taken to "
+                                               f"be at {temp:g} degC (the config's "
+                                               f"temperature_c)",))
+    window = cfg.window_for(path) if role in WINDOW_ROLES else None
+    return series if window is None else series.window(*window)
+
+
+def ocv_file_curve(cfg: BuildConfig, path: Path, progress: Progress,
+                    low: TimeSeries | None = None) -> ocv_mod.OcvCurve:
+    """The OCV curve of one file source: a soc,ocv_v table or a low-rate test (``low``:
+    that test, already read or joined from its parts)."""
+    if low is None and ocv_mod.looks_like_ocv_table(path):
+        return ocv_mod.curve_from_table(ocv_mod.read_ocv_table(path), path.name)
+    if low is None:
+        progress(f"reading low-rate OCV test {path.name}")
+        low = read_series(cfg, path, "ocv")
+    name = Path(low.source).name if low.source else path.name
+    return ocv_mod.curve_from_low_rate(low, cfg.capacity_ah, name, soc0=cfg.ocv_soc0,
+                                       branch=cfg.ocv_branch, cycle=cfg.ocv_cycle)
+
+
+def ocv_file_curves(cfg: BuildConfig, sources, progress: Progress
+                     ) -> tuple[list, dict, list[str]]:
+    """The curves of data.ocv's file sources, in order: the sources left (a run of
+    consecutive low-rate files, none a discharge + charge cycle alone, becomes its first
+    file: their records joined end to end into one test), their curves, and notes."""
+    from .lowrate import join_records, split_low_rate
+
+    lows: dict = {}
+    for src in sources:
+        if src != "pulses" and not ocv_mod.looks_like_ocv_table(src):
+            progress(f"reading low-rate OCV test {src.name}")
+            low = read_series(cfg, src, "ocv")
+            lows[src] = (low, not split_low_rate(low, cfg.capacity_ah).cycles)
+    groups: list[tuple[list, bool]] = []      # ([sources], joinable), in order
+    for src in sources:
+        joinable = src in lows and lows[src][1]
+        if joinable and groups and groups[-1][1]:
+            groups[-1][0].append(src)
+        else:
+            groups.append(([src], joinable))
+    kept, curves, notes = [], {}, []
+    for group, _ in groups:
+        first = group[0]
+        kept.append(first)
+        if len(group) > 1:
+            joined, note = join_records([lows[p][0] for p in group])
+            notes.append(note)
+            curves[first] = ocv_file_curve(cfg, first, progress, joined)
+        elif first in lows:
+            curves[first] = ocv_file_curve(cfg, first, progress, lows[first][0])
+        elif first != "pulses":
+            curves[first] = ocv_file_curve(cfg, first, progress)
+    return kept, curves, notes
