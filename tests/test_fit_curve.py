@@ -296,3 +296,30 @@ def test_usabc_leaf_hppc_gives_both_directions_within_5_percent():
         for p in (p for p in pulses if p.direction == d):
             got, want = r_of(table.at(p.soc)), r_of(true_table.at(p.soc))
             assert np.all(np.abs(got / want - 1) < 0.05), (d, p.soc, got / want - 1)
+
+
+def test_a_current_dependent_resistance_is_found_on_the_pulse_test():
+    from ecmgen.fit.rate import best_exchange_current
+    from ecmgen.model.effects import CurrentDependentResistance
+
+    base = synthetic_nca_model(tau_fast_s=1.0, tau_slow_s=40.0)
+    i0_true = 0.5 * base.capacity_ah
+    truth = base.with_effects((CurrentDependentResistance(1.0, i0_true),))
+    series, soc0 = make_pulse_test(truth, soc_levels=LEVELS, c_rates=(0.5, 2.0, 6.0),
+                                   noise_v=0.0005, seed=4, log_moves=True)
+    pulses = find_pulses(series, truth.capacity_ah, soc0=soc0)
+    near = dict(tau_fast_s=(0.98, 1.02), tau_slow_s=(39.0, 41.0), diffusion=False)
+
+    def rms_at(i0_a):
+        g = CurrentDependentResistance(1.0, i0_a).factor
+        fit = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah,
+                               current_factor=g, **near)
+        return fit.rms_error_v, fit
+
+    i0, rms, fit = best_exchange_current(rms_at, truth.capacity_ah)
+    plain = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, **near)
+    assert 0.7 < i0 / i0_true < 1.4, i0
+    assert rms < 0.5 * plain.rms_error_v and rms < 0.0007
+    # the tables are the resistances at zero current: the truth's
+    for name, err in worst_errors(base, fit, LEVELS).items():
+        assert err < 0.05, (name, err)
