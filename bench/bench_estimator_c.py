@@ -117,10 +117,11 @@ def instructions_per_step(model, n: int, cfg=None) -> dict:
         (d / "in.bin").write_bytes(b"".join(np.asarray(a, dtype=np.float32).tobytes()
                                             for a in arrays))
         (d / "main.c").write_text(CG_MAIN)
-        subprocess.run([*cc, *cbuild.STRICT_CFLAGS, "-O2", "-I", str(d), "-c",
-                        str(d / "bench_ecm_f32.c"), "-o", str(d / "m.o")], check=True)
-        subprocess.run([*cc, "-O2", "-I", str(d), str(d / "main.c"), str(d / "m.o"), "-o",
-                        str(d / "a.out")], check=True)
+        for src in ("bench_ecm_f32", "bench_est_f32"):
+            subprocess.run([*cc, *cbuild.STRICT_CFLAGS, "-O2", "-I", str(d), "-c",
+                            str(d / f"{src}.c"), "-o", str(d / f"{src}.o")], check=True)
+        subprocess.run([*cc, "-O2", "-I", str(d), str(d / "main.c"), str(d / "bench_ecm_f32.o"),
+                        str(d / "bench_est_f32.o"), "-o", str(d / "a.out")], check=True)
         for label, fn, flag in (("est_step", "bench_est_step_f32", "1"),
                                 ("model step", "bench_step_f32", "0")):
             cg = d / f"cg.{flag}"

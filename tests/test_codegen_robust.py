@@ -353,7 +353,7 @@ def test_effects_sanitized_build_has_no_undefined_behaviour(tmp_path, family):
         if family == "surface":
             model = replace(model, surface_soc_gain=0.5)
         generate_c(model, tmp_path, prefix=prefix, numeric=numeric, dt_s=dt_s)
-        src = (tmp_path / file_names(prefix, numeric)["source"]).read_text()
+        src = (tmp_path / file_names(prefix, numeric)["config"]).read_text()
         assert "ECMRT_FX_HYST 1" in src
         assert ("ECMRT_SURFACE 1" in src) == (family == "surface")
         if family != "effects":

@@ -82,7 +82,7 @@ def test_float_fixed_and_estimator_link_into_one_program(kit, tmp_path):
     d, specs = kit
     (tmp_path / "main.c").write_text(_link_main(specs))
     exe = tmp_path / "all"
-    srcs = [d / "pan_ecm_f32.c", d / "pan_ecm_q.c", tmp_path / "main.c"]
+    srcs = [d / "pan_ecm_f32.c", d / "pan_est_f32.c", d / "pan_ecm_q.c", tmp_path / "main.c"]
     proc = subprocess.run([*host_cc(), *STRICT_CFLAGS, "-O2", "-I", d, *srcs, "-o", exe],
                           capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
@@ -101,7 +101,8 @@ def test_one_image_and_the_c_test_on_cortex_m4f(kit, tmp_path):
     start = tmp_path / "startup.o"
     subprocess.run([target.GCC, *flags, "-std=gnu99", "-O2", "-c", tmp_path / "startup.c", "-o",
                     start], check=True)
-    progs = {"all": [d / "pan_ecm_f32.c", d / "pan_ecm_q.c", tmp_path / "main.c"]}
+    progs = {"all": [d / "pan_ecm_f32.c", d / "pan_est_f32.c", d / "pan_ecm_q.c",
+                     tmp_path / "main.c"]}
     for numeric in ("float", "fixed"):
         stem = vector_names("pan", numeric)["test"][:-2]
         progs[stem] = [d / f"{stem}.c", d / f"{stem[:-5]}.c"]

@@ -290,6 +290,8 @@ def write_sources(spec: CSpec, out_dir: Path, harness: bool = True,
     for name, text in render(spec, None, estimator).items():
         (out_dir / name).write_text(text)
     srcs = [out_dir / file_names(spec.prefix, spec.numeric)["source"]]
+    if estimator is not None:
+        srcs.append(out_dir / c_names(spec.prefix, "float")["est_source"])
     if harness:
         header, source = _harness_texts(spec, estimator)
         (out_dir / "ecmh_harness.h").write_text(header)

@@ -20,17 +20,21 @@ from .target import CPUS, GCC, SECTION_FLAGS, _array, _run
 
 
 def cross_compile_estimator(spec: CSpec, est: EstSpec, out_dir, cpu: str = "m4f",
-                            opt: str = "-Os", extra=()) -> target.CrossObject:
-    """<prefix>_ecm.c with the estimator -> object for ``cpu`` (STRICT_CFLAGS)."""
+                            opt: str = "-Os", extra=()) -> tuple[target.CrossObject, ...]:
+    """<prefix>_ecm_f32.c and <prefix>_est_f32.c -> objects for ``cpu`` (STRICT_CFLAGS):
+    (the model's, the estimator's)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     for name, text in render(spec, None, est).items():
         (out_dir / name).write_text(text)
-    src = out_dir / file_names(spec.prefix, spec.numeric)["source"]
-    obj = out_dir / f"{spec.prefix}_ecm_est.{cpu}.o"
-    proc = _run([GCC, *CPUS[cpu]["flags"], *STRICT_CFLAGS, opt, *SECTION_FLAGS, *extra,
-                 "-I", out_dir, "-c", src, "-o", obj], cwd=out_dir)
-    return target.CrossObject(obj, cpu, opt, proc.stderr.strip())
+    nm = c_names(spec.prefix, spec.numeric)
+    objs = []
+    for src in (nm["source"], nm["est_source"]):
+        obj = out_dir / f"{src[:-2]}.{cpu}.o"
+        proc = _run([GCC, *CPUS[cpu]["flags"], *STRICT_CFLAGS, opt, *SECTION_FLAGS, *extra,
+                     "-I", out_dir, "-c", out_dir / src, "-o", obj], cwd=out_dir)
+        objs.append(target.CrossObject(obj, cpu, opt, proc.stderr.strip()))
+    return tuple(objs)
 
 
 def firmware_main(spec: CSpec, est: EstSpec, i, temp, dt, v, soc0: float) -> str:
@@ -91,7 +95,7 @@ def build_firmware(spec: CSpec, est: EstSpec, inputs: tuple, soc0: float, out_di
                    cpu: str = "m4f", opt: str = "-O2") -> Path:
     out_dir = Path(out_dir)
     flags = CPUS[cpu]["flags"]
-    objs = [cross_compile_estimator(spec, est, out_dir, cpu=cpu, opt=opt).obj]
+    objs = [o.obj for o in cross_compile_estimator(spec, est, out_dir, cpu=cpu, opt=opt)]
     (out_dir / "startup.c").write_text(target.STARTUP)
     (out_dir / "fw_main.c").write_text(firmware_main(spec, est, *inputs, soc0))
     (out_dir / "link.ld").write_text(target.LINKER_SCRIPT)
@@ -142,24 +146,26 @@ def qemu_estimator_equivalence(model, time_s, current_a, voltage_v, soc0: float,
 
 
 def estimator_sizes(model, cfg=None, cpu: str = "m4f", opt: str = "-Os") -> dict:
-    """Flash / RAM of the estimator on ``cpu``: the object with it minus the object
-    without it (code, tables), sizeof(<prefix>_est_t) and the stack frames of est_step
-    and of what it calls (from -fstack-usage)."""
+    """Flash / RAM of the estimator on ``cpu``: its object (code, tables) beside the
+    model's, sizeof(<prefix>_est_t) and the stack frames of est_step and of what it calls
+    (from -fstack-usage, both objects)."""
     from .estc import est_state_bytes
 
     spec = prepare(model, numeric="float", prefix="fe")
     est = prepare_estimator(model, spec, cfg)
     with tempfile.TemporaryDirectory(prefix="ecmgen-est-size-") as tmp:
-        with_est = cross_compile_estimator(spec, est, Path(tmp) / "e", cpu=cpu, opt=opt)
-        plain = target.cross_compile(spec, Path(tmp) / "p", cpu=cpu, opt=opt)
-        a, b = target.sizes(with_est.obj), target.sizes(plain.obj)
-        su = target.stack_usage(with_est.obj)
-        funcs = target.undefined_symbols(with_est.obj)
+        m_obj, e_obj = (o.obj for o in cross_compile_estimator(spec, est, Path(tmp), cpu=cpu,
+                                                                opt=opt))
+        a, b = target.sizes(e_obj), target.sizes(m_obj)
+        su = target.stack_usage(m_obj) | target.stack_usage(e_obj)
+        funcs = sorted(set(target.undefined_symbols(e_obj)) - {spec.prefix + "_step_f32",
+                                                               spec.prefix + "_init_f32",
+                                                               spec.prefix + "_model_f32"})
     frames = {k: v for k, v in su.items() if not k.endswith(("_init_f32", "_run_f32"))}
     return {"cpu": CPUS[cpu]["name"], "opt": opt,
-            "code_total": a["code"], "code_estimator": a["code"] - b["code"],
-            "tables_total": a["tables"], "tables_estimator": a["tables"] - b["tables"],
-            "ram_static": a["ram"], "state_bytes": est_state_bytes(spec, est),
+            "code_total": a["code"] + b["code"], "code_estimator": a["code"],
+            "tables_total": a["tables"] + b["tables"], "tables_estimator": a["tables"],
+            "ram_static": a["ram"] + b["ram"], "state_bytes": est_state_bytes(spec, est),
             "stack_frames": frames,
             "stack_est_step": sum(frames.values()),     # est_step + what it calls, at most
             "libgcc": funcs}

@@ -33,6 +33,7 @@ from ..errors import InputError
 from ..model.model_schema import check_model_ranges
 from ..model.model import DIRECTIONS, RC_FIELDS, EcmModel, _grid_weights, load_model
 from .qformat import Q_TEMP, quantize
+from .runtime import switches
 
 NUMERICS = ("float", "fixed")
 # effects (ecmgen.model.effects) the generated C implements, per numeric
@@ -202,15 +203,21 @@ class CSpec:
 
     @property
     def switches(self) -> dict[str, int]:
-        """The runtime's compile-time switches (ECMRT_<name>)."""
+        """The runtime's compile-time switches (ECMRT_<name>), in ecmrt_config.h's order
+        (the one list, :func:`ecmgen.c.runtime.switches`)."""
         fx = self.fx
-        return {"TEMP": int(self.temp), "OCV_SHARED": int(self.ocv_shared),
+        on = {"VARIABLE_DT": int(self.variable_dt), "TEMP": int(self.temp), "OCV_SHARED": int(self.ocv_shared),
                 "RC_UNIFORM": int(self.rc_uniform), "OCV_UNIFORM": int(self.ocv_uniform),
                 "TAU_T": int(self.tau_t), "TAU_SAME": int(self.tau_same),
                 "DIFF": int(self.diff), "BV": int(self.has_bv),
                 "FX_HYST": int(bool(fx.get("hyst"))), "FX_XRC": int(bool(fx.get("xrc"))),
                 "FX_CDR": int(bool(fx.get("cdr"))), "FX_ARR": int(bool(fx.get("arr"))),
                 "SURFACE": int(self.surface is not None)}
+        names = switches()
+        if set(on) != set(names):
+            raise AssertionError(f"the generator's switches {sorted(on)} are not "
+                                 f"ecmrt_config.h's {sorted(names)}")
+        return {k: on[k] for k in names}
 
 
 def state_fields(spec: CSpec) -> list[tuple[str, str, str]]:
