@@ -20,6 +20,7 @@ from ecmgen.c.codegen import (c_float, describe, file_names, generate_c, prepare
                               runtime_dir)
 from ecmgen.c.names import c_names
 from ecmgen.errors import InputError
+from conftest import C_DIR
 from test_codegen_helpers import realistic_model
 
 VARIANTS = [("float", None), ("float", 0.1), ("fixed", None), ("fixed", 0.1)]
@@ -128,36 +129,14 @@ def test_symbols_prefixed_and_no_mutable_globals(tmp_path, synthetic_model, nume
     assert writable == [], "mutable globals found"
 
 
-TWO_MODEL_MAIN = r"""
-#include <stdio.h>
-#include "cellA_ecm_f32.h"
-#include "cellB_ecm_q.h"
-int main(void)
-{
-    cellA_state_f32_t a;
-    cellB_state_q_t b;
-    float va = 0.0f;
-    int32_t vb = 0;
-    int k;
-    cellA_init_f32(&a, 0.8f);
-    cellB_init_q(&b, (int32_t)(0.8 * 1073741824.0));
-    for (k = 0; k < 100; k++) {
-        va = cellA_step_f32(&a, -2.0f, 25.0f, 0.1f);
-        vb = cellB_step_q(&b, (int32_t)(-2.0 * (double)(1L << CELLB_ECM_Q_I)), 25 << CELLB_ECM_Q_TEMP);
-    }
-    printf("%.6f %.6f\n", (double)va, (double)vb / (double)(1L << CELLB_ECM_Q_V));
-    return 0;
-}
-"""
 
 
 def test_two_models_link_into_one_program(tmp_path, synthetic_model):
     generate_c(synthetic_model, tmp_path, prefix="cellA", numeric="float")
     generate_c(synthetic_model, tmp_path, prefix="cellB", numeric="fixed", dt_s=0.1)
-    (tmp_path / "main.c").write_text(TWO_MODEL_MAIN)
     exe = tmp_path / "two"
     _cc([*STRICT_CFLAGS, "-O2", "-I", tmp_path, tmp_path / "cellA_ecm_f32.c", tmp_path / "cellB_ecm_q.c",
-         tmp_path / "main.c", "-o", exe])
+         C_DIR / "two_models_main.c", "-o", exe])
     out = subprocess.run([exe], capture_output=True, text=True, check=True).stdout.split()
     va, vb = float(out[0]), float(out[1])
     assert 3.0 < va < 4.3 and 3.0 < vb < 4.3 and abs(va - vb) < 0.01

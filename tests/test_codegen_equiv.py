@@ -3,18 +3,16 @@ the stated tolerances of the float64 model (simulate.py), on synthetic and real 
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from ecmgen.c import cbuild, cref
 from ecmgen.c.codegen import prepare
 from ecmgen.c.runtime import runtime_dir, switches
+from conftest import C_DIR
 from test_codegen_helpers import (CYCLES, assert_fields_equal, check_c_equivalence, cycle,
                                   panasonic_model, soc0_of)
 
-C_DIR = Path(__file__).parent / "c"      # the tests' C sources
 VARIANTS = [("float", None), ("float", 0.1), ("fixed", None), ("fixed", 0.1)]
 VARIANT_IDS = ["float-vdt", "float-dt0.1", "fixed-vdt", "fixed-dt0.1"]
 # acceptance: |delta MAE| and max |delta v| against the float64 model

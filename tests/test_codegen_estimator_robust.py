@@ -87,7 +87,7 @@ def test_qemu_cortex_m4f_bit_identical_to_the_host():
 
 # -- sanitizers ------------------------------------------------------------------------
 
-SAN_MAIN = (REPO / "tests" / "data" / "estimator_sanitize_main.c")
+SAN_MAIN = (REPO / "tests" / "c" / "estimator_sanitize_main.c")
 
 
 @pytest.mark.parametrize("which", ["panasonic", "effects", "surface"])

@@ -361,6 +361,7 @@ def cmd_verify(args) -> int:
 
 def cmd_codegen(args) -> int:
     from .c.codegen import file_names, generate_c, prepare
+    from .c.golden import vector_names, write_golden
     from .c.spec import check_options
     from .model.model import load_model
 
@@ -377,11 +378,12 @@ def cmd_codegen(args) -> int:
         with reading(args.model):
             spec = prepare(model, numeric=args.numeric, dt_s=args.dt_s, prefix=args.prefix)
         # the files are <prefix>_ecm.* and ecmrt*.h: never the model.json read
-        names = file_names(spec.prefix, spec.numeric)
+        names = file_names(spec.prefix, spec.numeric) | vector_names(spec.prefix, spec.numeric)
         for name in [v for v in names.values() if isinstance(v, str)] + names["runtime"]:
             refuse_inputs(out / name, [args.model])
         files = generate_c(model, out, prefix=args.prefix, numeric=args.numeric,
                            dt_s=args.dt_s, estimator=estimator)
+        files += write_golden(spec, out)        # no cycle here: a drive of pulses and rests
     except InputError as exc:
         if exc.path is not None:
             raise

@@ -132,42 +132,14 @@ def render_estimator(env, ctx: dict, est: EstSpec, c_float) -> dict[str, str]:
 
 
 # --------------------------------------------------------------------------------------
-# cffi harness
+# cffi declarations (the harness itself: templates/harness.c.j2)
 # --------------------------------------------------------------------------------------
 
-def _trace_sig(spec: CSpec) -> str:
+def est_trace_signature(spec: CSpec) -> str:
+    """The prototype of the harness's estimator trace (templates/harness.c.j2)."""
     nm = c_names(spec.prefix, "float")
     return (f"void ecmh_est_trace({nm['est_t']} *e, const float *i, const float *temp, "
             "const float *dt, const float *v, float *vp, float *x, float *pm, size_t n)")
-
-
-def harness_source(spec: CSpec, est: EstSpec) -> str:
-    n = est.n
-    nm = c_names(spec.prefix, "float")
-    rec = "".join(f"        x[{n}u * k + {j}u] = e->{f};\n" for j, f in enumerate(est.fields))
-    return f"""
-#include "{nm['est_header']}"
-{_trace_sig(spec)}
-{{
-    size_t k;
-    unsigned j;
-    for (k = 0u; k < n; k++) {{
-        vp[k] = {nm['est_step']}(e, i[k], temp[k], dt[k], v[k]);
-{rec}        for (j = 0u; j < {n * n}u; j++) {{
-            pm[{n * n}u * k + j] = e->p[j];
-        }}
-    }}
-}}
-
-size_t ecmh_est_size(void)
-{{
-    return sizeof({nm['est_t']});
-}}
-"""
-
-
-def harness_decls(spec: CSpec, est: EstSpec) -> str:
-    return f'#include "{c_names(spec.prefix, "float")["est_header"]}"\n{_trace_sig(spec)};\nsize_t ecmh_est_size(void);\n'
 
 
 def cdef(spec: CSpec, est: EstSpec) -> str:
@@ -178,7 +150,7 @@ def cdef(spec: CSpec, est: EstSpec) -> str:
         + ("float offset_a; " if est.offset else "") + f"uint8_t first; }} {et};",
         f"void {nm['est_init']}({et} *e, float soc0);",
         f"float {nm['est_step']}({et} *e, float i, float temperature, float dt, float v);",
-        _trace_sig(spec) + ";",
+        est_trace_signature(spec) + ";",
         "size_t ecmh_est_size(void);",
     ])
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from . import target
 from .cbuild import STRICT_CFLAGS, CBuildError, compile_spec
-from .codegen import CSpec, file_names, prepare, render
+from .codegen import CSpec, prepare, render
 from .names import c_names
 from .estc import EstSpec, prepare_estimator
 from .estcheck import run_estimator_c
@@ -41,54 +41,13 @@ def firmware_main(spec: CSpec, est: EstSpec, i, temp, dt, v, soc0: float) -> str
     """main(): est_init, est_step over the inputs, then the predicted voltages, states and
     covariances (n x (1 + N + N^2) floats) written through semihosting."""
     nm, n, N = c_names(spec.prefix, "float"), int(np.size(i)), est.n
-    rec = "".join(f"        out[{1 + N + N * N}u * k + {1 + j}u] = e.{f};\n"
-                  for j, f in enumerate(est.fields))
-    arrays = "".join(_array(name, a, False) for name, a in
-                     (("in_i", i), ("in_t", temp), ("in_dt", dt), ("in_v", v)))
-    w = 1 + N + N * N
-    return f"""#include <stdint.h>
-#include <stddef.h>
-#include "{nm['est_header']}"
-typedef union {{ uint32_t u; float f; }} ecmh_f32_t;
-int ecmh_semihost(int op, void *arg);
-{arrays}
-static float out[{w * n}];
-
-static int write_all(int h, const void *buf, size_t len)
-{{
-    uint32_t blk[3];
-    blk[0] = (uint32_t)h;
-    blk[1] = (uint32_t)buf;
-    blk[2] = (uint32_t)len;
-    return ecmh_semihost(0x05, blk);
-}}
-
-int main(void)
-{{
-    static const char name[] = "{target.OUT_NAME}";
-    {nm['est_t']} e;
-    uint32_t blk[3];
-    size_t k;
-    unsigned j;
-    int h;
-    {nm['est_init']}(&e, {float(np.float32(soc0)).hex()}f);
-    for (k = 0; k < {n}u; k++) {{
-        out[{w}u * k] = {nm['est_step']}(&e, in_i[k].f, in_t[k].f, in_dt[k].f, in_v[k].f);
-{rec}        for (j = 0u; j < {N * N}u; j++) {{
-            out[{w}u * k + {1 + N}u + j] = e.p[j];
-        }}
-    }}
-    blk[0] = (uint32_t)name;
-    blk[1] = 5u;
-    blk[2] = sizeof name - 1u;
-    h = ecmh_semihost(0x01, blk);
-    if (h < 0) return 1;
-    if (write_all(h, out, sizeof out) != 0) return 2;
-    blk[0] = (uint32_t)h;
-    ecmh_semihost(0x02, blk);
-    return 0;
-}}
-"""
+    p = spec.prefix
+    arrays = "".join(_array(f"{p}_in_{k}", a, False) for k, a in
+                     (("i", i), ("t", temp), ("dt", dt), ("v", v)))
+    return target.render_main([{
+        "p": p, "nm": nm, "est": True, "n": n, "header": nm["est_header"], "t": "float",
+        "w": 1 + N + N * N, "nn": N * N, "fields": est.fields, "size": (1 + N + N * N) * n,
+        "soc0": f"{float(np.float32(soc0)).hex()}f", "arrays": arrays}])
 
 
 def build_firmware(spec: CSpec, est: EstSpec, inputs: tuple, soc0: float, out_dir,
