@@ -360,6 +360,7 @@ def test_build_json_reports_the_estimator(synthetic_project):
     assert est["bit_exact_vs_reference"] is True and est["steps"] == t.size
     assert est["max_abs_soc_diff_vs_python"] < 1e-4 and est["states"][0] == "soc"
     assert c["float"]["bit_exact_vs_reference"] is True
+    assert c["float"]["ocv_soc_step"] == c["fixed"]["rc_soc_step"] == 1   # the flash options
     assert "c/float/ecm_est_f32.h" in c["float"]["files"] and "estimator" not in c["fixed"]
     assert (out / "c" / "float" / "ecmrt_est_f32.h").is_file()
     assert not (out / "c" / "fixed" / "ecm_est_f32.h").exists()

@@ -181,3 +181,28 @@ def test_codegen_writes_golden_vectors_that_verify_passes(tmp_path, numeric):
     assert all((out / n).is_file() for n in names.values())
     res = _cli("verify", out)
     assert res.returncode == 0 and "1 of 1 passed" in res.stdout, res.stdout + res.stderr
+
+
+def test_table_options_shrink_the_tables_and_keep_the_c_exact(tmp_path):
+    """[c] ocv_soc_step / rc_soc_step (codegen --ocv-soc-step / --rc-soc-step): fewer table
+    bytes, the ends kept, and the C still equal to its reference (verify passes)."""
+    from ecmgen.c.codegen import describe
+    from ecmgen.c.spec import coarsen_tables
+
+    m = temperature_model(branches=True)
+    coarse = coarsen_tables(m, 2, 3)
+    assert coarse.ocv.soc[-1] == m.ocv.soc[-1] and coarse.charge.soc[0] == m.charge.soc[0]
+    assert coarse.ocv.soc.size == (m.ocv.soc.size + 2) // 2
+    for n in ("float", "fixed"):
+        assert describe(prepare(coarse, n))["table_bytes"] < describe(prepare(m, n))["table_bytes"]
+    model = m.save(tmp_path / "model.json")
+    out = tmp_path / "c"
+    res = _cli("codegen", model, "--out", out, "--numeric", "fixed", "--ocv-soc-step", "2",
+               "--rc-soc-step", "3", "-q")
+    assert res.returncode == 0, res.stderr
+    assert f"{describe(prepare(coarse, 'fixed'))['table_bytes']} bytes" in \
+        (out / "ecm_ecm_q.h").read_text()
+    res = _cli("verify", out)
+    assert res.returncode == 0, res.stdout + res.stderr
+    res = _cli("codegen", model, "--out", tmp_path / "d", "--rc-soc-step", "0")
+    assert res.returncode == 2 and "--rc-soc-step" in res.stderr

@@ -528,6 +528,34 @@ def _float_grid(x, name: str, uniform: bool = False) -> CGrid:
     return CGrid(x32, _f32(1.0 / dx, name + " spacing"), x0=x32[0], inv_h=np.float32(inv))
 
 
+def _every(n: int, step: int) -> np.ndarray:
+    """Indices 0, step, 2 step, ... and the last of n breakpoints."""
+    idx = np.arange(0, n, step)
+    return idx if idx[-1] == n - 1 else np.append(idx, n - 1)
+
+
+def coarsen_tables(model, ocv_soc_step: int = 1, rc_soc_step: int = 1):
+    """The model with its OCV and RC tables on every n-th SOC breakpoint (ends kept): the
+    flash options ``[c] ocv_soc_step`` / ``rc_soc_step``. The C and its references are made
+    from what this returns; model.json keeps every breakpoint. Steps of 1: ``model``."""
+    from dataclasses import replace
+
+    model = _as_model(model)
+    if ocv_soc_step > 1:
+        idx = _every(np.size(model.ocv.soc), ocv_soc_step)
+        model = replace(model, ocv=replace(model.ocv, soc=np.asarray(model.ocv.soc)[idx],
+                                           ocv_v=np.asarray(model.ocv.ocv_v)[..., idx]))
+    if rc_soc_step > 1:
+        def one(t):
+            idx = _every(np.size(t.soc), rc_soc_step)
+            cols = {f: np.asarray(getattr(t, f))[..., idx] for f in (*RC_FIELDS, "fit_error",
+                                                                     "converged")
+                    if getattr(t, f, None) is not None}
+            return replace(t, soc=np.asarray(t.soc)[idx], **cols)
+        model = replace(model, charge=one(model.charge), discharge=one(model.discharge))
+    return model
+
+
 def begin(model, numeric: str, dt_s: float | None, prefix: str, i_max_a: float | None
           ) -> SimpleNamespace:
     """Checks and what both numerics start from: the tables on one temperature grid
