@@ -362,6 +362,8 @@ def test_build_json_reports_the_estimator(synthetic_project):
     assert c["float"]["bit_exact_vs_reference"] is True
     assert c["float"]["ocv_soc_step"] == c["fixed"]["rc_soc_step"] == 1   # the flash options
     assert "c/float/ecm_est_f32.h" in c["float"]["files"] and "estimator" not in c["fixed"]
+    assert "c/float/ecm_est_f32_vectors.h" in c["float"]["files"]   # its golden vectors
+    assert main(["verify", str(out)]) == 0
     assert (out / "c" / "float" / "ecmrt_est_f32.h").is_file()
     assert not (out / "c" / "fixed" / "ecm_est_f32.h").exists()
     # model_error / error_correlation_s not in the config: measured on the validation cycle

@@ -14,7 +14,10 @@ import pytest
 from ecmgen.c import target
 from ecmgen.c.cbuild import STRICT_CFLAGS, host_cc
 from ecmgen.c.codegen import generate_c, prepare
-from ecmgen.c.golden import vector_names, write_golden
+from ecmgen.c.estc import prepare_estimator
+from ecmgen.c.estgolden import est_vector_names, write_est_golden
+from ecmgen.c.golden import cycle_segment, vector_names, write_golden
+from ecmgen.model.simulate import simulate
 from ecmgen.config import EstimatorConfig
 from ecmgen.data.measure import TimeSeries
 from conftest import C_DIR
@@ -39,6 +42,10 @@ def kit(tmp_path_factory):
                    estimator=EstimatorConfig() if numeric == "float" else None)
         specs[numeric] = prepare(m, numeric=numeric, prefix="pan")
         write_golden(specs[numeric], d, series, 0.9)
+    est = prepare_estimator(m, specs["float"], EstimatorConfig())
+    seg = cycle_segment(specs["float"], series, 0.9)
+    v = simulate(m, t, cur, 0.9, series.temperature_c).voltage_v
+    write_est_golden(specs["float"], est, d, seg, v)
     return d, specs
 
 
@@ -80,6 +87,8 @@ def test_one_image_and_the_c_test_on_cortex_m4f(kit, tmp_path):
     for numeric in ("float", "fixed"):
         stem = vector_names("pan", numeric)["test"][:-2]
         progs[stem] = [d / f"{stem}.c", d / f"{stem[:-5]}.c"]
+    progs["pan_est_f32_test"] = [d / est_vector_names("pan")["test"], d / "pan_est_f32.c",
+                                 d / "pan_ecm_f32.c"]
     for name, srcs in progs.items():
         elf = tmp_path / f"{name}.elf"
         proc = subprocess.run([target.GCC, *flags, *STRICT_CFLAGS, *_formats(specs), "-O2",
@@ -107,19 +116,36 @@ def test_the_c_test_program_alone(kit, tmp_path):
         assert run.returncode == 0 and ": PASS: 1564 steps, 0 differ" in run.stdout, run.stdout
 
 
+def _one_char(src: str, name: str) -> str:
+    """``src`` with one digit of the middle value of the array ``name`` changed by 5: the
+    last digit of an integer, the fourth decimal of a float (a float's last digits may
+    round to the same float32)."""
+    m = re.search(rf"static const \w+ {name}\[\d+\] = \{{(.*?)\}};", src, re.S)
+    vals = list(re.finditer(r"-?\d[\d.e+-]*", m.group(1)))
+    v = vals[len(vals) // 2]
+    pos = v.group(0).index(".") + 4 if "." in v.group(0) else len(v.group(0)) - 1
+    at = m.start(1) + v.start() + pos
+    return src[:at] + str((int(src[at]) + 5) % 10) + src[at + 1:]
+
+
 def test_verify_passes_and_names_the_first_differing_step(kit, tmp_path):
+    """The C as generated passes; one character of a table value (the OCV's middle one) or
+    of the estimator's settings changed: the check fails, naming the first step."""
     d, _ = kit
     res = _cli("verify", d)
     assert res.returncode == 0, res.stdout + res.stderr
-    assert res.stdout.splitlines()[-1] == "ecmgen verify: 2 of 2 passed"
-    for numeric, stem in (("fixed", "pan_ecm_q"), ("float", "pan_ecm_f32")):
-        mine = tmp_path / numeric
+    assert res.stdout.splitlines()[-1] == "ecmgen verify: 3 of 3 passed"
+    for stem, where in (("pan_ecm_q", "ocv_v"), ("pan_ecm_f32", "ocv_v"),
+                        ("pan_est_f32", None)):
+        mine = tmp_path / stem
         shutil.copytree(d, mine)
         src = (mine / f"{stem}.c").read_text()
-        # one character of the model's constants: the last digit of the SOC's coefficient
-        m = re.search(r"\.k_soc = (-?[0-9.e+-]+?)(\d)(f?)[,\s]", src)
-        digit = str((int(m.group(2)) + 5) % 10)
-        (mine / f"{stem}.c").write_text(src[:m.start(2)] + digit + src[m.end(2):])
+        if where is None:       # the estimator: the first digit of its voltage noise
+            m = re.search(r"\.vn2 = (\d)", src)
+            src = src[:m.start(1)] + str((int(m.group(1)) + 5) % 10) + src[m.end(1):]
+        else:
+            src = _one_char(src, where)
+        (mine / f"{stem}.c").write_text(src)
         res = _cli("verify", d, "--c", mine, "--cflags", "-std=c99 -O1 -ffp-contract=off")
         assert res.returncode == 1, res.stdout + res.stderr
         line = next(ln for ln in res.stdout.splitlines() if ln.startswith(stem))

@@ -388,6 +388,13 @@ def cmd_codegen(args) -> int:
         files = generate_c(model, out, prefix=args.prefix, numeric=args.numeric,
                            dt_s=args.dt_s, estimator=estimator)
         files += write_golden(spec, out)        # no cycle here: a drive of pulses and rests
+        if estimator is not None:
+            from .c.estc import prepare_estimator
+            from .c.estgolden import write_est_golden
+            from .c.golden import drive_segment
+
+            files += write_est_golden(spec, prepare_estimator(model, spec, estimator), out,
+                                      drive_segment(spec))
     except InputError as exc:
         if exc.path is not None:
             raise

@@ -79,6 +79,9 @@ def build_c_outputs(cfg, result, out_dir, progress=lambda msg: None) -> dict:
                            estimator=est_cfg if n == "float" else None)
         files += write_golden(specs[n], out_dir / "c" / n, series if val is not None else None,
                               val.soc0 if val is not None else 1.0)
+        if est is not None and n == "float":
+            files += _est_golden(specs[n], est, out_dir / "c" / n, series,
+                                 val.soc0 if val is not None else 1.0)
         entry = dict(eq.get(n, {"skipped": "no validation cycle to compare on"}))
         if est is not None and n == "float":
             entry["estimator"] = est_eq or {"skipped": "no validation cycle to compare on"}
@@ -87,6 +90,18 @@ def build_c_outputs(cfg, result, out_dir, progress=lambda msg: None) -> dict:
                       "temperature_rows": describe(specs[n])["points"]["temperatures"]})
         block[n] = entry
     return block
+
+
+def _est_golden(spec, est, out_dir, series, soc0: float) -> list[Path]:
+    """The estimator's golden vectors: the cycle's first steps with its measured voltage,
+    or (no cycle) the drive of golden.drive_segment with the model's own voltage."""
+    from .estgolden import write_est_golden
+    from .golden import cycle_segment, drive_segment
+
+    if series is None:
+        return write_est_golden(spec, est, out_dir, drive_segment(spec))
+    seg = cycle_segment(spec, series, soc0)
+    return write_est_golden(spec, est, out_dir, seg, series.voltage_v[:seg.current_a.size])
 
 
 def _estimator_block(model, spec, est, series, soc0: float) -> dict:

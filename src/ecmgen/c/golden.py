@@ -120,7 +120,7 @@ def _native(spec: CSpec, seg: Segment) -> dict:
             "v": np.asarray(ref.v, dtype=f), "soc": np.asarray(ref.soc, dtype=f)}
 
 
-def _c_array(ctype: str, name: str, a: np.ndarray) -> str:
+def c_array(ctype: str, name: str, a: np.ndarray) -> str:
     a = np.asarray(a)
     if a.dtype == np.float32:
         vals = [f"0x{int(x):08x}u" for x in a.view(np.uint32)]
@@ -164,12 +164,12 @@ def render_vectors(spec: CSpec, segments: list[Segment]) -> dict[str, str]:
                   "not bit-exact, V */",
                   f"#define {M}_VEC_TOL_SOC {TOL_SOC_F32!r}f"]
     lines.append("")
-    body = [_c_array("uint32_t", f"{vp}_seg_start", starts),
-            _c_array(ctype, f"{vp}_soc0", soc0)]
+    body = [c_array("uint32_t", f"{vp}_seg_start", starts),
+            c_array(ctype, f"{vp}_soc0", soc0)]
     for key, what in (("i", "current"), ("t", "temperature"), ("dt", "dt"), ("v", "voltage"),
                       ("soc", "SOC")):
         if key in cat:
-            body.append(f"/* {what} */\n" + _c_array(ctype, f"{vp}_{key}", cat[key]))
+            body.append(f"/* {what} */\n" + c_array(ctype, f"{vp}_{key}", cat[key]))
     text = "\n".join(lines) + "\n" + "\n".join(body) + f"\n#endif /* {M}_VECTORS_H */\n"
     ctx = _context(spec)
     ctx["files"] = dict(file_names(spec.prefix, spec.numeric), **names)
@@ -182,12 +182,17 @@ def render_vectors(spec: CSpec, segments: list[Segment]) -> dict[str, str]:
 def write_golden(spec: CSpec, out_dir, series=None, soc0: float = 1.0) -> list[Path]:
     """The vectors and the test program into ``out_dir``: the cycle ``series`` (a TimeSeries;
     None: :func:`drive_segment`) from ``soc0``, then the edge-case set."""
-    from ..files import write_atomic
-
     first = cycle_segment(spec, series, soc0) if series is not None else drive_segment(spec)
     segments = [first, edge_segment(spec)]
+    return write_texts(out_dir, render_vectors(spec, segments))
+
+
+def write_texts(out_dir, texts: dict[str, str]) -> list[Path]:
+    """{name: text} into ``out_dir``, leaving a file with the same text alone."""
+    from ..files import write_atomic
+
     out = []
-    for name, text in render_vectors(spec, segments).items():
+    for name, text in texts.items():
         path = Path(out_dir) / name
         if not (path.exists() and path.read_text() == text):
             write_atomic(path, text)
