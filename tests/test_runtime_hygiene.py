@@ -7,11 +7,14 @@ from __future__ import annotations
 
 import re
 
+import numpy as np
 import pytest
 
 from ecmgen.c.cbuild import _harness_texts
 from ecmgen.c.codegen import prepare, render
 from ecmgen.c.estc import prepare_estimator
+from ecmgen.c.estgolden import render_est_vectors
+from ecmgen.c.golden import drive_segment, edge_segment, render_vectors
 from ecmgen.c.runtime import runtime_dir, switches
 from ecmgen.config import EstimatorConfig
 from test_estimate import ALL_EFFECTS, model_over_temperature
@@ -72,6 +75,10 @@ def test_generated_files(numeric):
         if numeric == "float" else None
     files = render(spec, None, est)
     files["ecmh_harness.h"], files["ecmh_harness.c"] = _harness_texts(spec, est)  # tests' too
+    files.update(render_vectors(spec, [drive_segment(spec, 50), edge_segment(spec)]))
+    if est is not None:
+        seg = drive_segment(spec, 50)
+        files.update(render_est_vectors(spec, est, seg, np.full(50, 3.7)))
     problems = []
     for name, text in files.items():
         if name.endswith((".h", ".c")):
