@@ -1,7 +1,9 @@
-"""model.json -> C for BMS microcontrollers: ``<prefix>_ecm.h`` / ``<prefix>_ecm.c``.
+"""model.json -> C for BMS microcontrollers: ``<prefix>_ecm_<s>.h`` / ``.c`` (names:
+:mod:`ecmgen.c.names`).
 
-The generated C holds only ``static const`` tables, the model's state type and three thin
-functions; the step itself is the hand-written runtime in ``c_runtime/`` (copied beside the
+The generated C holds only the ``const`` tables (``<prefix>_model_<s>``), the model's state
+type and three thin functions, and ``<prefix>_ecm_<s>_config.h`` the runtime's switches for
+the model (:mod:`ecmgen.c.runtime`); the step itself is the hand-written runtime in ``c_runtime/`` (copied beside the
 generated files), one body for every model with compile-time switches for what the model
 has (temperature axis, diffusion pair, Butler-Volmer branch, diagnose effects). Two
 numerics:
