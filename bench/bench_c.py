@@ -111,27 +111,7 @@ def label(numeric, dt_s):
 
 # --- 1. instructions per step ---------------------------------------------------------
 
-CG_MAIN = r"""
-#include <stdio.h>
-#include <stdlib.h>
-#include "HEADER"
-int main(int argc, char **argv)
-{
-    FILE *f = fopen(argv[1], "rb");
-    size_t n = (size_t)atol(argv[2]), k;
-    T *i = malloc(n * sizeof *i), *dt = malloc(n * sizeof *dt), *t = malloc(n * sizeof *t);
-    STATE s;
-    double acc = 0.0;
-    if (!f || fread(i, sizeof *i, n, f) != n || fread(dt, sizeof *dt, n, f) != n ||
-        fread(t, sizeof *t, n, f) != n) return 1;
-    INIT(&s, SOC0);
-    for (k = 0; k < n; k++) acc += (double)STEP(&s, i[k], t[k] DTARG);
-    printf("%g\n", acc);
-    (void)argc;
-    return 0;
-}
-"""
-
+CG_MAIN = Path(__file__).parent / "c" / "callgrind_model_main.c"
 
 def _native(spec, cur, dt, temp):
     if spec.fixed:
@@ -157,15 +137,14 @@ def instructions_per_step(model, cur, dt, temp, n) -> dict:
             t, soc0 = ("int32_t", str(cref.soc_to_raw(0.95))) if spec.fixed else ("float", "0.95f")
             (d / "in.bin").write_bytes(i_n.tobytes() + dt_n.tobytes() + t_n.tobytes())
             nm = c_names("bench", numeric)
-            main = CG_MAIN.replace("T *", f"{t} *").replace("SOC0", soc0)
-            for key in ("HEADER", "STATE", "INIT", "STEP"):
-                main = main.replace(key, nm[{"STATE": "state"}.get(key, key.lower())])
-            main = main.replace("DTARG", ", dt[k]" if dt_s is None else "")
-            (d / "main.c").write_text(main)
+            model_args = [f'-DECMB_HEADER="{nm["header"]}"', f"-DECMB_T={t}",
+                          f"-DECMB_STATE={nm['state']}", f"-DECMB_INIT={nm['init']}",
+                          f"-DECMB_STEP={nm['step']}", f"-DECMB_SOC0={soc0}",
+                          f"-DECMB_VDT={int(dt_s is None)}"]
             subprocess.run([*cc, *cbuild.STRICT_CFLAGS, "-O2", "-I", str(d), "-c", str(d / nm["source"]),
                             "-o", str(d / "m.o")], check=True)
-            subprocess.run([*cc, "-O2", "-I", str(d), str(d / "main.c"), str(d / "m.o"), "-o",
-                            str(d / "a.out")], check=True)
+            subprocess.run([*cc, "-O2", *model_args, "-I", str(d), str(CG_MAIN), str(d / "m.o"),
+                            "-o", str(d / "a.out")], check=True)
             cg = d / "cg.out"
             subprocess.run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={cg}",
                             f"--toggle-collect={nm['step']}", str(d / "a.out"), str(d / "in.bin"), str(n)],

@@ -70,29 +70,6 @@ EVERY_EFFECT = (HYSTERESIS, make_effect("extra_rc", r_ohm=0.01, tau_s=900.0),
                 make_effect("capacity_error", capacity_scale=0.97),
                 make_effect("temperature_dependence", activation_k=2000.0, t_ref_c=25.0))
 
-CG_MAIN = r"""
-#include <stdio.h>
-#include <stdlib.h>
-#include "bench_est_f32.h"
-int main(int argc, char **argv)
-{
-    FILE *f = fopen(argv[1], "rb");
-    size_t n = (size_t)atol(argv[2]), k;
-    int est = atoi(argv[3]);
-    float *i = malloc(4 * n * sizeof *i), *t = i + n, *dt = i + 2 * n, *v = i + 3 * n;
-    bench_est_f32_t e;
-    double acc = 0.0;
-    if (!f || fread(i, sizeof *i, 4 * n, f) != 4 * n) return 1;
-    bench_est_init_f32(&e, 0.8f);
-    for (k = 0; k < n; k++) {
-        acc += est ? (double)bench_est_step_f32(&e, i[k], t[k], dt[k], v[k])
-                   : (double)bench_step_f32(&e.m, i[k], t[k], dt[k]);
-    }
-    printf("%g %g\n", acc, (double)e.m.soc);
-    (void)argc;
-    return 0;
-}
-"""
 
 
 def _cycle(folder, name):
@@ -116,11 +93,12 @@ def instructions_per_step(model, n: int, cfg=None) -> dict:
             (d / name).write_text(text)
         (d / "in.bin").write_bytes(b"".join(np.asarray(a, dtype=np.float32).tobytes()
                                             for a in arrays))
-        (d / "main.c").write_text(CG_MAIN)
-        subprocess.run([*cc, *cbuild.STRICT_CFLAGS, "-O2", "-I", str(d), "-c",
-                        str(d / "bench_ecm_f32.c"), "-o", str(d / "m.o")], check=True)
-        subprocess.run([*cc, "-O2", "-I", str(d), str(d / "main.c"), str(d / "m.o"), "-o",
-                        str(d / "a.out")], check=True)
+        (d / "main.c").write_text((Path(__file__).parent / "c" / "callgrind_est_main.c").read_text())
+        for src in ("bench_ecm_f32", "bench_est_f32"):
+            subprocess.run([*cc, *cbuild.STRICT_CFLAGS, "-O2", "-I", str(d), "-c",
+                            str(d / f"{src}.c"), "-o", str(d / f"{src}.o")], check=True)
+        subprocess.run([*cc, "-O2", "-I", str(d), str(d / "main.c"), str(d / "bench_ecm_f32.o"),
+                        str(d / "bench_est_f32.o"), "-o", str(d / "a.out")], check=True)
         for label, fn, flag in (("est_step", "bench_est_step_f32", "1"),
                                 ("model step", "bench_step_f32", "0")):
             cg = d / f"cg.{flag}"

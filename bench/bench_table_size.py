@@ -1,20 +1,18 @@
-"""Flash of the tables against accuracy: what coarser grids and 16-bit storage would cost.
+"""Flash of the tables against accuracy: the build's table options and 16-bit storage.
 
 Builds the bundled Panasonic demo (no C, no plots), then for each option changes the best
-model's tables the way the option would store them and re-runs every validation cycle
-(simulate.py at the cycle's cell temperature, from its start SOC) against the measured
-voltage:
+model's tables the way the option stores them and re-runs every validation cycle
+(simulate.py at the cycle's cell temperature, from its start SOC; the generated C equals it
+to float32 rounding) against the measured voltage:
 
-- ``ocv/2``, ``ocv/4``     the OCV on every 2nd / 4th SOC breakpoint (ends kept);
-- ``rc/2``                 the RC tables on every 2nd SOC breakpoint;
-- ``16-bit affine``        every table value stored as an unsigned 16-bit code with a
+- ``[c] ocv_soc_step = n`` / ``rc_soc_step = n``  options of ``ecmgen build`` (and
+  ``codegen --ocv-soc-step / --rc-soc-step``): the C's tables on every n-th SOC breakpoint,
+  ends kept (ecmgen.c.spec.coarsen_tables, the function the build uses); table bytes of the
+  C as generated;
+- ``16-bit affine``        (not built) every table value as an unsigned 16-bit code with a
                            per-table offset and scale (rounded to the nearest code);
-- ``float16``              every table value rounded to IEEE binary16.
-
-Table bytes are the generated C's (``describe(prepare(...))``, float and fixed) for the grid
-options; for the 16-bit storage options they are estimated as half of the value arrays
-(the grids stay 32-bit). Nothing here is an option of ``ecmgen build`` yet: this measures
-whether one is worth having.
+- ``float16``              (not built) every table value rounded to IEEE binary16;
+  their bytes estimated as half of the value arrays (the grids stay 32-bit).
 
     python bench/bench_table_size.py
 """
@@ -31,26 +29,6 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / "examples" / "panasonic-temperature" / "config.toml"
 RC_FIELDS = ("r0_ohm", "r_fast_ohm", "tau_fast_s", "r_slow_ohm", "tau_slow_s")
-RC_EXTRA = ("fit_error", "converged")
-
-
-def _every(x: np.ndarray, k: int) -> np.ndarray:
-    idx = np.arange(0, x.shape[-1], k)
-    if idx[-1] != x.shape[-1] - 1:
-        idx = np.append(idx, x.shape[-1] - 1)
-    return idx
-
-
-def coarse_ocv(m, k: int):
-    idx = _every(m.ocv.soc, k)
-    return replace(m, ocv=replace(m.ocv, soc=m.ocv.soc[idx], ocv_v=m.ocv.ocv_v[:, idx]))
-
-
-def coarse_rc(m, k: int):
-    def one(t):
-        idx = _every(t.soc, k)
-        return replace(t, soc=t.soc[idx], **{f: getattr(t, f)[:, idx] for f in RC_FIELDS + RC_EXTRA})
-    return replace(m, charge=one(m.charge), discharge=one(m.discharge))
 
 
 def _q16(a: np.ndarray) -> np.ndarray:
@@ -105,9 +83,13 @@ def main() -> int:
     print(f"demo model '{result.best}', {len(vals)} validation cycles; mean MAE {1e3 * base:.3f} mV; "
           f"tables float {b0['float']} B, fixed {b0['fixed']} B")
     print(f"{'option':16s} {'float B':>8s} {'fixed B':>8s} {'mean MAE mV':>12s} {'delta mV':>9s}")
-    rows = [("ocv/2", coarse_ocv(model, 2), None), ("ocv/4", coarse_ocv(model, 4), None),
-            ("rc/2", coarse_rc(model, 2), None),
-            ("16-bit affine", stored(model, _q16), "half"), ("float16", stored(model, _f16), "half")]
+    from ecmgen.c.spec import coarsen_tables
+
+    opts = [("ocv_soc_step = 2", 2, 1), ("ocv_soc_step = 4", 4, 1), ("ocv_soc_step = 8", 8, 1),
+            ("rc_soc_step = 2", 1, 2), ("ocv 4 + rc 2", 4, 2)]
+    rows = [(name, coarsen_tables(model, o, r), None) for name, o, r in opts]
+    rows += [("16-bit affine *", stored(model, _q16), "half"),
+             ("float16 *", stored(model, _f16), "half")]
     for name, m, how in rows:
         mae = mean_mae(m, vals)
         if how == "half":
@@ -116,6 +98,7 @@ def main() -> int:
         else:
             b = table_bytes(m)
         print(f"{name:16s} {b['float']:8d} {b['fixed']:8d} {1e3 * mae:12.3f} {1e3 * (mae - base):+9.3f}")
+    print("* not an option of ecmgen build: bytes estimated")
     return 0
 
 

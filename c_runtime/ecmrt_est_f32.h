@@ -3,12 +3,11 @@
  * ecmrt_est_f32.h - ecmgen C runtime: the extended Kalman filter (SOC estimator) on the
  * model's own float32 step (hand-written, model-independent).
  *
- * Included by a generated <prefix>_ecm.c built with `[c] estimator = "ekf"`, after
- * ecmrt_f32.h (whose configuration it reuses), with ECMRT_EST_T defined as the estimator's
- * state type (<prefix>_est_t of <prefix>_est.h: the model's state `m`, the covariance
- * `p[ECMRT_EST_N * ECMRT_EST_N]` and `first`). The generated <prefix>_est_step() calls
+ * Included by a generated <prefix>_est_f32.c (`[c] estimator = "ekf"`) after the model's
+ * <prefix>_ecm_f32_config.h (ecmrt_f32.h as the model's .c configures it, and the model's
+ * tables), with ECMRT_EST_OFFSET 0 or 1. The generated <prefix>_est_step_f32() calls
  *     ecmrt_est_f32_prior()   sanitise i and dt as the step does, keep the RC voltages;
- *     <prefix>_step()         the model's own step: the predicted state and voltage;
+ *     <prefix>_step_f32()     the model's own step: the predicted state and voltage;
  *     ecmrt_est_f32_update()  Jacobians, covariance prediction, measurement update.
  * The filter is the one of src/ecmgen/estimate/ekf.py (states soc, u_fast, u_slow and,
  * in this order, u_diff with ECMRT_DIFF, u_x with ECMRT_FX_XRC, h with ECMRT_FX_HYST),
@@ -50,14 +49,14 @@
 #if ECMRT_VERSION != 3
 #error "ecmrt_est_f32.h does not match ecmrt.h"
 #endif
-#if !defined(ECMRT_F32_H) || !defined(ECMRT_EST_T)
-#error "ecmrt_est_f32.h is included by a generated <prefix>_ecm.c after ecmrt_f32.h"
+#if !defined(ECMRT_F32_H)
+#error "ecmrt_est_f32.h is included by a generated <prefix>_est_f32.c after the model's configuration"
 #endif
 #if !ECMRT_VARIABLE_DT
 #error "the estimator needs the variable-dt step"
 #endif
 #if !defined(ECMRT_EST_OFFSET)
-#error "ECMRT_EST_OFFSET (the current-offset state, 0 or 1) is defined by the generated .c"
+#error "ECMRT_EST_OFFSET (the current-offset state, 0 or 1) is defined by the generated <prefix>_est_f32.c"
 #endif
 
 /* soc, u_fast, u_slow (, u_diff) (, u_x) (, h) (, offset_a) */
@@ -103,174 +102,15 @@ typedef struct {
 #endif
 } ecmrt_est_f32_noise_t;
 
+/* a vector over the filter's states */
+typedef float ecmrt_est_f32_vec_t[ECMRT_EST_N];
+
 /* What the update needs from before the step. */
 typedef struct {
     float u[ECMRT_EST_N];     /* u[0] unused; the RC voltages before the step */
 } ecmrt_est_f32_prior_t;
 
-/* The table accessor: the values and SOC slopes (d/dsoc) the Jacobians need, of direction
- * dir at SOC soc, at the temperature of the model state's last step (its row k_t and weight
- * w_t), by the runtime's own lookup and interpolation (the step's locate, its segment pairs
- * at the temperature from ecmrt_f32_segment or the state's cache of them). A slope is that
- * of the segment the SOC is in (the segment on the right at a breakpoint) and 0 outside the
- * table (clamped), as ecmgen.estimate.process; time constants of the temperature only
- * (ECMRT_TAU_T) have none: the filter takes the state's coefficients kc. The state is read,
- * never written. all = 0: only r0 and the OCV. */
-typedef struct {
-    float r0, dr0, rf, drf, tf, dtf, rs, drs, ts, dts, ocv, docv;
-#if ECMRT_SURFACE
-    float up;                 /* in: u_diff before the step (the surface SOC reads it) */
-    float ds, du;             /* out: d soc_s / d soc, d soc_s / d u_diff (0 where clamped) */
-#endif
-} ecmrt_est_f32_par_t;
-
-/* a per-temperature branch value (r_diff, tau_diff, i0) at the state's temperature */
-#if ECMRT_TEMP
-#define ECMRT_EST_TV(b, j) ((b)[j] + (b)[(j) + 1u] * wt)
-#else
-#define ECMRT_EST_TV(b, j) ((b)[j])
-#endif
-
-/* value y + dy w and slope dy / spacing of parameter j from a segment's pairs (y at its
- * start, difference to its end) along SOC at the temperature: a table row without
- * ECMRT_TEMP, else ecmrt_f32_segment's (the state's cache pc when it is that segment's:
- * the same numbers) */
-#define ECMRT_EST_VS(row, j, v, sl)                                                         \
-    do {                                                                                    \
-        (v) = (row)[j] + (row)[(j) + 1u] * w;                                               \
-        (sl) = (row)[(j) + 1u] * inv;                                                       \
-    } while (0)
-
-/* 1 / spacing of segment k, or 0 when v is outside the grid (or NaN) */
-static inline float ecmrt_est_f32_inv(const ecmrt_f32_grid_t *g, unsigned k, float v)
-{
-    return (v >= g->x[0] && v <= g->x[(unsigned)g->n - 1u]) ? g->inv_dx[k] : 0.0f;
-}
-
-static inline float ecmrt_est_f32_uinv(const ecmrt_f32_ugrid_t *g, unsigned k, float v)
-{
-    const float u = (v - g->x0) * g->inv_h;
-    (void)k;
-    return (u >= 0.0f && u <= g->um) ? g->inv_h : 0.0f;
-}
-#if ECMRT_RC_UNIFORM
-#define ECMRT_EST_RC_INV ecmrt_est_f32_uinv
-#else
-#define ECMRT_EST_RC_INV ecmrt_est_f32_inv
-#endif
-#if ECMRT_OCV_UNIFORM
-#define ECMRT_EST_OCV_INV ecmrt_est_f32_uinv
-#else
-#define ECMRT_EST_OCV_INV ecmrt_est_f32_inv
-#endif
-
-static inline void ecmrt_est_f32_params(const ecmrt_f32_model_t *m, const ECMRT_STATE *s,
-                                        unsigned dir, float soc, ecmrt_est_f32_par_t *p,
-                                        int all)
-{
-    const ecmrt_f32_dir_t *d = &m->dir[dir];
-    const float *row;
-    unsigned kd = ECMRT_HINT_DIR(s, dir);
-    float w, inv;
-#if ECMRT_TEMP
-    float pc[ECMRT_NPAR];
-    unsigned kt = s->k_t;
-    const float wt = s->w_t;
-#endif
-#if ECMRT_SURFACE
-    unsigned ko = ECMRT_HINT_OCV(s);
-    float wo, invo, socr, sv, dsv;
-    const float *sp;
-#else
-#define socr soc
-#endif
-    (void)s;                        /* (uniform grids, one row, shared OCV: no hint, no cache) */
-#if ECMRT_TEMP
-    if (kt > (unsigned)m->t.n - 2u) {
-        kt = (unsigned)m->t.n - 2u;
-    }
-#endif
-#if ECMRT_SURFACE
-    /* the surface SOC the step read its RC tables at: soc + sv u_diff (the u_diff before the
-     * step), sv at (soc, T) as the step interpolates it, clamped to [0, 1]; its derivatives
-     * by soc (1 + dsv/dsoc u_diff) and by u_diff (sv), 0 where clamped */
-    wo = ECMRT_F32_OCV_LOCATE(&m->ocv_g, soc, &ko);
-    invo = ECMRT_EST_OCV_INV(&m->ocv_g, ko, soc);
-#if ECMRT_TEMP
-    sp = m->sv + 2u * ((unsigned)m->ocv_g.n * kt + ko);
-    sv = sp[0] + sp[1] * wt;
-    dsv = (sp[2] + sp[3] * wt) - sv;
-    sv = sv + dsv * wo;
-    dsv = dsv * invo;
-#else
-    sp = m->sv + 2u * ko;
-    sv = sp[0] + sp[1] * wo;
-    dsv = sp[1] * invo;
-#endif
-    socr = soc + sv * p->up;
-    if (!(socr >= 0.0f)) {
-        socr = 0.0f;
-        p->ds = p->du = 0.0f;
-    } else if (socr > 1.0f) {
-        socr = 1.0f;
-        p->ds = p->du = 0.0f;
-    } else {
-        p->ds = 1.0f + dsv * p->up;
-        p->du = sv;
-    }
-#endif
-    w = ECMRT_F32_RC_LOCATE(&d->g, socr, &kd);
-    inv = ECMRT_EST_RC_INV(&d->g, kd, socr);
-#if ECMRT_TEMP
-    if (((kd << 1) | dir) == (unsigned)s->pc_key) {
-        row = s->pc;
-    } else {
-        ecmrt_f32_segment(d->rows + ECMRT_NPAR * ((unsigned)d->g.n * kt + kd), ECMRT_NPAR,
-                          ECMRT_NPAR, wt, pc);
-        row = pc;
-    }
-#else
-    row = d->rows + ECMRT_NPAR * kd;
-#endif
-    ECMRT_EST_VS(row, ECMRT_P_R0, p->r0, p->dr0);
-    if (all) {
-        ECMRT_EST_VS(row, ECMRT_P_RF, p->rf, p->drf);
-        ECMRT_EST_VS(row, ECMRT_P_RS, p->rs, p->drs);
-#if ECMRT_TAU_T
-        p->tf = p->dtf = p->ts = p->dts = 0.0f;         /* the state's kc serve instead */
-#else
-        ECMRT_EST_VS(row, ECMRT_P_KF, p->tf, p->dtf);
-        ECMRT_EST_VS(row, ECMRT_P_KS, p->ts, p->dts);
-#endif
-    }
-#if ECMRT_OCV_SHARED
-    ECMRT_EST_VS(row, ECMRT_P_OCV, p->ocv, p->docv);
-#else
-    {
-#if ECMRT_SURFACE
-        w = wo;                     /* the OCV at the mean SOC, located above */
-        inv = invo;
-#else
-        unsigned ko = ECMRT_HINT_OCV(s);
-        w = ECMRT_F32_OCV_LOCATE(&m->ocv_g, soc, &ko);
-        inv = ECMRT_EST_OCV_INV(&m->ocv_g, ko, soc);
-#endif
-#if ECMRT_TEMP
-        if (ko == (unsigned)s->oc_key) {
-            row = s->oc;
-        } else {
-            ecmrt_f32_segment(m->ocv + 2u * ((unsigned)m->ocv_g.n * kt + ko), 2u, 2u, wt, pc);
-            row = pc;
-        }
-#else
-        row = m->ocv + 2u * ko;
-#endif
-        ECMRT_EST_VS(row, 0u, p->ocv, p->docv);
-    }
-#endif
-}
-#undef socr
-
+#include "ecmrt_est_f32_tables.h"   /* the table accessor */
 
 /* Before the model's step: i and dt sanitised exactly as the step does (so that the filter
  * uses the step's own inputs; the step's sanitising is then a no-op), the RC voltages kept. */
@@ -355,41 +195,58 @@ static inline float ecmrt_est_f32_clamp_h(float h)
 }
 #endif
 
-#if ECMRT_FX_CDR || ECMRT_FX_ARR
-/* a parameter effect's factor g on the accessor's r0 (and r_fast with fast, r_slow with
- * slow) and their SOC slopes */
-static inline void ecmrt_est_f32_scale(ecmrt_est_f32_par_t *p, float g, int fast, int slow)
-{
-    p->r0 = p->r0 * g;
-    p->dr0 = p->dr0 * g;
-    if (fast) {
-        p->rf = p->rf * g;
-        p->drf = p->drf * g;
-    }
-    if (slow) {
-        p->rs = p->rs * g;
-        p->drs = p->drs * g;
-    }
-}
-
-/* the parameter effects' factors, in the step's order: current_dependent_resistance g on
- * r0, r_fast; temperature_dependence f on r0, r_fast, r_slow; all = 0: r0 only */
-static inline void ecmrt_est_f32_fx(ecmrt_est_f32_par_t *p, float g, float f, int all)
-{
-#if ECMRT_FX_CDR
-    ecmrt_est_f32_scale(p, g, all, 0);
-#endif
-#if ECMRT_FX_ARR
-    ecmrt_est_f32_scale(p, f, all, all);
-#endif
-    (void)g;
-    (void)f;
-}
-#endif
-
 static inline float ecmrt_est_f32_abs(float x)
 {
     return x < 0.0f ? -x : x;
+}
+
+/* The covariance update in Joseph form: M = P - K c^T, d = M h, P = M - d K^T + R K K^T,
+ * symmetrised; written to P, and 1 returned, only when it and the updated state xu are
+ * finite (M, then the new P before symmetrising, in fp) */
+static inline int ecmrt_est_f32_joseph(float *P, const float *k, const float *c,
+                                       const float *h, float r, const float *xu)
+{
+    float fp[ECMRT_EST_N * ECMRT_EST_N];
+    ecmrt_est_f32_vec_t d;
+    unsigned u, v;
+    float e;
+    ECMRT_EST_UNROLL
+    for (u = 0u; u < ECMRT_EST_N; u++) {
+        ECMRT_EST_UNROLL
+        for (v = 0u; v < ECMRT_EST_N; v++) {
+            fp[ECMRT_EST_N * u + v] = P[ECMRT_EST_N * u + v] - k[u] * c[v];
+        }
+        d[u] = ecmrt_est_f32_dot(fp + ECMRT_EST_N * u, h);
+    }
+    e = 0.0f;                          /* x * 0 is 0 for a finite x, NaN for inf or NaN */
+    ECMRT_EST_UNROLL
+    for (u = 0u; u < ECMRT_EST_N; u++) {
+        ECMRT_EST_UNROLL
+        for (v = 0u; v < ECMRT_EST_N; v++) {
+            e = (fp[ECMRT_EST_N * u + v] - d[u] * k[v]) + r * (k[u] * k[v]);
+            fp[ECMRT_EST_N * u + v] = e;
+        }
+    }
+    e = 0.0f;
+    for (u = 0u; u < ECMRT_EST_N * ECMRT_EST_N; u++) {
+        e = e + fp[u] * 0.0f;
+    }
+    for (u = 0u; u < ECMRT_EST_N; u++) {
+        e = e + xu[u] * 0.0f;
+    }
+    if (!(e == 0.0f)) {
+        return 0;
+    }
+    ECMRT_EST_UNROLL
+    for (u = 0u; u < ECMRT_EST_N; u++) {
+        ECMRT_EST_UNROLL
+        for (v = u; v < ECMRT_EST_N; v++) {
+            e = 0.5f * (fp[ECMRT_EST_N * u + v] + fp[ECMRT_EST_N * v + u]);
+            P[ECMRT_EST_N * u + v] = e;
+            P[ECMRT_EST_N * v + u] = e;
+        }
+    }
+    return 1;
 }
 
 /* After the model's step s (current i, dt as sanitised by ecmrt_est_f32_prior, the cell
@@ -402,9 +259,9 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
                                         const ecmrt_est_f32_prior_t *pr, float i, float temp,
                                         float dt, float vp, float vm, float *ob)
 {
-#define N ECMRT_EST_N
     const unsigned dir = s->charging;
-    float a[N], f[N], q[N], h[N], x0[N], xu[N], xn[N], c[N], k[N], d[N], fp[N * N];
+    ecmrt_est_f32_vec_t a, f, q, h, x0, xu, xn, c, k;
+    float fp[ECMRT_EST_N * ECMRT_EST_N];
     const float ai = i < 0.0f ? -i : i;
     float r, e, kk, b, one_a, da, rg, vi;
     float gf = 1.0f;
@@ -418,6 +275,7 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     const float *br;
 #else
     const float *br = m->dir[dir].branch;
+    const float wt = 0.0f;          /* one row: no weight */
 #endif
 #endif
 #if ECMRT_BV
@@ -439,11 +297,11 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 #if ECMRT_EST_OFFSET
     /* the offset column o of F (d x' / d offset: the filter's current is i_seen - offset),
      * the resistances before the current's factors, d(i g)/di of those factors */
-    float o[N], ds_di, rb0, rbf, dg0 = 1.0f, dgf = 1.0f;
+    float o[ECMRT_EST_N], ds_di, rb0, rbf, dg0 = 1.0f, dgf = 1.0f;
 #endif
 #if ECMRT_SURFACE
     /* the u_diff column g of F (d x' / d u_diff through the surface SOC, besides a_diff) */
-    float g[N];
+    float g[ECMRT_EST_N];
 #endif
 #if !ECMRT_FX_ARR
     (void)temp;
@@ -476,7 +334,7 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 #endif
 #if ECMRT_SURFACE
     p.up = pr->u[3];
-    for (u = 0u; u < N; u++) {
+    for (u = 0u; u < ECMRT_EST_N; u++) {
         g[u] = 0.0f;
     }
 #endif
@@ -508,7 +366,7 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     ecmrt_est_f32_fx(&p, gc, fa, 1);
 #endif
 #if ECMRT_BV
-    xb = ai / ECMRT_EST_TV(br, ECMRT_B_I0);           /* the step's factor asinh(x)/x */
+    xb = ai / ecmrt_est_f32_tv(br, ECMRT_B_I0, wt);           /* the step's factor asinh(x)/x */
     gf = ecmrt_f32_asinh(&xb);
     gf = gf / xb;
 #if ECMRT_EST_OFFSET && ECMRT_FX_CDR
@@ -561,11 +419,11 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     e = (nz->pol * p.rs) * i;
     q[2] = (e * e) * (1.0f - a[2] * a[2]);
 #if ECMRT_DIFF
-    rd = ECMRT_EST_TV(br, ECMRT_B_RD);                /* r_diff, tau_diff: no SOC slope */
+    rd = ecmrt_est_f32_tv(br, ECMRT_B_RD, wt);        /* r_diff, tau_diff: no SOC slope */
 #if ECMRT_TAU_T
     one_a = ecmrt_f32_one_minus_exp_neg(dt * ECMRT_KC(s, dir, ECMRT_K_D));
 #else
-    one_a = ecmrt_f32_one_minus_exp_neg(dt / ECMRT_EST_TV(br, ECMRT_B_KD));
+    one_a = ecmrt_f32_one_minus_exp_neg(dt / ecmrt_est_f32_tv(br, ECMRT_B_KD, wt));
 #endif
     ad = 1.0f - one_a;
     a[3] = ad;
@@ -620,7 +478,7 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
         r = nz->noise_a * kk;
         q[0] = (e * e) * (dt * nz->horizon_s) + r * r;
     } else {
-        for (u = 0u; u < N; u++) {
+        for (u = 0u; u < ECMRT_EST_N; u++) {
             q[u] = 0.0f;
         }
     }
@@ -642,34 +500,34 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     }
     /* 2. P = F P F^T + Q (F: diagonal a, SOC column f, offset column o) */
     ECMRT_EST_UNROLL
-    for (u = 0u; u < N; u++) {
+    for (u = 0u; u < ECMRT_EST_N; u++) {
         ECMRT_EST_UNROLL
-        for (v = 0u; v < N; v++) {
-            fp[N * u + v] = a[u] * P[N * u + v] + f[u] * P[v];
+        for (v = 0u; v < ECMRT_EST_N; v++) {
+            fp[ECMRT_EST_N * u + v] = a[u] * P[ECMRT_EST_N * u + v] + f[u] * P[v];
 #if ECMRT_EST_OFFSET
-            fp[N * u + v] = fp[N * u + v] + o[u] * P[N * ECMRT_EST_IB + v];
+            fp[ECMRT_EST_N * u + v] = fp[ECMRT_EST_N * u + v] + o[u] * P[ECMRT_EST_N * ECMRT_EST_IB + v];
 #endif
 #if ECMRT_SURFACE
-            fp[N * u + v] = fp[N * u + v] + g[u] * P[N * 3u + v];
+            fp[ECMRT_EST_N * u + v] = fp[ECMRT_EST_N * u + v] + g[u] * P[ECMRT_EST_N * 3u + v];
 #endif
         }
     }
     ECMRT_EST_UNROLL
-    for (u = 0u; u < N; u++) {
+    for (u = 0u; u < ECMRT_EST_N; u++) {
         ECMRT_EST_UNROLL
-        for (v = u; v < N; v++) {
-            r = a[v] * fp[N * u + v] + f[v] * fp[N * u];
+        for (v = u; v < ECMRT_EST_N; v++) {
+            r = a[v] * fp[ECMRT_EST_N * u + v] + f[v] * fp[ECMRT_EST_N * u];
 #if ECMRT_EST_OFFSET
-            r = r + o[v] * fp[N * u + ECMRT_EST_IB];
+            r = r + o[v] * fp[ECMRT_EST_N * u + ECMRT_EST_IB];
 #endif
 #if ECMRT_SURFACE
-            r = r + g[v] * fp[N * u + 3u];
+            r = r + g[v] * fp[ECMRT_EST_N * u + 3u];
 #endif
             if (u == v) {
                 r = r + q[u];
             }
-            P[N * u + v] = r;
-            P[N * v + u] = r;
+            P[ECMRT_EST_N * u + v] = r;
+            P[ECMRT_EST_N * v + u] = r;
         }
     }
     /* 3. the measurement: h = dv/dx, R */
@@ -678,7 +536,7 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 #else
     h[0] = p.docv + p.dr0 * i;
 #endif
-    for (u = 1u; u < N; u++) {
+    for (u = 1u; u < ECMRT_EST_N; u++) {
         h[u] = 1.0f;
     }
 #if ECMRT_FX_HYST
@@ -738,13 +596,13 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
             h[0] = p.docv + p.dr0 * i;
 #endif
             e = vm - vi;
-            for (u = 0u; u < N; u++) {
+            for (u = 0u; u < ECMRT_EST_N; u++) {
                 e = e - h[u] * (x0[u] - xu[u]);
             }
             ok = ecmrt_est_f32_gain(P, h, r, x0, e, c, k, xn);
             if (ok) {
                 da = ecmrt_est_f32_abs(xn[0] - xu[0]);
-                for (u = 0u; u < N; u++) {
+                for (u = 0u; u < ECMRT_EST_N; u++) {
                     xu[u] = xn[u];
                 }
                 if (da < ECMRT_EST_ITER_TOL) {
@@ -752,39 +610,10 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
                 }
             }
         }
-        if (ok) {
-            /* Joseph form: M = P - K c^T, d = M h, P = M - d K^T + R K K^T, symmetrised
-             * (M, then the new P before symmetrising, in fp) */
-            ECMRT_EST_UNROLL
-            for (u = 0u; u < N; u++) {
-                ECMRT_EST_UNROLL
-                for (v = 0u; v < N; v++) {
-                    fp[N * u + v] = P[N * u + v] - k[u] * c[v];
-                }
-                d[u] = ecmrt_est_f32_dot(fp + N * u, h);
-            }
-            e = 0.0f;                  /* x * 0 is 0 for a finite x, NaN for inf or NaN */
-            ECMRT_EST_UNROLL
-            for (u = 0u; u < N; u++) {
-                ECMRT_EST_UNROLL
-                for (v = 0u; v < N; v++) {
-                    fp[N * u + v] = (fp[N * u + v] - d[u] * k[v]) + r * (k[u] * k[v]);
-                    e = e + fp[N * u + v] * 0.0f;
-                }
-                e = e + xu[u] * 0.0f;
-            }
-            ok = e == 0.0f;
-        }
         if (ok) {                      /* applied only when all of it is finite */
-            ECMRT_EST_UNROLL
-            for (u = 0u; u < N; u++) {
-                ECMRT_EST_UNROLL
-                for (v = u; v < N; v++) {
-                    e = 0.5f * (fp[N * u + v] + fp[N * v + u]);
-                    P[N * u + v] = e;
-                    P[N * v + u] = e;
-                }
-            }
+            ok = ecmrt_est_f32_joseph(P, k, c, h, r, xu);
+        }
+        if (ok) {
             s->u_fast = xu[1];
             s->u_slow = xu[2];
 #if ECMRT_DIFF
@@ -804,9 +633,6 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     }
     s->soc = ecmrt_est_f32_clamp(x0[0]);
     s->soc_c = 0.0f;          /* the filter's SOC is its estimate, not a compensated sum */
-#undef N
 }
 
-#undef ECMRT_EST_VS
-#undef ECMRT_EST_TV
 #endif /* ECMRT_EST_F32_H */

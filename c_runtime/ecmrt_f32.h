@@ -3,35 +3,9 @@
  * ecmrt_f32.h - ecmgen C runtime, numeric = "float" (IEEE-754 binary32): the one step of
  * every model, with compile-time switches for what the model has.
  *
- * Included once by a generated <prefix>_ecm.c after it defines (each switch 0 or 1)
- *     ECMRT_STATE         the model's state type (<prefix>_state_t of <prefix>_ecm.h)
- *     ECMRT_VARIABLE_DT   1: step(state, i, T, dt), coefficients 1 - exp(-dt/tau) at run time
- *                         0: step(state, i, T), D = 1/(1 - exp(-dt/tau)) precomputed for the
- *                            build's dt and interpolated; the step divides by D
- *     ECMRT_TEMP          1: tables over (temperature, SOC), one temperature grid m->t for all
- *                            of them (state k_t); 0: one row, the temperature is not looked up
- *     ECMRT_OCV_SHARED    1: the OCV is on the SOC grid of both directions' tables and takes
- *                            their segment and weight (no search of its own, no state k_ocv)
- *     ECMRT_RC_UNIFORM    1: both directions' SOC grids are uniform: O(1) lookup, no search
- *                            and no state k_dir
- *     ECMRT_OCV_UNIFORM   1: the OCV's own SOC grid is uniform (likewise, no state k_ocv)
- *     ECMRT_TAU_T         1: every time constant depends on the temperature only (constant
- *                            along SOC): one value per temperature row (table tk), and the
- *                            step's coefficients (1/tau, or 1/D at fixed dt) kept in the state
- *                            (kc) with the temperature they belong to
- *     ECMRT_TAU_SAME      1 (with ECMRT_TAU_T): both directions have the same time constants:
- *                            one set of coefficients (kc[0])
- *     ECMRT_DIFF          diffusion RC pair (state u_diff), r_diff and tau_diff per temperature
- *     ECMRT_BV            Butler-Volmer fast branch: r_fast times asinh(x)/x, x = |i| / i0(T)
- *     ECMRT_FX_HYST       effect hysteresis (state h)
- *     ECMRT_FX_XRC        effect extra_rc (state u_x)
- *     ECMRT_FX_CDR        effect current_dependent_resistance
- *     ECMRT_FX_ARR        effect temperature_dependence (Arrhenius factor on r0, r_fast, r_slow)
- *     ECMRT_SURFACE       (optional, default 0; with ECMRT_DIFF, not ECMRT_OCV_SHARED) the
- *                            surface SOC: the RC tables are read at clamp(soc + sv u_diff, 0, 1),
- *                            sv = lam / max(dOCV/dSOC, 0.3 V) on the OCV's grid at (soc, T)
- * (capacity_error needs no code: the generator folds it into k_soc.) A plain model (all
- * switches 0) compiles to the 2RC step alone. All functions are static inline: no external
+ * Included once by a generated <prefix>_ecm_f32_config.h after it defines ECMRT_STATE and
+ * the switches of ecmrt_config.h (the one list, with what each means).
+ * A plain model compiles to the 2RC step alone. All functions are static inline: no external
  * symbols, so several models link together.
  *
  * Bit-for-bit reproducibility (host == Cortex-M4F == ecmgen.c.cref.simulate_f32) rests on:
@@ -49,21 +23,9 @@
 #if ECMRT_VERSION != 3
 #error "ecmrt_f32.h does not match ecmrt.h"
 #endif
-#if !defined(ECMRT_STATE) || !defined(ECMRT_VARIABLE_DT) || !defined(ECMRT_TEMP) || \
-    !defined(ECMRT_OCV_SHARED) || !defined(ECMRT_TAU_T) || !defined(ECMRT_TAU_SAME) || \
-    !defined(ECMRT_RC_UNIFORM) || !defined(ECMRT_OCV_UNIFORM) || \
-    !defined(ECMRT_DIFF) || !defined(ECMRT_BV) || !defined(ECMRT_FX_HYST) || \
-    !defined(ECMRT_FX_XRC) || !defined(ECMRT_FX_CDR) || !defined(ECMRT_FX_ARR)
-#error "ecmrt_f32.h needs the ECMRT_* configuration macros of a generated <prefix>_ecm.c"
-#endif
-#include "ecmrt_state.h"    /* the state at init, the hints */
+#include "ecmrt_config.h"  /* the switches */
+#include "ecmrt_state.h"   /* the state at init, the hints */
 
-#ifndef ECMRT_SURFACE
-#define ECMRT_SURFACE 0
-#endif
-#if ECMRT_SURFACE && (!ECMRT_DIFF || ECMRT_OCV_SHARED)
-#error "ECMRT_SURFACE needs ECMRT_DIFF and the OCV's own grid"
-#endif
 #if defined(__FAST_MATH__) && !defined(ECMRT_ALLOW_FAST_MATH)
 #error "-ffast-math reorders and contracts float arithmetic: the step is no longer bit-exact (build without it and with -ffp-contract=off, or define ECMRT_ALLOW_FAST_MATH)"
 #endif

@@ -4,10 +4,8 @@
  * no floating point and no 64-bit division anywhere; the one step of every model, with
  * compile-time switches for what the model has.
  *
- * Included once by a generated <prefix>_ecm.c after it defines (value = raw / 2^Q)
- *     ECMRT_STATE, ECMRT_VARIABLE_DT, ECMRT_TEMP, ECMRT_OCV_SHARED, ECMRT_RC_UNIFORM,
- *     ECMRT_OCV_UNIFORM, ECMRT_TAU_T, ECMRT_TAU_SAME, ECMRT_DIFF, ECMRT_BV, ECMRT_FX_HYST,
- *     ECMRT_FX_XRC, ECMRT_FX_CDR, ECMRT_FX_ARR   as for ecmrt_f32.h, and
+ * Included once by a generated <prefix>_ecm_q_config.h after it defines ECMRT_STATE, the
+ * switches of ecmrt_config.h and the formats (value = raw / 2^Q)
  *     ECMRT_Q_I           current, A
  *     ECMRT_Q_V           voltages: OCV table, RC voltages, output
  *     ECMRT_Q_G           inverse SOC breakpoint spacings inv_dx (w = (soc - x[k]) inv_dx >> Q_G)
@@ -27,8 +25,7 @@
  *   extra_rc:         ECMRT_FX_SH_XR
  *   current_dependent_resistance: ECMRT_FX_SH_GX, ECMRT_FX_CDR_QX, ECMRT_FX_CDR_QG
  *   temperature_dependence: ECMRT_FX_ARR_QB, ECMRT_FX_ARR_QF
- *   ECMRT_SURFACE     (optional, default 0; with ECMRT_DIFF, not ECMRT_OCV_SHARED) the surface
- *                     SOC as in ecmrt_f32.h, with ECMRT_Q_SV: the table sv = lam /
+ *   with ECMRT_SURFACE: ECMRT_Q_SV, the table sv = lam /
  *                     max(dOCV/dSOC, 0.3 V) in Q_SV 1/V (chosen by the generator from its
  *                     largest value, lam / 0.3 V at most; Q_SV + Q_V - 30 >= 1)
  * Fixed by the runtime: SOC, breakpoints and interpolation weights Q30; dt Q16 (variable dt);
@@ -50,24 +47,16 @@
 #if ECMRT_VERSION != 3
 #error "ecmrt_q.h does not match ecmrt.h"
 #endif
-#if !defined(ECMRT_STATE) || !defined(ECMRT_VARIABLE_DT) || !defined(ECMRT_TEMP) || \
-    !defined(ECMRT_OCV_SHARED) || !defined(ECMRT_TAU_T) || !defined(ECMRT_TAU_SAME) || \
-    !defined(ECMRT_RC_UNIFORM) || !defined(ECMRT_OCV_UNIFORM) || \
-    !defined(ECMRT_DIFF) || !defined(ECMRT_BV) || !defined(ECMRT_FX_HYST) || \
-    !defined(ECMRT_FX_XRC) || !defined(ECMRT_FX_CDR) || !defined(ECMRT_FX_ARR) || \
-    !defined(ECMRT_Q_I) || !defined(ECMRT_Q_V) || !defined(ECMRT_Q_G) || !defined(ECMRT_Q_R0) || \
+#include "ecmrt_config.h"  /* the switches */
+#if !defined(ECMRT_Q_I) || !defined(ECMRT_Q_V) || !defined(ECMRT_Q_G) || !defined(ECMRT_Q_R0) || \
     !defined(ECMRT_Q_RF) || !defined(ECMRT_Q_RS) || !defined(ECMRT_SH_DSOC)
-#error "ecmrt_q.h needs the ECMRT_* configuration macros of a generated <prefix>_ecm.c"
+#error "ecmrt_q.h needs the formats of a generated <prefix>_ecm_q_config.h"
+#endif
+#if ECMRT_SURFACE && !defined(ECMRT_Q_SV)
+#error "ECMRT_SURFACE needs ECMRT_Q_SV"
 #endif
 
 #include "ecmrt_state.h"    /* the state at init, the hints */
-
-#ifndef ECMRT_SURFACE
-#define ECMRT_SURFACE 0
-#endif
-#if ECMRT_SURFACE && (!ECMRT_DIFF || ECMRT_OCV_SHARED || !defined(ECMRT_Q_SV))
-#error "ECMRT_SURFACE needs ECMRT_DIFF, the OCV's own grid and ECMRT_Q_SV"
-#endif
 
 /* compile-time checks: arithmetic right shift, two's complement int64 */
 typedef char ecmrt_q_check_asr[((((int32_t)-1) >> 1) == -1 && (((int64_t)-8) >> 2) == -2) ? 1 : -1];

@@ -3,18 +3,14 @@
  * ecmrt_state.h - ecmgen C runtime: what both numerics do with the model's state, the
  * state at init and the direction and segment hints at the end of a step (hand-written,
  * model-independent). Included by ecmrt_f32.h and ecmrt_q.h once a generated
- * <prefix>_ecm_<s>.c has defined its configuration (ECMRT_STATE and the switches).
+ * <prefix>_ecm_<s>_config.h has defined ECMRT_STATE and the switches (ecmrt_config.h).
  */
 #ifndef ECMRT_STATE_H
 #define ECMRT_STATE_H
 
 #include "ecmrt.h"
 
-#if !defined(ECMRT_STATE) || !defined(ECMRT_RC_UNIFORM) || !defined(ECMRT_OCV_SHARED) || \
-    !defined(ECMRT_OCV_UNIFORM) || !defined(ECMRT_TEMP) || !defined(ECMRT_DIFF) || \
-    !defined(ECMRT_FX_XRC)
-#error "ecmrt_state.h needs the ECMRT_* configuration macros of a generated <prefix>_ecm_<s>.c"
-#endif
+#include "ecmrt_config.h"  /* the switches */
 
 /* the hints of the searched grids (0 where there is none: a uniform grid is not searched) */
 #if ECMRT_RC_UNIFORM

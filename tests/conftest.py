@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
+C_DIR = REPO / "tests" / "c"      # the tests' C programs (lintable C, not strings)
 SHARED_DATA = REPO.parent / "shared" / "data"
 PANASONIC = SHARED_DATA / "panasonic-18650pf-25degC"
 CALCE = SHARED_DATA / "calce-a123-lfp"

@@ -20,6 +20,7 @@ from ecmgen.c.codegen import (c_float, describe, file_names, generate_c, prepare
                               runtime_dir)
 from ecmgen.c.names import c_names
 from ecmgen.errors import InputError
+from conftest import C_DIR
 from test_codegen_helpers import realistic_model
 
 VARIANTS = [("float", None), ("float", 0.1), ("fixed", None), ("fixed", 0.1)]
@@ -37,10 +38,10 @@ def test_files_banner_and_byte_identical(tmp_path, synthetic_model, numeric, dt_
     a = generate_c(synthetic_model, tmp_path / "a", prefix="cell", numeric=numeric, dt_s=dt_s)
     b = generate_c(synthetic_model, tmp_path / "b", prefix="cell", numeric=numeric, dt_s=dt_s)
     names = sorted(p.name for p in a)
-    rt = ["ecmrt_state.h"] + (["ecmrt_f32.h"] if numeric == "float" else ["ecmrt_q_exp.h", "ecmrt_q.h"])
+    rt = ["ecmrt_config.h", "ecmrt_state.h"] + (["ecmrt_f32.h"] if numeric == "float" else ["ecmrt_q_exp.h", "ecmrt_q.h"])
     nm = file_names("cell", numeric)
-    assert names == sorted([nm["header"], nm["source"], "ecmrt.h", *rt, nm["filelist"],
-                            nm["report"]])
+    assert names == sorted([nm["header"], nm["source"], nm["config"], "ecmrt.h", *rt,
+                            nm["filelist"], nm["report"]])
     for pa, pb in zip(a, b):
         assert pa.read_bytes() == pb.read_bytes(), pa.name
     # regenerating into the same folder leaves the files alone
@@ -54,7 +55,7 @@ def test_files_banner_and_byte_identical(tmp_path, synthetic_model, numeric, dt_
     else:
         assert f"Time step: fixed, dt = {dt_s} s - D = 1/(1 - exp(-dt/tau))" in header
     sha = synthetic_model.sha256()
-    for name in (nm["header"], nm["source"]):
+    for name in (nm["header"], nm["source"], nm["config"]):
         text = (tmp_path / "a" / name).read_text()
         assert f"ecmgen {__version__}" in text and sha in text
         assert text.isascii()
@@ -120,43 +121,22 @@ def test_symbols_prefixed_and_no_mutable_globals(tmp_path, synthetic_model, nume
     out = subprocess.run(["nm", obj], capture_output=True, text=True, check=True).stdout
     syms = [line.split() for line in out.splitlines() if line.strip()]
     defined_global = [s[-1] for s in syms if len(s) == 3 and s[1].isupper()]
-    assert sorted(defined_global) == sorted([nm["init"], nm["run"], nm["step"]])
+    # the API and the tables (const, read by the estimator's .c)
+    assert sorted(defined_global) == sorted([nm["init"], nm["run"], nm["step"], nm["tables"]])
     undefined = [s[-1] for s in syms if s[0] == "U"]
     assert undefined == []                          # no libc, no libm, no malloc
     writable = [s for s in syms if len(s) == 3 and s[1] in "bBdDcC"]
     assert writable == [], "mutable globals found"
 
 
-TWO_MODEL_MAIN = r"""
-#include <stdio.h>
-#include "cellA_ecm_f32.h"
-#include "cellB_ecm_q.h"
-int main(void)
-{
-    cellA_state_f32_t a;
-    cellB_state_q_t b;
-    float va = 0.0f;
-    int32_t vb = 0;
-    int k;
-    cellA_init_f32(&a, 0.8f);
-    cellB_init_q(&b, (int32_t)(0.8 * 1073741824.0));
-    for (k = 0; k < 100; k++) {
-        va = cellA_step_f32(&a, -2.0f, 25.0f, 0.1f);
-        vb = cellB_step_q(&b, (int32_t)(-2.0 * (double)(1L << CELLB_ECM_Q_I)), 25 << CELLB_ECM_Q_TEMP);
-    }
-    printf("%.6f %.6f\n", (double)va, (double)vb / (double)(1L << CELLB_ECM_Q_V));
-    return 0;
-}
-"""
 
 
 def test_two_models_link_into_one_program(tmp_path, synthetic_model):
     generate_c(synthetic_model, tmp_path, prefix="cellA", numeric="float")
     generate_c(synthetic_model, tmp_path, prefix="cellB", numeric="fixed", dt_s=0.1)
-    (tmp_path / "main.c").write_text(TWO_MODEL_MAIN)
     exe = tmp_path / "two"
     _cc([*STRICT_CFLAGS, "-O2", "-I", tmp_path, tmp_path / "cellA_ecm_f32.c", tmp_path / "cellB_ecm_q.c",
-         tmp_path / "main.c", "-o", exe])
+         C_DIR / "two_models_main.c", "-o", exe])
     out = subprocess.run([exe], capture_output=True, text=True, check=True).stdout.split()
     va, vb = float(out[0]), float(out[1])
     assert 3.0 < va < 4.3 and 3.0 < vb < 4.3 and abs(va - vb) < 0.01
@@ -255,7 +235,8 @@ def test_make_file_list(tmp_path, synthetic_model):
     out = subprocess.run(["make", "-s", "show"], cwd=tmp_path, capture_output=True, text=True,
                          check=True).stdout.split("\n")
     assert out[0] == "gen/bms_ecm_q.c"
-    assert out[1].split() == ["gen/bms_ecm_q.h", "gen/ecmrt.h", "gen/ecmrt_state.h", "gen/ecmrt_q_exp.h",
+    assert out[1].split() == ["gen/bms_ecm_q.h", "gen/bms_ecm_q_config.h", "gen/ecmrt.h",
+                              "gen/ecmrt_config.h", "gen/ecmrt_state.h", "gen/ecmrt_q_exp.h",
                               "gen/ecmrt_q.h"]
     assert out[2] == "gen"
     for p in [*out[0].split(), *out[1].split()]:
@@ -271,7 +252,7 @@ def test_report(tmp_path, synthetic_model):
 def test_generate_from_path(tmp_path, synthetic_model):
     path = synthetic_model.save(tmp_path / "model.json")
     files = generate_c(path, tmp_path / "out", numeric="float")
-    assert (tmp_path / "out" / "ecm_ecm_f32.c").exists() and len(files) == 7
+    assert (tmp_path / "out" / "ecm_ecm_f32.c").exists() and len(files) == 9
 
 
 # --- refusal ----------------------------------------------------------------------------

@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 
 from ecmgen.c import cbuild, cref
-from ecmgen.c.codegen import prepare, runtime_dir
+from ecmgen.c.codegen import prepare
+from ecmgen.c.runtime import runtime_dir, switches
+from conftest import C_DIR
 from test_codegen_helpers import (CYCLES, assert_fields_equal, check_c_equivalence, cycle,
                                   panasonic_model, soc0_of)
 
@@ -62,65 +64,6 @@ def test_starting_direction_and_deadband(synthetic_model):
 
 # --- the hand-written runtime's exp, unit-tested directly --------------------------------
 
-EXP_HARNESS = r"""
-typedef struct { float soc, soc_c, u_fast, u_slow; unsigned char charging, k_ocv, k_dir[2]; } fstate_t;
-#define ECMRT_STATE fstate_t
-#define ECMRT_VARIABLE_DT 1
-#define ECMRT_TEMP 0
-#define ECMRT_OCV_SHARED 0
-#define ECMRT_RC_UNIFORM 0
-#define ECMRT_OCV_UNIFORM 0
-#define ECMRT_TAU_T 0
-#define ECMRT_TAU_SAME 0
-#define ECMRT_DIFF 0
-#define ECMRT_BV 0
-#define ECMRT_FX_HYST 0
-#define ECMRT_FX_XRC 0
-#define ECMRT_FX_CDR 0
-#define ECMRT_FX_ARR 0
-#include "ecmrt_f32.h"
-#undef ECMRT_STATE
-#undef ECMRT_NPAR
-#undef ECMRT_P_RF
-#undef ECMRT_P_KF
-#undef ECMRT_P_RS
-#undef ECMRT_P_KS
-#undef ECMRT_P_OCV
-#undef ECMRT_B_KD
-typedef struct { long long soc_rem; int soc, u_fast, u_slow; unsigned char charging, k_ocv, k_dir[2]; } qstate_t;
-#define ECMRT_STATE qstate_t
-#define ECMRT_Q_I 24
-#define ECMRT_Q_V 27
-#define ECMRT_Q_G 27
-#define ECMRT_Q_R0 36
-#define ECMRT_Q_RF 36
-#define ECMRT_Q_RS 36
-#define ECMRT_Q_T 21
-#define ECMRT_SH_RATE 31
-#define ECMRT_SH_DSOC 23
-#include "ecmrt_q.h"
-void t_f32(const float *x, float *out, size_t n)
-{
-    size_t k;
-    for (k = 0; k < n; k++) out[k] = ecmrt_f32_one_minus_exp_neg(x[k]);
-}
-void t_q(const int32_t *dt, const int32_t *tau, int32_t *out, size_t n)
-{
-    size_t k;
-    for (k = 0; k < n; k++) out[k] = ecmrt_q_c_dt_tau(dt[k], tau[k]);
-}
-void t_recip(const uint32_t *d, uint32_t *r, uint32_t *sh, size_t n)
-{
-    size_t k;
-    unsigned s;
-    for (k = 0; k < n; k++) {
-        r[k] = ecmrt_q_recip(d[k], &s);
-        sh[k] = s;
-    }
-}
-"""
-
-
 @pytest.fixture(scope="module")
 def exp_lib(tmp_path_factory):
     import cffi
@@ -130,8 +73,13 @@ def exp_lib(tmp_path_factory):
     ffi.cdef("void t_f32(const float *x, float *out, size_t n);"
              "void t_q(const int32_t *dt, const int32_t *tau, int32_t *out, size_t n);"
              "void t_recip(const uint32_t *d, uint32_t *r, uint32_t *sh, size_t n);")
-    ffi.set_source("_ecmgen_exp_test", EXP_HARNESS, include_dirs=[str(runtime_dir())],
-                   extra_compile_args=["-std=c99", "-O2", "-ffp-contract=off"])
+    plain = [f"-DECMRT_{k}={int(k == 'VARIABLE_DT')}" for k in switches()]
+    objs = []
+    for name in ("runtime_math_f32", "runtime_math_q"):
+        objs.append(str(d / f"{name}.o"))
+        cbuild.run_cc([*cbuild.host_cc(), *cbuild.STRICT_CFLAGS, "-O2", "-fPIC", *plain, "-I",
+                       str(runtime_dir()), "-c", str(C_DIR / f"{name}.c"), "-o", objs[-1]])
+    ffi.set_source("_ecmgen_exp_test", "", extra_objects=objs)
     so = ffi.compile(tmpdir=str(d))
     return cbuild._load("_ecmgen_exp_test", so)
 

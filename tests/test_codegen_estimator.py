@@ -100,16 +100,17 @@ def test_generated_files_deterministic_and_absent_by_default(model, tmp_path):
     b = generate_c(model, tmp_path / "b", estimator=EstimatorConfig())
     names = sorted(p.name for p in a)
     assert names == sorted(p.name for p in b)
-    assert "ecm_est_f32.h" in names and "ecmrt_est_f32.h" in names
+    assert {"ecm_est_f32.h", "ecm_est_f32.c", "ecmrt_est_f32.h"} <= set(names)
     for p in a:
         assert p.read_bytes() == (tmp_path / "b" / p.name).read_bytes()
-    src = (tmp_path / "a" / "ecm_ecm_f32.c").read_text()
+    src = (tmp_path / "a" / "ecm_est_f32.c").read_text()
     assert "void ecm_est_init_f32(ecm_est_f32_t *e, float soc0)" in src
+    assert "_est_" not in (tmp_path / "a" / "ecm_ecm_f32.c").read_text()  # in its own files
     assert ".model_error = 0.189999998f" in src          # the settings, baked in
     plain = render(prepare(model, "float", None, "ecm"))
     assert "est" not in "".join(plain) and "_est_" not in plain["ecm_ecm_f32.c"]
     mk = (tmp_path / "a" / "ecm_ecm_f32_files.mk").read_text()
-    assert "ecm_est_f32.h" in mk and "ecmrt_est_f32.h" in mk
+    assert "ecm_est_f32.h" in mk and "ecm_est_f32.c" in mk and "ecmrt_est_f32.h" in mk
 
 
 def test_strict_flags_at_every_optimisation_level_give_the_same_bits(model):
@@ -124,6 +125,22 @@ def test_strict_flags_at_every_optimisation_level_give_the_same_bits(model):
     assert bits_equal(runs[0], runs[1]) and bits_equal(runs[0], runs[2])
     ref = simulate_estimator_f32(spec, est, i, dt, v, 0.9, temp)
     assert bits_equal(runs[0], ref), _first_difference(runs[0], ref)
+
+
+def test_first_call_takes_any_dt(model):
+    """est_init is the state at the first sample: the first call's dt is not used, so a
+    loop that passes its nominal period from the start gets the filter of dt = 0 there."""
+    spec = prepare(model, "float", None, "bms")
+    est = prepare_estimator(model, spec, EstimatorConfig(start_polarization_c=0.5))
+    t, i, temp = drive_profile(300, seed=5)
+    v = simulate(model, t, i, 0.6, temp).voltage_v
+    dt = cref.dt_from_time(t)
+    cm = compile_spec(spec, estimator=est)
+    runs = [run_estimator_c(cm, i, np.concatenate([[d0], dt[1:]]), v, 0.8, temp)
+            for d0 in (0.0, 1.0, 3600.0)]
+    assert bits_equal(runs[0], runs[1]) and bits_equal(runs[0], runs[2])
+    ref = simulate_estimator_f32(spec, est, i, np.concatenate([[1.0], dt[1:]]), v, 0.8, temp)
+    assert bits_equal(runs[1], ref)
 
 
 @pytest.mark.parametrize("case, needle", [
@@ -145,7 +162,7 @@ def test_cli_codegen_estimator(tmp_path):
                           str(out), "--estimator", "ekf", "--prefix", "cell"],
                          capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
-    assert (out / "cell_est_f32.h").is_file() and "cell_est_step_f32" in (out / "cell_ecm_f32.c").read_text()
+    assert (out / "cell_est_f32.h").is_file() and "cell_est_step_f32" in (out / "cell_est_f32.c").read_text()
     res = subprocess.run([sys.executable, "-m", "ecmgen.cli", "codegen", str(MODEL), "--out",
                           str(tmp_path / "d"), "--estimator", "ekf", "--numeric", "fixed"],
                          capture_output=True, text=True)
@@ -343,7 +360,10 @@ def test_build_json_reports_the_estimator(synthetic_project):
     assert est["bit_exact_vs_reference"] is True and est["steps"] == t.size
     assert est["max_abs_soc_diff_vs_python"] < 1e-4 and est["states"][0] == "soc"
     assert c["float"]["bit_exact_vs_reference"] is True
+    assert c["float"]["ocv_soc_step"] == c["fixed"]["rc_soc_step"] == 1   # the flash options
     assert "c/float/ecm_est_f32.h" in c["float"]["files"] and "estimator" not in c["fixed"]
+    assert "c/float/ecm_est_f32_vectors.h" in c["float"]["files"]   # its golden vectors
+    assert main(["verify", str(out)]) == 0
     assert (out / "c" / "float" / "ecmrt_est_f32.h").is_file()
     assert not (out / "c" / "fixed" / "ecm_est_f32.h").exists()
     # model_error / error_correlation_s not in the config: measured on the validation cycle
@@ -351,6 +371,6 @@ def test_build_json_reports_the_estimator(synthetic_project):
     from ecmgen.c.codegen import c_float
 
     assert est["settings_from"] == "validation cycles" and est["model_error"] != 0.19
-    src = (out / "c" / "float" / "ecm_ecm_f32.c").read_text()
+    src = (out / "c" / "float" / "ecm_est_f32.c").read_text()
     assert f".model_error = {c_float(est['model_error'])}" in src
     assert f".corr_s = {c_float(est['error_correlation_s'])}" in src

@@ -87,7 +87,7 @@ def test_qemu_cortex_m4f_bit_identical_to_the_host():
 
 # -- sanitizers ------------------------------------------------------------------------
 
-SAN_MAIN = (REPO / "tests" / "data" / "estimator_sanitize_main.c")
+SAN_MAIN = (REPO / "tests" / "c" / "estimator_sanitize_main.c")
 
 
 @pytest.mark.parametrize("which", ["panasonic", "effects", "surface"])
@@ -111,7 +111,8 @@ def test_sanitized_build_through_absurd_inputs(tmp_path, which):
     flags = [f for f in cbuild.STRICT_CFLAGS if f != "-Werror"]
     proc = subprocess.run([*cc, *flags, *cbuild.SANITIZE_FLAGS, "-O1", f"-DFE_FX={int(fx)}",
                            "-I", str(tmp_path),
-                           str(tmp_path / "fe_ecm_f32.c"), str(tmp_path / "main.c"), "-o", str(exe)],
+                           str(tmp_path / "fe_ecm_f32.c"), str(tmp_path / "fe_est_f32.c"),
+                           str(tmp_path / "main.c"), "-o", str(exe)],
                           capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     run = subprocess.run([str(exe), "1000000"], capture_output=True, text=True, timeout=300)

@@ -156,7 +156,7 @@ def test_currents_beyond_limit_equal_python_on_the_saturated_current():
 
 # --- sanitizer build ---------------------------------------------------------------------
 
-SAN_MAIN = (REPO / "tests" / "data" / "codegen_sanitize_main.c").read_text()
+SAN_MAIN = (REPO / "tests" / "c" / "codegen_sanitize_main.c").read_text()
 
 
 def test_sanitized_build_has_no_undefined_behaviour(tmp_path):
@@ -165,8 +165,8 @@ def test_sanitized_build_has_no_undefined_behaviour(tmp_path):
     for prefix, (numeric, dt_s) in zip(("fv", "fd", "qv", "qd"), VARIANTS):
         generate_c(_model(), tmp_path, prefix=prefix, numeric=numeric, dt_s=dt_s)
         srcs.append(tmp_path / file_names(prefix, numeric)["source"])
-    run = _sanitized_run(cc, tmp_path, srcs, SAN_MAIN, "10000000")
-    assert "fails 0" in run.stdout
+    run = _sanitized_run(cc, tmp_path, srcs, SAN_MAIN, "10000000", fx=False)
+    assert "fails 0 qfails 0" in run.stdout
 
 
 def _sanitizer_cc(tmp_path) -> list[str]:
@@ -179,13 +179,15 @@ def _sanitizer_cc(tmp_path) -> list[str]:
     return cc
 
 
-def _sanitized_run(cc, tmp_path, srcs, main: str, steps: str) -> subprocess.CompletedProcess:
-    """The generated sources and ``main`` built with the sanitizers and run for ``steps``:
-    no runtime error, exit status 0."""
+def _sanitized_run(cc, tmp_path, srcs, main: str, steps: str, fx: bool
+                   ) -> subprocess.CompletedProcess:
+    """The generated sources and ``main`` built with the sanitizers (SAN_FX = ``fx``: the
+    models have effect states) and run for ``steps``: no runtime error, exit status 0."""
     (tmp_path / "main.c").write_text(main)
     exe = tmp_path / "san"
     flags = [f for f in cbuild.STRICT_CFLAGS if f != "-Werror"]
-    proc = subprocess.run([*cc, *flags, *cbuild.SANITIZE_FLAGS, "-O1", "-I", str(tmp_path),
+    proc = subprocess.run([*cc, *flags, *cbuild.SANITIZE_FLAGS, "-O1", f"-DSAN_FX={int(fx)}",
+                           "-I", str(tmp_path),
                            *map(str, srcs), str(tmp_path / "main.c"), "-o", str(exe)],
                           capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
@@ -323,8 +325,6 @@ def test_effects_float_input_sanitising():
     assert z.charging.tolist() == [0, 1, 1] and z.v[1] == z.v[2]
 
 
-SAN_FX_MAIN = (REPO / "tests" / "data" / "codegen_sanitize_fx_main.c").read_text()
-
 
 def _temperature_fx_model(numeric):
     """Tables over 5 temperatures on one SOC grid with the diffusion pair, the Butler-Volmer
@@ -353,13 +353,13 @@ def test_effects_sanitized_build_has_no_undefined_behaviour(tmp_path, family):
         if family == "surface":
             model = replace(model, surface_soc_gain=0.5)
         generate_c(model, tmp_path, prefix=prefix, numeric=numeric, dt_s=dt_s)
-        src = (tmp_path / file_names(prefix, numeric)["source"]).read_text()
+        src = (tmp_path / file_names(prefix, numeric)["config"]).read_text()
         assert "ECMRT_FX_HYST 1" in src
         assert ("ECMRT_SURFACE 1" in src) == (family == "surface")
         if family != "effects":
             assert all(f"ECMRT_{k} 1" in src for k in ("TEMP", "DIFF", "BV", "FX_ARR")), prefix
         srcs.append(tmp_path / file_names(prefix, numeric)["source"])
-    run = _sanitized_run(cc, tmp_path, srcs, SAN_FX_MAIN,
-                         "5000000" if family == "effects" else "2000000")
+    run = _sanitized_run(cc, tmp_path, srcs, SAN_MAIN,
+                         "5000000" if family == "effects" else "2000000", fx=True)
     print("\n", run.stdout)
     assert "fails 0 qfails 0" in run.stdout

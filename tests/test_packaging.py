@@ -52,13 +52,13 @@ def test_pyproject_lists_every_subpackage_and_data_dir():
 
 def test_codegen_finds_the_packaged_folders_first(tmp_path, monkeypatch):
     """In an installed package the folders sit inside ecmgen/ (the checkout's are not there)."""
-    import ecmgen.c.codegen as codegen
+    import ecmgen.c.runtime as codegen
 
     pkg = tmp_path / "site" / "ecmgen"
     for d in DATA_DIRS:
         (pkg / d).mkdir(parents=True)
     (pkg / "c").mkdir()
-    monkeypatch.setattr(codegen, "__file__", str(pkg / "c" / "codegen.py"))
+    monkeypatch.setattr(codegen, "__file__", str(pkg / "c" / "runtime.py"))
     assert codegen.templates_dir() == pkg / "templates"
     assert codegen.runtime_dir() == pkg / "c_runtime"
     shutil.rmtree(pkg / "templates")

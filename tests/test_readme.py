@@ -109,7 +109,8 @@ def test_the_c_snippet_compiles_and_links(tmp_path):
         """))
     exe = tmp_path / "bms"
     subprocess.run(["cc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-I", str(c),
-                    str(tmp_path / "bms.c"), str(c / "pan18650pf_ecm_f32.c"), "-lm", "-o",
+                    str(tmp_path / "bms.c"), str(c / "pan18650pf_ecm_f32.c"),
+                    str(c / "pan18650pf_est_f32.c"), "-lm", "-o",
                     str(exe)], check=True, capture_output=True, text=True)
     soc = float(subprocess.run([str(exe)], check=True, capture_output=True,
                                text=True).stdout)

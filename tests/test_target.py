@@ -273,4 +273,4 @@ def test_firmware_records_effect_states_only_for_models_with_effects():
                           np.zeros(3, np.int32), None, 1 << 29)
     assert plain.fields == ("v", "soc") and fx.fields == ("v", "soc", "h", "u_x")
     src = target.firmware_main([plain, fx])
-    assert "pa_out[2 * 3]" in src and "fx_out[4 * 3]" in src and "s.h;" in src and "s.u_x;" in src
+    assert "pa_out[6]" in src and "fx_out[12]" in src and "s.h;" in src and "s.u_x;" in src

@@ -14,40 +14,17 @@ import pytest
 from ecmgen.c import target
 from ecmgen.c.cbuild import STRICT_CFLAGS, host_cc
 from ecmgen.c.codegen import generate_c, prepare
-from ecmgen.c.golden import vector_names, write_golden
+from ecmgen.c.estc import prepare_estimator
+from ecmgen.c.estgolden import est_vector_names, write_est_golden
+from ecmgen.c.golden import cycle_segment, vector_names, write_golden
+from ecmgen.model.simulate import simulate
 from ecmgen.config import EstimatorConfig
 from ecmgen.data.measure import TimeSeries
+from conftest import C_DIR
 from test_codegen_helpers import temperature_model
 
-LINK_MAIN = r"""
-#include "pan_ecm_f32.h"
-#include "pan_ecm_q.h"
-#include "pan_est_f32.h"
+ONE_IMAGE_MAIN = C_DIR / "one_image_main.c"
 
-PAN_ECM_Q_ASSERT_FORMATS(PAN_ECM_Q_I, PAN_ECM_Q_V);
-
-int main(void)
-{
-    pan_state_f32_t f;
-    pan_state_q_t q;
-    pan_est_f32_t e;
-    float vf = 0.0f, ve = 0.0f;
-    int32_t vq = 0;
-    int k;
-    pan_init_f32(&f, 0.8f);
-    pan_init_q(&q, PAN_ECM_Q_SOC_Q30_FROM(0.8));
-    pan_est_init_f32(&e, 0.7f);
-    for (k = 0; k < 50; k++) {
-        vf = pan_step_f32(&f, -2.0f, 25.0f, 1.0f);
-        vq = pan_step_q(&q, PAN_ECM_Q_AMP_Q{QI}_FROM(-2), PAN_ECM_Q_DEGC_Q8_FROM(25),
-                        PAN_ECM_Q_SEC_Q16_FROM(1));
-        ve = pan_est_step_f32(&e, -2.0f, 25.0f, 1.0f, vf);
-    }
-    /* the three agree to a millivolt or so, and the fixed output reads in mV */
-    return (vf > 2.5f && vf < 4.5f && ve > 2.5f && ve < 4.5f &&
-            PAN_ECM_Q_VOLT_Q{QV}_TO_MILLI(vq) > 2500 && PAN_ECM_Q_VOLT_Q{QV}_TO_MILLI(vq) < 4500) ? 0 : 1;
-}
-"""
 
 
 @pytest.fixture(scope="module")
@@ -65,6 +42,10 @@ def kit(tmp_path_factory):
                    estimator=EstimatorConfig() if numeric == "float" else None)
         specs[numeric] = prepare(m, numeric=numeric, prefix="pan")
         write_golden(specs[numeric], d, series, 0.9)
+    est = prepare_estimator(m, specs["float"], EstimatorConfig())
+    seg = cycle_segment(specs["float"], series, 0.9)
+    v = simulate(m, t, cur, 0.9, series.temperature_c).voltage_v
+    write_est_golden(specs["float"], est, d, seg, v)
     return d, specs
 
 
@@ -73,17 +54,18 @@ def _cli(*args):
                           capture_output=True, text=True, timeout=600)
 
 
-def _link_main(specs) -> str:
+def _formats(specs) -> list[str]:
+    """-DQI, -DQV: the fixed point's formats, for tests/c/one_image_main.c."""
     q = specs["fixed"].q
-    return LINK_MAIN.replace("{QI}", str(q["Q_I"])).replace("{QV}", str(q["Q_V"]))
+    return [f"-DQI={q['Q_I']}", f"-DQV={q['Q_V']}"]
 
 
 def test_float_fixed_and_estimator_link_into_one_program(kit, tmp_path):
     d, specs = kit
-    (tmp_path / "main.c").write_text(_link_main(specs))
     exe = tmp_path / "all"
-    srcs = [d / "pan_ecm_f32.c", d / "pan_ecm_q.c", tmp_path / "main.c"]
-    proc = subprocess.run([*host_cc(), *STRICT_CFLAGS, "-O2", "-I", d, *srcs, "-o", exe],
+    srcs = [d / "pan_ecm_f32.c", d / "pan_est_f32.c", d / "pan_ecm_q.c", ONE_IMAGE_MAIN]
+    proc = subprocess.run([*host_cc(), *STRICT_CFLAGS, *_formats(specs), "-O2", "-I", d, *srcs,
+                           "-o", exe],
                           capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     assert subprocess.run([exe]).returncode == 0
@@ -97,17 +79,20 @@ def test_one_image_and_the_c_test_on_cortex_m4f(kit, tmp_path):
     flags = target.CPUS["m4f"]["flags"]
     (tmp_path / "startup.c").write_text(target.STARTUP)
     (tmp_path / "link.ld").write_text(target.LINKER_SCRIPT)
-    (tmp_path / "main.c").write_text(_link_main(specs))
     start = tmp_path / "startup.o"
     subprocess.run([target.GCC, *flags, "-std=gnu99", "-O2", "-c", tmp_path / "startup.c", "-o",
                     start], check=True)
-    progs = {"all": [d / "pan_ecm_f32.c", d / "pan_ecm_q.c", tmp_path / "main.c"]}
+    progs = {"all": [d / "pan_ecm_f32.c", d / "pan_est_f32.c", d / "pan_ecm_q.c",
+                     ONE_IMAGE_MAIN]}
     for numeric in ("float", "fixed"):
         stem = vector_names("pan", numeric)["test"][:-2]
         progs[stem] = [d / f"{stem}.c", d / f"{stem[:-5]}.c"]
+    progs["pan_est_f32_test"] = [d / est_vector_names("pan")["test"], d / "pan_est_f32.c",
+                                 d / "pan_ecm_f32.c"]
     for name, srcs in progs.items():
         elf = tmp_path / f"{name}.elf"
-        proc = subprocess.run([target.GCC, *flags, *STRICT_CFLAGS, "-O2", "-DECMV_HOSTED=0",
+        proc = subprocess.run([target.GCC, *flags, *STRICT_CFLAGS, *_formats(specs), "-O2",
+                               "-DECMV_HOSTED=0",
                                "-nostartfiles", "-T", tmp_path / "link.ld", "-I", d, *srcs, start,
                                "-lgcc", "-o", elf], capture_output=True, text=True)
         assert proc.returncode == 0, proc.stderr
@@ -131,19 +116,36 @@ def test_the_c_test_program_alone(kit, tmp_path):
         assert run.returncode == 0 and ": PASS: 1564 steps, 0 differ" in run.stdout, run.stdout
 
 
+def _one_char(src: str, name: str) -> str:
+    """``src`` with one digit of the middle value of the array ``name`` changed by 5: the
+    last digit of an integer, the fourth decimal of a float (a float's last digits may
+    round to the same float32)."""
+    m = re.search(rf"static const \w+ {name}\[\d+\] = \{{(.*?)\}};", src, re.S)
+    vals = list(re.finditer(r"-?\d[\d.e+-]*", m.group(1)))
+    v = vals[len(vals) // 2]
+    pos = v.group(0).index(".") + 4 if "." in v.group(0) else len(v.group(0)) - 1
+    at = m.start(1) + v.start() + pos
+    return src[:at] + str((int(src[at]) + 5) % 10) + src[at + 1:]
+
+
 def test_verify_passes_and_names_the_first_differing_step(kit, tmp_path):
+    """The C as generated passes; one character of a table value (the OCV's middle one) or
+    of the estimator's settings changed: the check fails, naming the first step."""
     d, _ = kit
     res = _cli("verify", d)
     assert res.returncode == 0, res.stdout + res.stderr
-    assert res.stdout.splitlines()[-1] == "ecmgen verify: 2 of 2 passed"
-    for numeric, stem in (("fixed", "pan_ecm_q"), ("float", "pan_ecm_f32")):
-        mine = tmp_path / numeric
+    assert res.stdout.splitlines()[-1] == "ecmgen verify: 3 of 3 passed"
+    for stem, where in (("pan_ecm_q", "ocv_v"), ("pan_ecm_f32", "ocv_v"),
+                        ("pan_est_f32", None)):
+        mine = tmp_path / stem
         shutil.copytree(d, mine)
         src = (mine / f"{stem}.c").read_text()
-        # one character of the model's constants: the last digit of the SOC's coefficient
-        m = re.search(r"\.k_soc = (-?[0-9.e+-]+?)(\d)(f?)[,\s]", src)
-        digit = str((int(m.group(2)) + 5) % 10)
-        (mine / f"{stem}.c").write_text(src[:m.start(2)] + digit + src[m.end(2):])
+        if where is None:       # the estimator: the first digit of its voltage noise
+            m = re.search(r"\.vn2 = (\d)", src)
+            src = src[:m.start(1)] + str((int(m.group(1)) + 5) % 10) + src[m.end(1):]
+        else:
+            src = _one_char(src, where)
+        (mine / f"{stem}.c").write_text(src)
         res = _cli("verify", d, "--c", mine, "--cflags", "-std=c99 -O1 -ffp-contract=off")
         assert res.returncode == 1, res.stdout + res.stderr
         line = next(ln for ln in res.stdout.splitlines() if ln.startswith(stem))
@@ -165,20 +167,6 @@ def test_verify_bad_input_is_one_line_exit_2(kit, tmp_path):
     assert res.returncode == 2 and "pan_ecm_q.c" in res.stderr
 
 
-FORMATS_MAIN = r"""
-#include "pan_ecm_q.h"
-PAN_ECM_Q_ASSERT_FORMATS(QI, QV);
-int main(void)
-{
-    const pan_amp_q{QI}_t i = PAN_ECM_Q_AMP_Q{QI}_FROM(-2.5);
-    const pan_volt_q{QV}_t v = PAN_ECM_Q_VOLT_Q{QV}_FROM(3);
-    const pan_degc_q8_t t = PAN_ECM_Q_DEGC_Q8_FROM(-10.25);
-    const pan_soc_q30_t s = PAN_ECM_Q_SOC_Q30_FROM(0.5);
-    return (i == -(int32_t)(5 << ({QI} - 1)) && v == (int32_t)(3 << {QV}) && t == -2624 &&
-            s == (1 << 29) && PAN_ECM_Q_VOLT_Q{QV}_TO_MILLI(v) == 3000 &&
-            PAN_ECM_Q_AMP_Q{QI}_TO_MILLI(i) == -2500 && PAN_ECM_Q_DEGC_Q8_TO_MILLI(t) == -10250) ? 0 : 1;
-}
-"""
 
 
 def test_fixed_point_types_and_formats_break_the_build_when_they_change(kit, tmp_path):
@@ -188,11 +176,9 @@ def test_fixed_point_types_and_formats_break_the_build_when_they_change(kit, tmp
     qi, qv = q["Q_I"], q["Q_V"]
 
     def build(qi_, qv_):
-        text = FORMATS_MAIN.replace("{QI}", str(qi_)).replace("{QV}", str(qv_))
-        (tmp_path / "f.c").write_text(text.replace("QI, QV", f"{qi_}, {qv_}"))
-        return subprocess.run([*host_cc(), *STRICT_CFLAGS, "-I", d, tmp_path / "f.c",
-                               d / "pan_ecm_q.c", "-o", tmp_path / "f"], capture_output=True,
-                              text=True)
+        return subprocess.run([*host_cc(), *STRICT_CFLAGS, f"-DQI={qi_}", f"-DQV={qv_}", "-I", d,
+                               C_DIR / "q_formats_main.c", d / "pan_ecm_q.c", "-o",
+                               tmp_path / "f"], capture_output=True, text=True)
 
     ok = build(qi, qv)
     assert ok.returncode == 0, ok.stderr
@@ -207,3 +193,42 @@ def test_fast_math_is_refused(kit, tmp_path):
                            d / "pan_ecm_f32.c", "-o", tmp_path / "x.o"], capture_output=True,
                           text=True)
     assert proc.returncode != 0 and "-ffast-math" in proc.stderr
+
+
+@pytest.mark.parametrize("numeric", ["float", "fixed"])
+def test_codegen_writes_golden_vectors_that_verify_passes(tmp_path, numeric):
+    """ecmgen codegen has no cycle: its vectors are a drive of pulses and rests and the
+    edge-case set, and the C as written passes them."""
+    model = temperature_model(branches=True).save(tmp_path / "model.json")
+    out = tmp_path / "c"
+    res = _cli("codegen", model, "--out", out, "--prefix", "cell", "--numeric", numeric, "-q")
+    assert res.returncode == 0, res.stderr
+    names = vector_names("cell", numeric)
+    assert all((out / n).is_file() for n in names.values())
+    res = _cli("verify", out)
+    assert res.returncode == 0 and "1 of 1 passed" in res.stdout, res.stdout + res.stderr
+
+
+def test_table_options_shrink_the_tables_and_keep_the_c_exact(tmp_path):
+    """[c] ocv_soc_step / rc_soc_step (codegen --ocv-soc-step / --rc-soc-step): fewer table
+    bytes, the ends kept, and the C still equal to its reference (verify passes)."""
+    from ecmgen.c.codegen import describe
+    from ecmgen.c.spec import coarsen_tables
+
+    m = temperature_model(branches=True)
+    coarse = coarsen_tables(m, 2, 3)
+    assert coarse.ocv.soc[-1] == m.ocv.soc[-1] and coarse.charge.soc[0] == m.charge.soc[0]
+    assert coarse.ocv.soc.size == (m.ocv.soc.size + 2) // 2
+    for n in ("float", "fixed"):
+        assert describe(prepare(coarse, n))["table_bytes"] < describe(prepare(m, n))["table_bytes"]
+    model = m.save(tmp_path / "model.json")
+    out = tmp_path / "c"
+    res = _cli("codegen", model, "--out", out, "--numeric", "fixed", "--ocv-soc-step", "2",
+               "--rc-soc-step", "3", "-q")
+    assert res.returncode == 0, res.stderr
+    assert f"{describe(prepare(coarse, 'fixed'))['table_bytes']} bytes" in \
+        (out / "ecm_ecm_q.h").read_text()
+    res = _cli("verify", out)
+    assert res.returncode == 0, res.stdout + res.stderr
+    res = _cli("codegen", model, "--out", tmp_path / "d", "--rc-soc-step", "0")
+    assert res.returncode == 2 and "--rc-soc-step" in res.stderr

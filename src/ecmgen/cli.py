@@ -28,7 +28,8 @@ def _given(cfg) -> set[Path]:
 NUMBER_OPTIONS = {"soc0": (0.0, 1.0), "soc0_guess": (0.0, 1.0),
                   "temperature_c": (-60.0, 100.0), "capacity_ah": (1e-6, 1e5),
                   "current_gain": (1e-3, 1e3), "current_offset_a": (-1e5, 1e5),
-                  "dt_s": (1e-6, 3600.0), "times": (1e-6, 1e6), "window_s": (-1e12, 1e12)}
+                  "dt_s": (1e-6, 3600.0), "times": (1e-6, 1e6), "window_s": (-1e12, 1e12),
+                  "ocv_soc_step": (1, 16), "rc_soc_step": (1, 16)}
 
 
 def _check_numbers(args) -> None:
@@ -91,7 +92,10 @@ def cmd_build(args) -> int:
             same = {True: "bit-exact to its reference", False: "NOT bit-exact"}.get(
                 r.get("bit_exact_vs_reference"), "not checked")
             where = _shown_path(result.out_dir / r["dir"])
-            print(f"C {numeric}: {r['table_bytes']} bytes of tables (flash), {same}; golden "
+            grid = ", ".join(f"{k[:k.index('_')].upper()} on every {r[k]}. SOC breakpoint"
+                             for k in ("ocv_soc_step", "rc_soc_step") if r.get(k, 1) > 1)
+            print(f"C {numeric}: {r['table_bytes']} bytes of tables (flash"
+                  f"{'; ' + grid if grid else ''}), {same}; golden "
                   f"vectors and test in {where}/ (ecmgen verify {where})")
         print(build_summary(result))
     return 0
@@ -361,7 +365,8 @@ def cmd_verify(args) -> int:
 
 def cmd_codegen(args) -> int:
     from .c.codegen import file_names, generate_c, prepare
-    from .c.spec import check_options
+    from .c.golden import vector_names, write_golden
+    from .c.spec import check_options, coarsen_tables
     from .model.model import load_model
 
     _check_numbers(args)
@@ -372,16 +377,24 @@ def cmd_codegen(args) -> int:
         from .config import EstimatorConfig
 
         estimator = EstimatorConfig()
-    model = load_model(args.model)
+    model = coarsen_tables(load_model(args.model), args.ocv_soc_step, args.rc_soc_step)
     try:        # what the C cannot represent (or hold: an overflow) is the model's problem
         with reading(args.model):
             spec = prepare(model, numeric=args.numeric, dt_s=args.dt_s, prefix=args.prefix)
         # the files are <prefix>_ecm.* and ecmrt*.h: never the model.json read
-        names = file_names(spec.prefix, spec.numeric)
+        names = file_names(spec.prefix, spec.numeric) | vector_names(spec.prefix, spec.numeric)
         for name in [v for v in names.values() if isinstance(v, str)] + names["runtime"]:
             refuse_inputs(out / name, [args.model])
         files = generate_c(model, out, prefix=args.prefix, numeric=args.numeric,
                            dt_s=args.dt_s, estimator=estimator)
+        files += write_golden(spec, out)        # no cycle here: a drive of pulses and rests
+        if estimator is not None:
+            from .c.estc import prepare_estimator
+            from .c.estgolden import write_est_golden
+            from .c.golden import drive_segment
+
+            files += write_est_golden(spec, prepare_estimator(model, spec, estimator), out,
+                                      drive_segment(spec))
     except InputError as exc:
         if exc.path is not None:
             raise
@@ -529,8 +542,13 @@ def parser() -> argparse.ArgumentParser:
     c.add_argument("--numeric", choices=["float", "fixed"], default="float")
     c.add_argument("--dt-s", type=float, help="fixed step in s (default: variable dt)")
     c.add_argument("--estimator", choices=["none", "ekf"], default="none",
-                   help="also generate the SOC filter <prefix>_est_init/_est_step (float, "
+                   help="also generate the SOC filter <prefix>_est_f32.h/.c (float, "
                         "variable dt; the [estimator] defaults)")
+    for what in ("ocv", "rc"):
+        c.add_argument(f"--{what}-soc-step", type=int, default=1, metavar="N",
+                       help=f"flash: the {what.upper()} table{'s' if what == 'rc' else ''} on "
+                            "every N-th SOC breakpoint (and the last; [c] "
+                            f"{what}_soc_step)")
     c.add_argument("-q", "--quiet", action="store_true", help="do not list the files written")
     c.set_defaults(func=cmd_codegen)
 

@@ -163,6 +163,8 @@ class BuildConfig:
     c_numeric: tuple[str, ...] = ("float", "fixed")
     c_dt_s: float | None = None
     c_estimator: str | None = None     # [c] estimator = "ekf": the SOC filter in the float C
+    c_ocv_soc_step: int = 1            # [c]: the C's OCV on every n-th SOC breakpoint
+    c_rc_soc_step: int = 1             # [c]: the C's RC tables likewise
     curve_branches: bool = False       # [fit]: curve fit with diffusion pair + Butler-Volmer
     temperature_step_c: float = 5.0    # [model]: 0 = the measured breakpoints as they are
     warm_row_c: float | None = 45.0    # [model]: derived warm row (None: none)
@@ -548,6 +550,7 @@ def _load_config(path: Path) -> BuildConfig:
         c_prefix=prefix, c_numeric=tuple(numeric),
         c_dt_s=_number(c, "dt_s", path, "c", None),
         c_estimator=None if c_estimator == "none" else c_estimator,
+        c_ocv_soc_step=int(c.get("ocv_soc_step", 1)), c_rc_soc_step=int(c.get("rc_soc_step", 1)),
         curve_branches=branches,
         temperature_step_c=step, warm_row_c=None if warm is False else warm,
         surface_soc_gain=gain,

@@ -185,6 +185,10 @@ SECTIONS: tuple[Section, ...] = (
             unit="s", range=(1e-6, 3600.0), default="variable"),
         Key("estimator", CHOICE, "the SOC filter next to the float step",
             choices=("none", "ekf"), default='"none"'),
+        Key("ocv_soc_step", INTEGER, "flash: the C's OCV keeps every n-th SOC breakpoint "
+            "(and the last); model.json keeps them all", range=(1, 16), default="1"),
+        Key("rc_soc_step", INTEGER, "flash: the C's RC tables keep every n-th SOC "
+            "breakpoint (and the last)", range=(1, 16), default="1"),
     )),
     Section("estimator", "the SOC filter (ecmgen estimate, [c] estimator); the sensor "
             "figures are one sigma", (

@@ -119,107 +119,6 @@ def _signatures(spec: CSpec) -> tuple[str, str]:
     return trace, stress
 
 
-def harness_source(spec: CSpec) -> str:
-    nm = c_names(spec.prefix, spec.numeric)
-    p = nm["step"]
-    vdt = spec.variable_dt
-    call = f"{p}(s, i[k], temp[k], dt[k])" if vdt else f"{p}(s, i[k], temp[k])"
-    trace_sig, stress_sig = _signatures(spec)
-    extra = "".join(f"        {f}[k] = s->{f};\n" for f in extra_states(spec))
-    if spec.fixed:
-        stress_body = f"""
-        int32_t i = (int32_t)(ecmh_rand(&x) >> 1) - (int32_t)(ecmh_rand(&x) >> 1);
-        int32_t t = (int32_t)(ecmh_rand(&x) % 30720u) - 10240;          /* -40 .. 80 degC */
-        if ((ecmh_rand(&x) & 3u) != 0u) {{
-            i = (int32_t)(i >> (ecmh_rand(&x) % 24u));        /* mostly moderate currents */
-        }}
-        if ((ecmh_rand(&x) & 255u) == 0u) {{
-            t = (int32_t)ecmh_rand(&x);                       /* the odd absurd temperature */
-        }}
-        {"int32_t dt = (int32_t)(ecmh_rand(&x) % ((uint32_t)dt_max + 1u));" if vdt else ""}
-        const int32_t v = {f"{p}(s, i, t, dt)" if vdt else f"{p}(s, i, t)"};
-        if (v < lo[0]) lo[0] = v;
-        if (v > hi[0]) hi[0] = v;
-        if (s->soc < lo[1]) lo[1] = s->soc;
-        if (s->soc > hi[1]) hi[1] = s->soc;
-"""
-    else:
-        stress_body = f"""
-        const float u = (float)(int32_t)ecmh_rand(&x) * 4.65661287e-10f;  /* [-1, 1) */
-        float i = u * i_amp;
-        float t = (float)(ecmh_rand(&x) >> 8) * 7.15255737e-06f - 40.0f; /* -40 .. 80 degC */
-        {"float dt = (float)(ecmh_rand(&x) >> 8) * 5.96046448e-08f * dt_max;" if vdt else ""}
-        float v;
-        if ((ecmh_rand(&x) & 1023u) == 0u) {{
-            i = i * 1.0e30f;                                    /* occasional absurd current */
-            t = t * 1.0e30f;                                    /* and temperature */
-        }}
-        v = {f"{p}(s, i, t, dt)" if vdt else f"{p}(s, i, t)"};
-        if (!(v == v) || v > 1.0e6f || v < -1.0e6f || !(s->u_fast == s->u_fast) ||
-            !(s->u_slow == s->u_slow) || !(s->soc >= -2.0f && s->soc <= 2.0f)) {{
-            (*bad)++;
-        }} else {{
-            if (v < lo[0]) lo[0] = v;
-            if (v > hi[0]) hi[0] = v;
-        }}
-        if (s->soc < lo[1]) lo[1] = s->soc;
-        if (s->soc > hi[1]) hi[1] = s->soc;
-"""
-    unused = "" if vdt else "    (void)dt_max;\n"
-    return f"""/* test harness for {spec.prefix}: traces and a pseudo-random stress loop (not shipped) */
-#include "ecmh_harness.h"
-
-size_t ecmh_state_size(void)
-{{
-    return sizeof({nm['state']});
-}}
-
-{trace_sig}
-{{
-    size_t k;
-    for (k = 0u; k < n; k++) {{
-        v[k] = {call};
-        soc[k] = s->soc;
-        uf[k] = s->u_fast;
-        us[k] = s->u_slow;
-        chg[k] = s->charging;
-{extra}    }}
-}}
-
-static uint32_t ecmh_rand(uint32_t *x)
-{{
-    uint32_t y = *x;
-    y ^= y << 13;
-    y ^= y >> 17;
-    y ^= y << 5;
-    *x = y;
-    return y;
-}}
-
-{stress_sig}
-{{
-    uint32_t x = seed | 1u;
-    size_t k;
-{unused}    *bad = 0u;
-    for (k = 0u; k < n; k++) {{
-{stress_body}
-    }}
-}}
-"""
-
-
-def harness_header(spec: CSpec) -> str:
-    trace, stress = _signatures(spec)
-    return f"""#ifndef ECMH_HARNESS_H
-#define ECMH_HARNESS_H
-#include "{file_names(spec.prefix, spec.numeric)['header']}"
-{trace};
-{stress};
-size_t ecmh_state_size(void);
-#endif
-"""
-
-
 def _cdef(spec: CSpec) -> str:
     nm, t = c_names(spec.prefix, spec.numeric), _vt(spec)
     st = nm["state"]
@@ -273,14 +172,22 @@ def _load(name: str, path: Path):
 
 
 def _harness_texts(spec: CSpec, estimator=None) -> tuple[str, str]:
-    """(ecmh_harness.h, ecmh_harness.c), with the estimator's trace when there is one."""
-    header, source = harness_header(spec), harness_source(spec)
-    if estimator is not None:
-        from . import estc
+    """(ecmh_harness.h, ecmh_harness.c) from templates/harness.{h,c}.j2, with the
+    estimator's trace when there is one."""
+    from .codegen import _env
 
-        header = header.replace("#endif\n", estc.harness_decls(spec, estimator) + "#endif\n")
-        source += estc.harness_source(spec, estimator)
-    return header, source
+    trace, stress = _signatures(spec)
+    nm = c_names(spec.prefix, spec.numeric)
+    ctx = {"p": spec.prefix, "nm": nm, "fixed": spec.fixed, "vdt": spec.variable_dt,
+           "extra": extra_states(spec), "trace_sig": trace, "stress_sig": stress,
+           "est": estimator, "est_trace_sig": None}
+    if estimator is not None:
+        from .estc import est_trace_signature
+
+        ctx["est_trace_sig"] = est_trace_signature(spec)
+    env = _env()
+    return (env.get_template("harness.h.j2").render(ctx),
+            env.get_template("harness.c.j2").render(ctx))
 
 
 def write_sources(spec: CSpec, out_dir: Path, harness: bool = True,
@@ -290,6 +197,8 @@ def write_sources(spec: CSpec, out_dir: Path, harness: bool = True,
     for name, text in render(spec, None, estimator).items():
         (out_dir / name).write_text(text)
     srcs = [out_dir / file_names(spec.prefix, spec.numeric)["source"]]
+    if estimator is not None:
+        srcs.append(out_dir / c_names(spec.prefix, "float")["est_source"])
     if harness:
         header, source = _harness_texts(spec, estimator)
         (out_dir / "ecmh_harness.h").write_text(header)

@@ -14,6 +14,7 @@ from ..data.measure import TimeSeries
 from ..errors import InputError
 from .cbuild import CBuildError, CToolchainMissing, c_equivalence
 from .codegen import describe, file_names, generate_c, prepare
+from .spec import coarsen_tables
 from .golden import write_golden
 
 
@@ -21,13 +22,16 @@ def build_c_outputs(cfg, result, out_dir, progress=lambda msg: None) -> dict:
     """The C stage of ``ecmgen build`` (called by pipeline._write_c).
 
     For each numeric of ``cfg.c_numeric`` (prefix ``cfg.c_prefix``, ``cfg.c_dt_s``: None =
-    variable dt) the files go to ``out_dir/c/<numeric>/``; the C is compiled on the host and
+    variable dt; the tables on every ``cfg.c_ocv_soc_step``-th / ``c_rc_soc_step``-th SOC
+    breakpoint) the files go to ``out_dir/c/<numeric>/``; the C is compiled on the host and
     compared (cbuild.c_equivalence) over the first validation cycle of the best model, at its
     cell temperature (the one the validation simulated on). Returns
     the ``"c"`` block of ``--json``: ``{numeric: {"mae_v", "max_abs_diff_vs_python_v", ...,
     "dir", "files"}}``. Without a host compiler the C is still written and each block says
     ``"skipped"`` with the reason."""
-    model = result.models[result.best]
+    steps = {"ocv_soc_step": getattr(cfg, "c_ocv_soc_step", 1),
+             "rc_soc_step": getattr(cfg, "c_rc_soc_step", 1)}
+    model = coarsen_tables(result.models[result.best], **steps)     # the flash options
     numerics = tuple(cfg.c_numeric)
     dt_s, prefix = cfg.c_dt_s, cfg.c_prefix
     specs = {n: prepare(model, numeric=n, dt_s=dt_s, prefix=prefix) for n in numerics}  # checks first
@@ -75,14 +79,29 @@ def build_c_outputs(cfg, result, out_dir, progress=lambda msg: None) -> dict:
                            estimator=est_cfg if n == "float" else None)
         files += write_golden(specs[n], out_dir / "c" / n, series if val is not None else None,
                               val.soc0 if val is not None else 1.0)
+        if est is not None and n == "float":
+            files += _est_golden(specs[n], est, out_dir / "c" / n, series,
+                                 val.soc0 if val is not None else 1.0)
         entry = dict(eq.get(n, {"skipped": "no validation cycle to compare on"}))
         if est is not None and n == "float":
             entry["estimator"] = est_eq or {"skipped": "no validation cycle to compare on"}
         entry.update({"dir": f"c/{n}", "files": [p.relative_to(out_dir).as_posix() for p in files],
-                      "table_bytes": describe(specs[n])["table_bytes"],
+                      "table_bytes": describe(specs[n])["table_bytes"], **steps,
                       "temperature_rows": describe(specs[n])["points"]["temperatures"]})
         block[n] = entry
     return block
+
+
+def _est_golden(spec, est, out_dir, series, soc0: float) -> list[Path]:
+    """The estimator's golden vectors: the cycle's first steps with its measured voltage,
+    or (no cycle) the drive of golden.drive_segment with the model's own voltage."""
+    from .estgolden import write_est_golden
+    from .golden import cycle_segment, drive_segment
+
+    if series is None:
+        return write_est_golden(spec, est, out_dir, drive_segment(spec))
+    seg = cycle_segment(spec, series, soc0)
+    return write_est_golden(spec, est, out_dir, seg, series.voltage_v[:seg.current_a.size])
 
 
 def _estimator_block(model, spec, est, series, soc0: float) -> dict:

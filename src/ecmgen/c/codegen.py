@@ -1,7 +1,9 @@
-"""model.json -> C for BMS microcontrollers: ``<prefix>_ecm.h`` / ``<prefix>_ecm.c``.
+"""model.json -> C for BMS microcontrollers: ``<prefix>_ecm_<s>.h`` / ``.c`` (names:
+:mod:`ecmgen.c.names`).
 
-The generated C holds only ``static const`` tables, the model's state type and three thin
-functions; the step itself is the hand-written runtime in ``c_runtime/`` (copied beside the
+The generated C holds only the ``const`` tables (``<prefix>_model_<s>``), the model's state
+type and three thin functions, and ``<prefix>_ecm_<s>_config.h`` the runtime's switches for
+the model (:mod:`ecmgen.c.runtime`); the step itself is the hand-written runtime in ``c_runtime/`` (copied beside the
 generated files), one body for every model with compile-time switches for what the model
 has (temperature axis, diffusion pair, Butler-Volmer branch, diagnose effects). Two
 numerics:
@@ -43,6 +45,7 @@ import numpy as np
 
 from ..files import write_atomic
 from .names import c_names
+from .runtime import runtime_dir, switches, templates_dir
 from .qformat import INT32_MAX, Q30, Q_D, Q_TEMP, quantize
 from .spec import (C_EFFECTS, FX_FIXED_KEYS, FX_FLOAT_KEYS, NUMERICS, CDir, CGrid, CSpec,
                    _as_model, begin, prepare_float, state_fields)
@@ -52,28 +55,9 @@ __all__ = ["C_EFFECTS", "NUMERICS", "CDir", "CGrid", "CSpec", "c_float", "descri
            "_as_model"]
 
 # the runtime headers a model's .c needs, the one it includes last
-RUNTIME_FILES = {"float": ("ecmrt.h", "ecmrt_state.h", "ecmrt_f32.h"),
-                 "fixed": ("ecmrt.h", "ecmrt_state.h", "ecmrt_q_exp.h", "ecmrt_q.h")}
-
-
-def _find_dir(name: str) -> Path:
-    """templates/ and c_runtime/: inside the installed package (a wheel or sdist carries
-    them as ecmgen/templates and ecmgen/c_runtime, see pyproject.toml), else at the
-    repository root (an editable install of a checkout, src/ecmgen -> ../../)."""
-    here = Path(__file__).resolve().parents[1]    # the ecmgen package (this is ecmgen/c/)
-    for cand in (here / name, here.parents[1] / name):
-        if cand.is_dir():
-            return cand
-    raise FileNotFoundError(f"ecmgen: {name}/ not found (looked in {here} and "
-                            f"{here.parents[1]}): a broken installation")
-
-
-def templates_dir() -> Path:
-    return _find_dir("templates")
-
-
-def runtime_dir() -> Path:
-    return _find_dir("c_runtime")
+RUNTIME_FILES = {"float": ("ecmrt.h", "ecmrt_config.h", "ecmrt_state.h", "ecmrt_f32.h"),
+                 "fixed": ("ecmrt.h", "ecmrt_config.h", "ecmrt_state.h", "ecmrt_q_exp.h",
+                           "ecmrt_q.h")}
 
 
 def prepare(model, numeric: str = "float", dt_s: float | None = None, prefix: str = "ecm",
@@ -416,7 +400,7 @@ def file_names(prefix: str, numeric: str) -> dict[str, str]:
     """Names of the generated files (the runtime headers are the same for every model;
     the naming rule is :mod:`ecmgen.c.names`)."""
     nm = c_names(prefix, numeric)
-    return {k: nm[k] for k in ("header", "source", "filelist", "report")} | \
+    return {k: nm[k] for k in ("header", "source", "config", "filelist", "report")} | \
         {"runtime": list(RUNTIME_FILES[numeric])}
 
 
@@ -448,17 +432,16 @@ def render(spec: CSpec, equivalence: dict | None = None, estimator=None) -> dict
         from .estc import est_file_names
 
         est_names = est_file_names(spec.prefix)
-        names["est_header"] = est_names["est_header"]
-        names["runtime"] = names["runtime"] + [est_names["est_runtime"]]
+        names["runtime"] = names["runtime"] + est_names.pop("est_runtime")
+        names.update(est_names)
     ctx["files"] = names
     out = {names["header"]: env.get_template("ecm.h.j2").render(ctx),
+           names["config"]: env.get_template("ecm_config.h.j2").render(ctx),
            names["source"]: env.get_template("ecm.c.j2").render(ctx)}
     if estimator is not None:
         from .estc import render_estimator
 
-        code, header = render_estimator(env, ctx, estimator, c_float)
-        out[names["source"]] += code
-        out[names["est_header"]] = header
+        out.update(render_estimator(env, ctx, estimator, c_float))
     rdir = runtime_dir()
     for name in names["runtime"]:
         out[name] = (rdir / name).read_text()
@@ -491,8 +474,8 @@ def generate_c(model, out_dir, prefix: str = "ecm", numeric: str = "float",
     ``model`` is an EcmModel or a model.json path; ``dt_s`` None gives the variable-dt step,
     a number the fixed-dt one; ``i_max_a`` sets the current range (default 32 C, rounded up
     to a power of two); ``equivalence`` (the dict of cbuild.c_equivalence) is tabulated in
-    the report; ``estimator`` (an EstimatorConfig) adds the SOC filter (``<prefix>_est.h``,
-    ``<prefix>_est_init`` / ``<prefix>_est_step`` in ``<prefix>_ecm.c``, ecmgen.c.estc).
+    the report; ``estimator`` (an EstimatorConfig) adds the SOC filter
+    (``<prefix>_est_f32.h`` / ``.c``, ecmgen.c.estc).
     Everything is checked and rendered in memory first: a bad model or option
     raises InputError before any file is written."""
     spec = prepare(model, numeric=numeric, dt_s=dt_s, prefix=prefix, i_max_a=i_max_a)

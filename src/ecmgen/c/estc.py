@@ -1,10 +1,11 @@
-"""The SOC estimator in C (``[c] estimator = "ekf"``): its spec, its rendering next to the
-model's step, and its cffi harness.
+"""The SOC estimator in C (``[c] estimator = "ekf"``): its spec, its rendering beside the
+model's C, and its cffi harness.
 
 ``<prefix>_est_f32.h`` declares ``<prefix>_est_f32_t`` (the model's state, the covariance, a
-first-sample flag) and ``<prefix>_est_init_f32`` / ``<prefix>_est_step_f32``; their bodies are
-appended to ``<prefix>_ecm_f32.c`` (same translation unit as the model's ``static const``
-tables, so the filter's table accessor reads them and the model's step inlines), with the
+first-sample flag) and ``<prefix>_est_init_f32`` / ``<prefix>_est_step_f32``, defined in
+``<prefix>_est_f32.c``: it includes the model's ``<prefix>_ecm_f32_config.h`` (the runtime
+as the model's ``.c`` configures it, and the declaration of the model's ``const`` tables,
+which the filter's table accessor reads), predicts with ``<prefix>_step_f32`` and has the
 filter itself in the hand-written ``c_runtime/ecmrt_est_f32.h``. The filter is the extended
 Kalman filter of :mod:`ecmgen.estimate.ekf` (chosen over the sigma-point filter by
 measurement), its noise settings (:class:`ecmgen.config.EstimatorConfig`) baked
@@ -32,7 +33,7 @@ from .names import c_names
 from .spec import CSpec, state_bytes
 
 ESTIMATORS = ("ekf",)
-RUNTIME_FILE = "ecmrt_est_f32.h"
+RUNTIME_FILES = ("ecmrt_est_f32_tables.h", "ecmrt_est_f32.h")
 # ecmrt_est_f32_noise_t, in order: field, comment
 NOISE_FIELDS = (("p0_soc", "initial SOC variance, soc0_sigma^2"),
                 ("p0_u", "initial RC voltage variance, u0_sigma_v^2, V^2"),
@@ -115,55 +116,30 @@ def prepare_estimator(model, spec: CSpec, cfg: EstimatorConfig | None = None,
 
 
 def est_file_names(prefix: str) -> dict[str, str]:
-    return {"est_header": c_names(prefix, "float")["est_header"], "est_runtime": RUNTIME_FILE}
+    nm = c_names(prefix, "float")
+    return {"est_header": nm["est_header"], "est_source": nm["est_source"],
+            "est_runtime": list(RUNTIME_FILES)}
 
 
-def render_estimator(env, ctx: dict, est: EstSpec, c_float) -> tuple[str, str]:
-    """(the code appended to <prefix>_ecm.c, the text of <prefix>_est.h); ``env`` and
-    ``ctx`` the renderer's jinja2 environment and context, ``c_float`` its float literal."""
+def render_estimator(env, ctx: dict, est: EstSpec, c_float) -> dict[str, str]:
+    """{file name: text} of <prefix>_est_f32.h and .c; ``env`` and ``ctx`` the renderer's
+    jinja2 environment and context, ``c_float`` its float literal."""
     ectx = dict(ctx, n=est.n, names=est.names, offset=est.offset,
                 noise=[(k, c_float(est.noise[k]), c) for k, c in est.noise_fields])
-    return (env.get_template("ecm_est.c.j2").render(ectx),
-            env.get_template("ecm_est.h.j2").render(ectx))
+    files = ctx["files"]
+    return {files["est_header"]: env.get_template("est.h.j2").render(ectx),
+            files["est_source"]: env.get_template("est.c.j2").render(ectx)}
 
 
 # --------------------------------------------------------------------------------------
-# cffi harness
+# cffi declarations (the harness itself: templates/harness.c.j2)
 # --------------------------------------------------------------------------------------
 
-def _trace_sig(spec: CSpec) -> str:
+def est_trace_signature(spec: CSpec) -> str:
+    """The prototype of the harness's estimator trace (templates/harness.c.j2)."""
     nm = c_names(spec.prefix, "float")
     return (f"void ecmh_est_trace({nm['est_t']} *e, const float *i, const float *temp, "
             "const float *dt, const float *v, float *vp, float *x, float *pm, size_t n)")
-
-
-def harness_source(spec: CSpec, est: EstSpec) -> str:
-    n = est.n
-    nm = c_names(spec.prefix, "float")
-    rec = "".join(f"        x[{n}u * k + {j}u] = e->{f};\n" for j, f in enumerate(est.fields))
-    return f"""
-#include "{nm['est_header']}"
-{_trace_sig(spec)}
-{{
-    size_t k;
-    unsigned j;
-    for (k = 0u; k < n; k++) {{
-        vp[k] = {nm['est_step']}(e, i[k], temp[k], dt[k], v[k]);
-{rec}        for (j = 0u; j < {n * n}u; j++) {{
-            pm[{n * n}u * k + j] = e->p[j];
-        }}
-    }}
-}}
-
-size_t ecmh_est_size(void)
-{{
-    return sizeof({nm['est_t']});
-}}
-"""
-
-
-def harness_decls(spec: CSpec, est: EstSpec) -> str:
-    return f'#include "{c_names(spec.prefix, "float")["est_header"]}"\n{_trace_sig(spec)};\nsize_t ecmh_est_size(void);\n'
 
 
 def cdef(spec: CSpec, est: EstSpec) -> str:
@@ -174,7 +150,7 @@ def cdef(spec: CSpec, est: EstSpec) -> str:
         + ("float offset_a; " if est.offset else "") + f"uint8_t first; }} {et};",
         f"void {nm['est_init']}({et} *e, float soc0);",
         f"float {nm['est_step']}({et} *e, float i, float temperature, float dt, float v);",
-        _trace_sig(spec) + ";",
+        est_trace_signature(spec) + ";",
         "size_t ecmh_est_size(void);",
     ])
 

@@ -254,6 +254,10 @@ def simulate_estimator_f32(spec: CSpec, est: EstSpec, current_a, dt_s, voltage_v
     against finite differences of the C step)."""
     if spec.fixed or not spec.variable_dt:
         raise ValueError("the estimator runs on the variable-dt float step")
+    n = np.asarray(current_a).size
+    dt_s = np.broadcast_to(np.asarray(dt_s, dtype=np.float64), (n,)).astype(F32)
+    if n:
+        dt_s[0] = ZERO           # est_step: init is the state at the first sample
     with np.errstate(all="ignore"):
         return _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c,
                          jacobians)

@@ -12,7 +12,7 @@ import numpy as np
 
 from . import target
 from .cbuild import STRICT_CFLAGS, CBuildError, compile_spec
-from .codegen import CSpec, file_names, prepare, render
+from .codegen import CSpec, prepare, render
 from .names import c_names
 from .estc import EstSpec, prepare_estimator
 from .estcheck import run_estimator_c
@@ -20,78 +20,41 @@ from .target import CPUS, GCC, SECTION_FLAGS, _array, _run
 
 
 def cross_compile_estimator(spec: CSpec, est: EstSpec, out_dir, cpu: str = "m4f",
-                            opt: str = "-Os", extra=()) -> target.CrossObject:
-    """<prefix>_ecm.c with the estimator -> object for ``cpu`` (STRICT_CFLAGS)."""
+                            opt: str = "-Os", extra=()) -> tuple[target.CrossObject, ...]:
+    """<prefix>_ecm_f32.c and <prefix>_est_f32.c -> objects for ``cpu`` (STRICT_CFLAGS):
+    (the model's, the estimator's)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     for name, text in render(spec, None, est).items():
         (out_dir / name).write_text(text)
-    src = out_dir / file_names(spec.prefix, spec.numeric)["source"]
-    obj = out_dir / f"{spec.prefix}_ecm_est.{cpu}.o"
-    proc = _run([GCC, *CPUS[cpu]["flags"], *STRICT_CFLAGS, opt, *SECTION_FLAGS, *extra,
-                 "-I", out_dir, "-c", src, "-o", obj], cwd=out_dir)
-    return target.CrossObject(obj, cpu, opt, proc.stderr.strip())
+    nm = c_names(spec.prefix, spec.numeric)
+    objs = []
+    for src in (nm["source"], nm["est_source"]):
+        obj = out_dir / f"{src[:-2]}.{cpu}.o"
+        proc = _run([GCC, *CPUS[cpu]["flags"], *STRICT_CFLAGS, opt, *SECTION_FLAGS, *extra,
+                     "-I", out_dir, "-c", out_dir / src, "-o", obj], cwd=out_dir)
+        objs.append(target.CrossObject(obj, cpu, opt, proc.stderr.strip()))
+    return tuple(objs)
 
 
 def firmware_main(spec: CSpec, est: EstSpec, i, temp, dt, v, soc0: float) -> str:
     """main(): est_init, est_step over the inputs, then the predicted voltages, states and
     covariances (n x (1 + N + N^2) floats) written through semihosting."""
     nm, n, N = c_names(spec.prefix, "float"), int(np.size(i)), est.n
-    rec = "".join(f"        out[{1 + N + N * N}u * k + {1 + j}u] = e.{f};\n"
-                  for j, f in enumerate(est.fields))
-    arrays = "".join(_array(name, a, False) for name, a in
-                     (("in_i", i), ("in_t", temp), ("in_dt", dt), ("in_v", v)))
-    w = 1 + N + N * N
-    return f"""#include <stdint.h>
-#include <stddef.h>
-#include "{nm['est_header']}"
-typedef union {{ uint32_t u; float f; }} ecmh_f32_t;
-int ecmh_semihost(int op, void *arg);
-{arrays}
-static float out[{w * n}];
-
-static int write_all(int h, const void *buf, size_t len)
-{{
-    uint32_t blk[3];
-    blk[0] = (uint32_t)h;
-    blk[1] = (uint32_t)buf;
-    blk[2] = (uint32_t)len;
-    return ecmh_semihost(0x05, blk);
-}}
-
-int main(void)
-{{
-    static const char name[] = "{target.OUT_NAME}";
-    {nm['est_t']} e;
-    uint32_t blk[3];
-    size_t k;
-    unsigned j;
-    int h;
-    {nm['est_init']}(&e, {float(np.float32(soc0)).hex()}f);
-    for (k = 0; k < {n}u; k++) {{
-        out[{w}u * k] = {nm['est_step']}(&e, in_i[k].f, in_t[k].f, in_dt[k].f, in_v[k].f);
-{rec}        for (j = 0u; j < {N * N}u; j++) {{
-            out[{w}u * k + {1 + N}u + j] = e.p[j];
-        }}
-    }}
-    blk[0] = (uint32_t)name;
-    blk[1] = 5u;
-    blk[2] = sizeof name - 1u;
-    h = ecmh_semihost(0x01, blk);
-    if (h < 0) return 1;
-    if (write_all(h, out, sizeof out) != 0) return 2;
-    blk[0] = (uint32_t)h;
-    ecmh_semihost(0x02, blk);
-    return 0;
-}}
-"""
+    p = spec.prefix
+    arrays = "".join(_array(f"{p}_in_{k}", a, False) for k, a in
+                     (("i", i), ("t", temp), ("dt", dt), ("v", v)))
+    return target.render_main([{
+        "p": p, "nm": nm, "est": True, "n": n, "header": nm["est_header"], "t": "float",
+        "w": 1 + N + N * N, "nn": N * N, "fields": est.fields, "size": (1 + N + N * N) * n,
+        "soc0": f"{float(np.float32(soc0)).hex()}f", "arrays": arrays}])
 
 
 def build_firmware(spec: CSpec, est: EstSpec, inputs: tuple, soc0: float, out_dir,
                    cpu: str = "m4f", opt: str = "-O2") -> Path:
     out_dir = Path(out_dir)
     flags = CPUS[cpu]["flags"]
-    objs = [cross_compile_estimator(spec, est, out_dir, cpu=cpu, opt=opt).obj]
+    objs = [o.obj for o in cross_compile_estimator(spec, est, out_dir, cpu=cpu, opt=opt)]
     (out_dir / "startup.c").write_text(target.STARTUP)
     (out_dir / "fw_main.c").write_text(firmware_main(spec, est, *inputs, soc0))
     (out_dir / "link.ld").write_text(target.LINKER_SCRIPT)
@@ -142,24 +105,26 @@ def qemu_estimator_equivalence(model, time_s, current_a, voltage_v, soc0: float,
 
 
 def estimator_sizes(model, cfg=None, cpu: str = "m4f", opt: str = "-Os") -> dict:
-    """Flash / RAM of the estimator on ``cpu``: the object with it minus the object
-    without it (code, tables), sizeof(<prefix>_est_t) and the stack frames of est_step
-    and of what it calls (from -fstack-usage)."""
+    """Flash / RAM of the estimator on ``cpu``: its object (code, tables) beside the
+    model's, sizeof(<prefix>_est_t) and the stack frames of est_step and of what it calls
+    (from -fstack-usage, both objects)."""
     from .estc import est_state_bytes
 
     spec = prepare(model, numeric="float", prefix="fe")
     est = prepare_estimator(model, spec, cfg)
     with tempfile.TemporaryDirectory(prefix="ecmgen-est-size-") as tmp:
-        with_est = cross_compile_estimator(spec, est, Path(tmp) / "e", cpu=cpu, opt=opt)
-        plain = target.cross_compile(spec, Path(tmp) / "p", cpu=cpu, opt=opt)
-        a, b = target.sizes(with_est.obj), target.sizes(plain.obj)
-        su = target.stack_usage(with_est.obj)
-        funcs = target.undefined_symbols(with_est.obj)
+        m_obj, e_obj = (o.obj for o in cross_compile_estimator(spec, est, Path(tmp), cpu=cpu,
+                                                                opt=opt))
+        a, b = target.sizes(e_obj), target.sizes(m_obj)
+        su = target.stack_usage(m_obj) | target.stack_usage(e_obj)
+        funcs = sorted(set(target.undefined_symbols(e_obj)) - {spec.prefix + "_step_f32",
+                                                               spec.prefix + "_init_f32",
+                                                               spec.prefix + "_model_f32"})
     frames = {k: v for k, v in su.items() if not k.endswith(("_init_f32", "_run_f32"))}
     return {"cpu": CPUS[cpu]["name"], "opt": opt,
-            "code_total": a["code"], "code_estimator": a["code"] - b["code"],
-            "tables_total": a["tables"], "tables_estimator": a["tables"] - b["tables"],
-            "ram_static": a["ram"], "state_bytes": est_state_bytes(spec, est),
+            "code_total": a["code"] + b["code"], "code_estimator": a["code"],
+            "tables_total": a["tables"] + b["tables"], "tables_estimator": a["tables"],
+            "ram_static": a["ram"] + b["ram"], "state_bytes": est_state_bytes(spec, est),
             "stack_frames": frames,
             "stack_est_step": sum(frames.values()),     # est_step + what it calls, at most
             "libgcc": funcs}

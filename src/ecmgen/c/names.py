@@ -15,8 +15,11 @@ value types -                                       ``<prefix>_<quantity>_q<N>_t
                                                     in the name, e.g. ``<prefix>_amp_q24_t``)
 ==========  ======================================  ======================================
 
-The SOC estimator (float32): ``<prefix>_est_f32.h``, ``<prefix>_est_f32_t``,
-``<prefix>_est_init_f32`` / ``<prefix>_est_step_f32``, macros ``<PREFIX>_EST_F32_*``. The
+The SOC estimator (float32): ``<prefix>_est_f32.h`` / ``.c``, ``<prefix>_est_f32_t``,
+``<prefix>_est_init_f32`` / ``<prefix>_est_step_f32``, macros ``<PREFIX>_EST_F32_*``.
+Internal to the generated C (not for the firmware's own code): ``<prefix>_ecm_<s>_config.h``
+(the runtime configured for the model, included by the model's and the estimator's ``.c``)
+and ``<prefix>_model_<s>``, the model's tables (``const``; the estimator reads them). The
 runtime headers (``ecmrt*.h``) have no external symbols (static inline only).
 """
 
@@ -33,10 +36,12 @@ def c_names(prefix: str, numeric: str) -> dict[str, str]:
         "suffix": s,
         "header": f"{prefix}_ecm_{s}.h", "source": f"{prefix}_ecm_{s}.c",
         "filelist": f"{prefix}_ecm_{s}_files.mk", "report": f"{prefix}_ecm_{s}_report.md",
+        "config": f"{prefix}_ecm_{s}_config.h", "tables": f"{prefix}_model_{s}",
         "state": f"{prefix}_state_{s}_t", "init": f"{prefix}_init_{s}",
         "step": f"{prefix}_step_{s}", "run": f"{prefix}_run_{s}",
         "M": f"{P}_ECM_{s.upper()}",
-        "est_header": f"{prefix}_est_f32.h", "est_t": f"{prefix}_est_f32_t",
+        "est_header": f"{prefix}_est_f32.h", "est_source": f"{prefix}_est_f32.c",
+        "est_t": f"{prefix}_est_f32_t",
         "est_init": f"{prefix}_est_init_f32", "est_step": f"{prefix}_est_step_f32",
         "EM": f"{P}_EST_F32",
     }

@@ -33,6 +33,7 @@ from ..errors import InputError
 from ..model.model_schema import check_model_ranges
 from ..model.model import DIRECTIONS, RC_FIELDS, EcmModel, _grid_weights, load_model
 from .qformat import Q_TEMP, quantize
+from .runtime import switches
 
 NUMERICS = ("float", "fixed")
 # effects (ecmgen.model.effects) the generated C implements, per numeric
@@ -202,15 +203,21 @@ class CSpec:
 
     @property
     def switches(self) -> dict[str, int]:
-        """The runtime's compile-time switches (ECMRT_<name>)."""
+        """The runtime's compile-time switches (ECMRT_<name>), in ecmrt_config.h's order
+        (the one list, :func:`ecmgen.c.runtime.switches`)."""
         fx = self.fx
-        return {"TEMP": int(self.temp), "OCV_SHARED": int(self.ocv_shared),
+        on = {"VARIABLE_DT": int(self.variable_dt), "TEMP": int(self.temp), "OCV_SHARED": int(self.ocv_shared),
                 "RC_UNIFORM": int(self.rc_uniform), "OCV_UNIFORM": int(self.ocv_uniform),
                 "TAU_T": int(self.tau_t), "TAU_SAME": int(self.tau_same),
                 "DIFF": int(self.diff), "BV": int(self.has_bv),
                 "FX_HYST": int(bool(fx.get("hyst"))), "FX_XRC": int(bool(fx.get("xrc"))),
                 "FX_CDR": int(bool(fx.get("cdr"))), "FX_ARR": int(bool(fx.get("arr"))),
                 "SURFACE": int(self.surface is not None)}
+        names = switches()
+        if set(on) != set(names):
+            raise AssertionError(f"the generator's switches {sorted(on)} are not "
+                                 f"ecmrt_config.h's {sorted(names)}")
+        return {k: on[k] for k in names}
 
 
 def state_fields(spec: CSpec) -> list[tuple[str, str, str]]:
@@ -519,6 +526,34 @@ def _float_grid(x, name: str, uniform: bool = False) -> CGrid:
     if inv is None:
         return CGrid(x32, _f32(1.0 / dx, name + " spacing"))
     return CGrid(x32, _f32(1.0 / dx, name + " spacing"), x0=x32[0], inv_h=np.float32(inv))
+
+
+def _every(n: int, step: int) -> np.ndarray:
+    """Indices 0, step, 2 step, ... and the last of n breakpoints."""
+    idx = np.arange(0, n, step)
+    return idx if idx[-1] == n - 1 else np.append(idx, n - 1)
+
+
+def coarsen_tables(model, ocv_soc_step: int = 1, rc_soc_step: int = 1):
+    """The model with its OCV and RC tables on every n-th SOC breakpoint (ends kept): the
+    flash options ``[c] ocv_soc_step`` / ``rc_soc_step``. The C and its references are made
+    from what this returns; model.json keeps every breakpoint. Steps of 1: ``model``."""
+    from dataclasses import replace
+
+    model = _as_model(model)
+    if ocv_soc_step > 1:
+        idx = _every(np.size(model.ocv.soc), ocv_soc_step)
+        model = replace(model, ocv=replace(model.ocv, soc=np.asarray(model.ocv.soc)[idx],
+                                           ocv_v=np.asarray(model.ocv.ocv_v)[..., idx]))
+    if rc_soc_step > 1:
+        def one(t):
+            idx = _every(np.size(t.soc), rc_soc_step)
+            cols = {f: np.asarray(getattr(t, f))[..., idx] for f in (*RC_FIELDS, "fit_error",
+                                                                     "converged")
+                    if getattr(t, f, None) is not None}
+            return replace(t, soc=np.asarray(t.soc)[idx], **cols)
+        model = replace(model, charge=one(model.charge), discharge=one(model.discharge))
+    return model
 
 
 def begin(model, numeric: str, dt_s: float | None, prefix: str, i_max_a: float | None

@@ -29,6 +29,7 @@ import numpy as np
 from .cbuild import STRICT_CFLAGS, CBuildError, compile_spec, extra_states
 from .codegen import CSpec, file_names, prepare, render
 from .names import c_names
+from .runtime import templates_dir
 
 INSTALL_HINT = "sudo apt-get install gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm"
 GCC, SIZE, NM, OBJDUMP, QEMU = ("arm-none-eabi-gcc", "arm-none-eabi-size", "arm-none-eabi-nm",
@@ -159,64 +160,9 @@ def float_instructions(obj) -> list[str]:
 # bare-metal image for QEMU
 # --------------------------------------------------------------------------------------
 
-LINKER_SCRIPT = """/* MPS2 AN385/AN386: code in SSRAM1 at 0, data in SSRAM2/3; QEMU loads every section */
-MEMORY { FLASH (rx) : ORIGIN = 0x00000000, LENGTH = 4M
-         RAM (rwx)  : ORIGIN = 0x20000000, LENGTH = 4M }
-ENTRY(Reset_Handler)
-SECTIONS {
-  .text : { KEEP(*(.vectors)) *(.text*) *(.rodata*) } > FLASH
-  .ARM.exidx : { *(.ARM.exidx*) } > FLASH
-  .data : { *(.data*) } > RAM
-  .bss (NOLOAD) : { __bss_start__ = .; *(.bss*) *(COMMON); __bss_end__ = .; } > RAM
-  __stack_top__ = ORIGIN(RAM) + LENGTH(RAM);
-}
-"""
-
-STARTUP = r"""/* minimal Cortex-M startup + ARM semihosting (SYS_OPEN/WRITE/CLOSE/EXIT_EXTENDED) */
-#include <stdint.h>
-int main(void);
-extern uint32_t __bss_start__, __bss_end__, __stack_top__;
-
-int ecmh_semihost(int op, void *arg)
-{
-    register int r0 __asm__("r0") = op;
-    register void *r1 __asm__("r1") = arg;
-    __asm__ volatile("bkpt 0xAB" : "+r"(r0) : "r"(r1) : "memory");
-    return r0;
-}
-
-static void ecmh_exit(uint32_t code)
-{
-    uint32_t blk[2] = {0x20026u, code};      /* ADP_Stopped_ApplicationExit, status */
-    ecmh_semihost(0x20, blk);
-    for (;;) {
-    }
-}
-
-void Reset_Handler(void)
-{
-    uint32_t *p;
-    for (p = &__bss_start__; p < &__bss_end__; p++) {
-        *p = 0u;
-    }
-#if defined(__ARM_FP)
-    *(volatile uint32_t *)0xE000ED88u |= (0xFu << 20);   /* CPACR: enable CP10/CP11 */
-    __asm__ volatile("dsb\n\tisb");
-#endif
-    ecmh_exit((uint32_t)main());
-}
-
-void Fault_Handler(void)
-{
-    ecmh_exit(99u);
-}
-
-__attribute__((section(".vectors"), used)) const void *const ecmh_vectors[16] = {
-    &__stack_top__, (const void *)Reset_Handler, (const void *)Fault_Handler,
-    (const void *)Fault_Handler, (const void *)Fault_Handler, (const void *)Fault_Handler,
-    (const void *)Fault_Handler,
-};
-"""
+# the image's startup code and linker script (C a reviewer can lint, in templates/)
+STARTUP = (templates_dir() / "target_startup.c.j2").read_text()
+LINKER_SCRIPT = (templates_dir() / "target_mps2.ld.j2").read_text()
 
 OUT_NAME = "ecmh_out.bin"
 
@@ -250,70 +196,28 @@ def _array(name: str, a: np.ndarray, fixed: bool) -> str:
     return f"static const {ctype} {name}[{len(vals)}] = {{\n{body}\n}};\n"
 
 
-def firmware_main(runs: list[TargetRun]) -> str:
-    parts = ["#include <stdint.h>\n#include <stddef.h>\n",
-             "typedef union { uint32_t u; float f; } ecmh_f32_t;\n",
-             "int ecmh_semihost(int op, void *arg);\n"]
-    calls = []
-    for r in runs:
-        p, fixed = r.spec.prefix, r.spec.fixed
-        nm = c_names(p, r.spec.numeric)
-        n = int(r.i.size)
-        t = "int32_t" if fixed else "float"
-        get = (lambda a: f"{a}[k]") if fixed else (lambda a: f"{a}[k].f")
-        parts.append(f'#include "{nm["header"]}"\n')
-        parts.append(_array(f"{p}_in_i", r.i, fixed))
-        temp = np.zeros(n) if r.temp is None else r.temp
-        parts.append(_array(f"{p}_in_t", temp, fixed))
-        if r.spec.variable_dt:
-            parts.append(_array(f"{p}_in_dt", r.dt, fixed))
-        soc0 = str(int(r.soc0)) if fixed else f"{float(np.float32(r.soc0)).hex()}f"
-        dt_arg = f", {get(p + '_in_t')}" + (f", {get(p + '_in_dt')}" if r.spec.variable_dt else "")
-        fx_rec = "".join(f"        {p}_out[{j}u * {n}u + k] = s.{f};\n"
-                         for j, f in enumerate(r.fields) if j >= 2)
-        parts.append(f"""static {t} {p}_out[{len(r.fields)} * {n}];
-static void run_{p}(void)
-{{
-    {nm['state']} s;
-    size_t k;
-    {nm['init']}(&s, {soc0});
-    for (k = 0; k < {n}u; k++) {{
-        {p}_out[k] = {nm['step']}(&s, {get(p + '_in_i')}{dt_arg});
-        {p}_out[{n}u + k] = s.soc;
-{fx_rec}    }}
-}}
-""")
-        calls.append((p, n))
-    body = "\n".join(f"    run_{p}();" for p, _ in calls)
-    writes = "\n".join(f"    if (write_all(h, {p}_out, sizeof {p}_out) != 0) return 2;" for p, _ in calls)
-    parts.append(f"""
-static int write_all(int h, const void *buf, size_t len)
-{{
-    uint32_t blk[3];
-    blk[0] = (uint32_t)h;
-    blk[1] = (uint32_t)buf;
-    blk[2] = (uint32_t)len;
-    return ecmh_semihost(0x05, blk);     /* SYS_WRITE: returns bytes not written */
-}}
+def render_main(runs: list[dict]) -> str:
+    """fw_main.c from templates/target_main.c.j2: ``runs`` as :func:`firmware_main` and
+    ecmgen.c.esttarget make them."""
+    from .codegen import _env
 
-int main(void)
-{{
-    static const char name[] = "{OUT_NAME}";
-    uint32_t blk[3];
-    int h;
-{body}
-    blk[0] = (uint32_t)name;
-    blk[1] = 5u;                         /* "wb" */
-    blk[2] = sizeof name - 1u;
-    h = ecmh_semihost(0x01, blk);
-    if (h < 0) return 1;
-{writes}
-    blk[0] = (uint32_t)h;
-    ecmh_semihost(0x02, blk);
-    return 0;
-}}
-""")
-    return "".join(parts)
+    return _env().get_template("target_main.c.j2").render(runs=runs, out_name=OUT_NAME)
+
+
+def firmware_main(runs: list[TargetRun]) -> str:
+    """main(): every model over its inputs; voltage, SOC and the optional states of each."""
+    out = []
+    for r in runs:
+        p, fixed, n = r.spec.prefix, r.spec.fixed, int(r.i.size)
+        temp = np.zeros(n) if r.temp is None else r.temp
+        ins = [("i", r.i), ("t", temp)] + ([("dt", r.dt)] if r.spec.variable_dt else [])
+        out.append({"p": p, "nm": c_names(p, r.spec.numeric), "est": False, "n": n,
+                    "header": c_names(p, r.spec.numeric)["header"],
+                    "t": "int32_t" if fixed else "float", "f": "" if fixed else ".f",
+                    "vdt": r.spec.variable_dt, "fields": r.fields, "size": len(r.fields) * n,
+                    "soc0": str(int(r.soc0)) if fixed else f"{float(np.float32(r.soc0)).hex()}f",
+                    "arrays": "".join(_array(f"{p}_in_{k}", a, fixed) for k, a in ins)})
+    return render_main(out)
 
 
 def build_firmware(runs: list[TargetRun], out_dir, cpu: str = "m4f", opt: str = "-O2") -> Path:

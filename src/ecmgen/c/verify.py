@@ -1,7 +1,9 @@
 """``ecmgen verify``: the firmware team's copy of the generated C against the golden vectors.
 
 The golden folder (a build's ``c/float`` or ``c/fixed``, or the build folder holding both)
-has ``<prefix>_ecm_<s>_vectors.h`` and ``<prefix>_ecm_<s>_test.c`` (:mod:`ecmgen.c.golden`).
+has ``<prefix>_ecm_<s>_vectors.h`` and ``<prefix>_ecm_<s>_test.c`` (:mod:`ecmgen.c.golden`),
+and with the estimator ``<prefix>_est_f32_vectors.h`` and its test (linked with the model's
+``<prefix>_ecm_f32.c`` too; :mod:`ecmgen.c.estgolden`).
 For each, the C as the user has it (``--c``: the folder of their ``<prefix>_ecm_<s>.c`` and
 headers; default the golden folder itself) is compiled with their compiler and flags, the
 test program is run (``--run``: e.g. a QEMU command for a cross compiler) and its one-line
@@ -22,6 +24,7 @@ from pathlib import Path
 from ..errors import InputError
 
 VECTORS_GLOB = "*_vectors.h"
+EST_STEM = "_est_f32"           # <prefix>_est_f32_vectors.h: the estimator's (ecmgen.c.estgolden)
 DEFAULT_CFLAGS = "-std=c99 -O2 -ffp-contract=off"
 
 
@@ -54,16 +57,18 @@ def _compile_and_run(vec: Path, csrc: Path | None, cc: list[str], cflags: list[s
     stem = vec.name[:-len("_vectors.h")]
     test = vec.with_name(f"{stem}_test.c")
     src_dir = csrc if csrc is not None else vec.parent
-    source = src_dir / f"{stem}.c"
-    for need in (test, source):
+    sources = [src_dir / f"{stem}.c"]
+    if stem.endswith(EST_STEM):         # the estimator links the model's step and tables
+        sources.append(src_dir / f"{stem[:-len(EST_STEM)]}_ecm_f32.c")
+    for need in (test, *sources):
         if not need.is_file():
             raise InputError(need, "missing: the golden test program and the model's source "
                                    "are needed")
     with tempfile.TemporaryDirectory(prefix="ecmgen-verify-") as tmp:
         exe = Path(tmp) / f"{stem}_test"
         # the user's folder first: their headers (and runtime) are the ones under test
-        args = [*cc, *cflags, "-I", str(src_dir), "-I", str(vec.parent), str(test), str(source),
-                "-o", str(exe)]
+        args = [*cc, *cflags, "-I", str(src_dir), "-I", str(vec.parent), str(test),
+                *map(str, sources), "-o", str(exe)]
         try:
             proc = subprocess.run(args, capture_output=True, text=True, timeout=timeout)
         except FileNotFoundError:
