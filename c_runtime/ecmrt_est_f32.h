@@ -19,8 +19,8 @@
  *       column through the tables' SOC slopes at the new SOC; u_x and h have no SOC
  *       slope: a_x = 1 - c_x, a_h = 1 - c_h, the step's own coefficients), P = F P F^T + Q;
  *   at the first sample Q also carries the RC voltages' start variance (r_j start_a)^2;
- *   H = [dOCV/dsoc + dr0/dsoc g f i, 1, 1 (, 1) (, 1) (, m_v)], R from the model error and
- *       its correlation time (R = 0: the sample carries no information, e.g. dt = 0; but
+ *   H = [dOCV/dsoc + dr0/dsoc g f i, 1, 1 (, 1) (, 1) (, m_v)], R from the model error (of
+ *       the overpotential, or of the one held in *eta when that is larger) and its correlation time (R = 0: the sample carries no information, e.g. dt = 0; but
  *       with start_a = 0 the first sample counts fully, the cell taken rested); the resistances and their SOC slopes times the effects' factors
  *       (current_dependent_resistance g on r0 and r_fast, temperature_dependence f on r0,
  *       r_fast and r_slow, as the step);
@@ -95,6 +95,7 @@ typedef struct {
     float model_error;        /* model voltage error / model overpotential */
     float corr_s;             /* error_correlation_s */
     float start_a;            /* the RC voltages' start sigma is r_j times this current, A */
+    float mem_k;              /* 1 / error_memory_s (0: the model error has no memory), 1/s */
 #if ECMRT_FX_HYST
     float p0_h;               /* hysteresis_sigma^2: h's initial variance and its noise scale */
 #endif
@@ -398,7 +399,7 @@ static inline float ecmrt_est_f32_abs(float x)
  * covariance, row-major, exactly symmetric. */
 static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
                                         const ecmrt_est_f32_noise_t *nz, ECMRT_STATE *s,
-                                        float *P, uint8_t *first,
+                                        float *P, uint8_t *first, float *eta,
                                         const ecmrt_est_f32_prior_t *pr, float i, float temp,
                                         float dt, float vp, float vm, float *ob)
 {
@@ -687,7 +688,18 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 #if ECMRT_EST_OFFSET
     h[ECMRT_EST_IB] = -(rb0 * dg0);                   /* d v / d offset = -r0 d(i g0)/di */
 #endif
-    e = nz->model_error * (vp - p.ocv);
+    /* the overpotential the model's error scales with: |vp - ocv|, or (mem_k > 0) the one
+     * held from before, decayed by exp(-dt / error_memory_s), when that is larger */
+    e = vp - p.ocv;
+    e = e < 0.0f ? -e : e;
+    if (nz->mem_k > 0.0f) {
+        r = *eta - *eta * ecmrt_f32_one_minus_exp_neg(dt * nz->mem_k);
+        if (r > e) {
+            e = r;
+        }
+    }
+    *eta = e;
+    e = nz->model_error * e;
     r = nz->vn2 + e * e;
     /* a record taken to start rested (start_a = 0): its first sample counts fully */
     if (!(*first && nz->start_a == 0.0f) && dt < nz->corr_s) {

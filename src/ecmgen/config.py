@@ -61,6 +61,7 @@ class EstimatorConfig:
     # polarization_error 0.2 were chosen on the 25 and 0 degC cycles cut to start anywhere,
     # -10 and -20 degC held out (bench/estimate_any_start.py, docs/estimator.md)
     start_polarization_c: float = 0.0
+    error_memory_s: float = 0.0
 
     def __post_init__(self):
         if self.filter not in ESTIMATOR_FILTERS:

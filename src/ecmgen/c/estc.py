@@ -1,8 +1,8 @@
 """The SOC estimator in C (``[c] estimator = "ekf"``): its spec, its rendering next to the
 model's step, and its cffi harness.
 
-``<prefix>_est_f32.h`` declares ``<prefix>_est_f32_t`` (the model's state, the covariance, a
-first-sample flag) and ``<prefix>_est_init_f32`` / ``<prefix>_est_step_f32``; their bodies are
+``<prefix>_est_f32.h`` declares ``<prefix>_est_f32_t`` (the model's state, the covariance, the
+overpotential the model error holds, a first-sample flag) and ``<prefix>_est_init_f32`` / ``<prefix>_est_step_f32``; their bodies are
 appended to ``<prefix>_ecm_f32.c`` (same translation unit as the model's ``static const``
 tables, so the filter's table accessor reads them and the model's step inlines), with the
 filter itself in the hand-written ``c_runtime/ecmrt_est_f32.h``. The filter is the extended
@@ -44,7 +44,8 @@ NOISE_FIELDS = (("p0_soc", "initial SOC variance, soc0_sigma^2"),
                 ("vn2", "voltage_noise_v^2, V^2"),
                 ("model_error", "model voltage error / model overpotential"),
                 ("corr_s", "error_correlation_s, s"),
-                ("start_a", "the RC voltages' start sigma is r_j times this current, A"))
+                ("start_a", "the RC voltages' start sigma is r_j times this current, A"),
+                ("mem_k", "1 / error_memory_s (0: the model error has no memory), 1/s"))
 # with a hysteresis effect (ECMRT_FX_HYST) only; with the offset state (ECMRT_EST_OFFSET) only
 HYST_FIELDS = (("p0_h", "hysteresis_sigma^2: h's initial variance and noise scale"),)
 OFFSET_FIELDS = (("p0_b", "offset_a^2: the offset state's initial variance, A^2"),)
@@ -102,6 +103,7 @@ def prepare_estimator(model, spec: CSpec, cfg: EstimatorConfig | None = None,
             "pol": nm.polarization_error, "vn2": nm.voltage_noise_v ** 2,
             "model_error": nm.model_error, "corr_s": nm.error_correlation_s,
             "start_a": nm.start_current_a,
+            "mem_k": 1.0 / nm.error_memory_s if nm.error_memory_s > 0 else 0.0,
             "p0_h": nm.hysteresis_sigma ** 2, "p0_b": nm.offset_sigma_a ** 2}
     # the states of ecmgen.estimate.process.state_layout, in its order
     names = (("soc", "u_fast_v", "u_slow_v") + (("u_diff_v",) if spec.diff else ())
@@ -171,7 +173,7 @@ def cdef(spec: CSpec, est: EstSpec) -> str:
     et = nm["est_t"]
     return "\n".join([
         f"typedef struct {{ {nm['state']} m; float p[{est.n * est.n}]; "
-        + ("float offset_a; " if est.offset else "") + f"uint8_t first; }} {et};",
+        + ("float offset_a; " if est.offset else "") + f"float eta_v; uint8_t first; }} {et};",
         f"void {nm['est_init']}({et} *e, float soc0);",
         f"float {nm['est_step']}({et} *e, float i, float temperature, float dt, float v);",
         _trace_sig(spec) + ";",
@@ -181,5 +183,5 @@ def cdef(spec: CSpec, est: EstSpec) -> str:
 
 def est_state_bytes(spec: CSpec, est: EstSpec) -> int:
     """sizeof(<prefix>_est_t) on a 32-bit target: the model's state, the covariance, the
-    flag, padded to 4."""
-    return -(-(state_bytes(spec) + 4 * est.n * est.n + 4 * est.offset + 1) // 4) * 4
+    held overpotential, the flag, padded to 4."""
+    return -(-(state_bytes(spec) + 4 * est.n * est.n + 4 * est.offset + 4 + 1) // 4) * 4

@@ -302,6 +302,7 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
         imax, dband = F32(spec.i_lim_a), F32(spec.deadband)
     k_soc = F32(spec.k_soc)
     first = True
+    held = ZERO                      # est_t's eta_v
     v_out = np.empty(n, dtype=F32)
     x_out = np.empty((n, N), dtype=F32)
     p_out = np.empty((n, N, N), dtype=F32)
@@ -496,7 +497,13 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
             if surf:
                 f_out[t, 1:3, 3] = g[1:3]
             h_out[t] = h
-        e = nz["model_error"] * (vp - pa["ocv"][0])
+        e = _abs(vp - pa["ocv"][0])
+        if nz["mem_k"] > ZERO:
+            r = held - held * omexp(dt * nz["mem_k"])
+            if r > e:
+                e = r
+        held = e
+        e = nz["model_error"] * e
         R = nz["vn2"] + e * e
         if not (first and nz["start_a"] == ZERO) and dt < nz["corr_s"]:
             R = R * (nz["corr_s"] / dt) if dt > ZERO else ZERO

@@ -78,6 +78,7 @@ class NoiseModel:
     error_correlation_s: float
     start_current_a: float = 0.0   # the RC voltages' start sigma is r_j times this current
     hysteresis_sigma: float = 0.1
+    error_memory_s: float = 0.0    # the model error's overpotential decays over this
 
     @staticmethod
     def from_config(cfg: EstimatorConfig, capacity_ah: float) -> "NoiseModel":
@@ -85,13 +86,27 @@ class NoiseModel:
         return NoiseModel(cfg.soc0_sigma, cfg.u0_sigma_v, offset,
                           cfg.current_gain_error, cfg.current_noise_a, cfg.drift_horizon_s,
                           cfg.polarization_error, cfg.voltage_noise_v, cfg.model_error,
-                          cfg.error_correlation_s, cfg.start_polarization_c * capacity_ah)
+                          cfg.error_correlation_s, cfg.start_polarization_c * capacity_ah,
+                          error_memory_s=cfg.error_memory_s)
 
-    def measurement_variance(self, v_pred: float, ocv: float, dt: float, first: bool
-                             ) -> float:
-        """R_k, or 0.0 for a sample that carries no information (dt = 0, but for the
-        first sample of a record taken to start rested)."""
-        eta = self.model_error * (v_pred - ocv)
+    def error_overpotential(self, v_pred: float, ocv: float, dt: float, held: float
+                            ) -> float:
+        """The overpotential the model error scales with: |v_pred - ocv|, or with
+        ``error_memory_s`` the largest of it and the one held from before, decayed by
+        exp(-dt / error_memory_s) (after a current step the model's error outlasts the
+        overpotential it came with)."""
+        eta = abs(v_pred - ocv)
+        if self.error_memory_s > 0.0:
+            held = held * math.exp(-dt / self.error_memory_s)
+            if held > eta:
+                return held
+        return eta
+
+    def measurement_variance(self, eta: float, dt: float, first: bool) -> float:
+        """R_k for the overpotential ``eta`` (:meth:`error_overpotential`), or 0.0 for a
+        sample that carries no information (dt = 0, but for the first sample of a record
+        taken to start rested)."""
+        eta = self.model_error * eta
         var = self.voltage_noise_v * self.voltage_noise_v + eta * eta
         if (first and self.start_current_a == 0.0) or dt >= self.error_correlation_s:
             return var
@@ -166,6 +181,14 @@ class Filter:
         self.P = initial_covariance(self.step_model, self.noise)
         self.charging = False
         self.first = True
+        self.eta_held = 0.0
+
+    def variance(self, v_pred: float, ocv: float, dt: float) -> float:
+        """R of this sample (and the held overpotential updated); clears ``first``."""
+        self.eta_held = self.noise.error_overpotential(v_pred, ocv, dt, self.eta_held)
+        R = self.noise.measurement_variance(self.eta_held, dt, self.first)
+        self.first = False
+        return R
 
 
 class Ekf(Filter):
@@ -181,8 +204,7 @@ class Ekf(Filter):
         P = F @ self.P @ F.T
         P[np.diag_indices(n)] += process_noise(sm, self.noise, aux, dt, self.first)
         v_pred, H, ocv = sm.measure(x, aux, tw, tw_ocv, tfac)
-        R = self.noise.measurement_variance(v_pred, ocv, dt, self.first)
-        self.first = False
+        R = self.variance(v_pred, ocv, dt)
         if R > 0.0:
             x0 = np.array(x)
             H = np.array(H)
