@@ -59,6 +59,9 @@
 #if !defined(ECMRT_EST_OFFSET)
 #error "ECMRT_EST_OFFSET (the current-offset state, 0 or 1) is defined by the generated .c"
 #endif
+#if !defined(ECMRT_EST_SLOPES)
+#define ECMRT_EST_SLOPES 1        /* the Jacobians carry the RC tables' SOC slopes */
+#endif
 
 /* soc, u_fast, u_slow (, u_diff) (, u_x) (, h) (, offset_a) */
 #define ECMRT_EST_N (3u + (unsigned)ECMRT_DIFF + (unsigned)ECMRT_FX_XRC + \
@@ -244,6 +247,13 @@ static inline void ecmrt_est_f32_params(const ecmrt_f32_model_t *m, const ECMRT_
         ECMRT_EST_VS(row, ECMRT_P_KS, p->ts, p->dts);
 #endif
     }
+#if !ECMRT_EST_SLOPES
+    /* the Jacobians take the RC tables as flat in SOC: the SOC is read from the OCV alone */
+    p->dr0 = 0.0f;
+    if (all) {
+        p->drf = p->dtf = p->drs = p->dts = 0.0f;
+    }
+#endif
 #if ECMRT_OCV_SHARED
     ECMRT_EST_VS(row, ECMRT_P_OCV, p->ocv, p->docv);
 #else

@@ -285,6 +285,27 @@ def test_a_loaded_first_sample_leaves_the_rc_voltages_unknown(model, built, firs
     assert np.all(np.diagonal(got.p[0])[1:4] > np.diagonal(rested.p[0])[1:4] + 5 * p0_u)
 
 
+def test_the_soc_read_from_the_ocv_alone(model, built):
+    """resistance_slopes = false: the Jacobians take the RC tables as flat in SOC; C ==
+    float32 reference, bit for bit, and follows the float64 filter; H's SOC entry is the
+    OCV's slope alone (its SOC sigma differs from the filter with the slopes)."""
+    s = _cycle("0degC", "us06")
+    sl = slice(5000, 8000)
+    seen = SCENARIO["gain"] * s.current_a[sl] + SCENARIO["offset"]
+    cfg = EstimatorConfig(start_polarization_c=0.5, resistance_slopes=False)
+    flat = compile_spec(built.spec, estimator=prepare_estimator(model, built.spec, cfg))
+    args = (seen, cref.dt_from_time(s.time_s[sl]), s.voltage_v[sl], 0.6,
+            s.temperature_c[sl])
+    got = run_estimator_c(flat, *args)
+    assert bits_equal(got, simulate_estimator_f32(flat.spec, flat.estimator, *args))
+    ref = run_filter(model, s.time_s[sl], seen, s.voltage_v[sl], 0.6, cfg,
+                     s.temperature_c[sl])
+    assert np.max(np.abs(got.soc - ref.soc)) < 1e-3
+    sloped = run_filter(model, s.time_s[sl], seen, s.voltage_v[sl], 0.6,
+                        replace(cfg, resistance_slopes=True), s.temperature_c[sl])
+    assert abs(ref.soc_sigma[-1] - sloped.soc_sigma[-1]) > 1e-4
+
+
 def test_the_model_error_held_after_a_current_step(model, built):
     """error_memory_s > 0: the overpotential the model error scales with is held and
     decays after a current step; C == float32 reference, bit for bit; its SOC follows the

@@ -62,6 +62,10 @@ class EstimatorConfig:
     # -10 and -20 degC held out (bench/estimate_any_start.py, docs/estimator.md)
     start_polarization_c: float = 0.0
     error_memory_s: float = 0.0
+    # the EKF's Jacobians carry the RC tables' SOC slopes (r0, r_fast, tau ... over SOC):
+    # False reads the SOC from the OCV alone (the resistances' SOC slopes are fitted, not
+    # validated; in the cold they made the filter confident and wrong)
+    resistance_slopes: bool = True
 
     def __post_init__(self):
         if self.filter not in ESTIMATOR_FILTERS:

@@ -217,6 +217,8 @@ SECTIONS: tuple[Section, ...] = (
         Key("error_memory_s", NUMBER, "0: the model error scales with the overpotential "
             "of the sample; above: with the largest since, decayed over this time", unit="s",
             range=(0.0, 1e6), default="0"),
+        Key("resistance_slopes", BOOL, "the Jacobians carry the RC tables' SOC slopes; "
+            "false: the SOC is read from the OCV alone", default="true"),
     )),
     Section("diagnose", "ecmgen diagnose: missing effects found on data.cycle", (
         Key("judge", FILE, "a second cycle to judge on",

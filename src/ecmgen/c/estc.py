@@ -124,6 +124,7 @@ def render_estimator(env, ctx: dict, est: EstSpec, c_float) -> tuple[str, str]:
     """(the code appended to <prefix>_ecm.c, the text of <prefix>_est.h); ``env`` and
     ``ctx`` the renderer's jinja2 environment and context, ``c_float`` its float literal."""
     ectx = dict(ctx, n=est.n, names=est.names, offset=est.offset,
+                slopes=est.settings.resistance_slopes,
                 noise=[(k, c_float(est.noise[k]), c) for k, c in est.noise_fields])
     return (env.get_template("ecm_est.c.j2").render(ectx),
             env.get_template("ecm_est.h.j2").render(ectx))

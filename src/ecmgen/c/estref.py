@@ -303,6 +303,7 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
     k_soc = F32(spec.k_soc)
     first = True
     held = ZERO                      # est_t's eta_v
+    flat = not est.settings.resistance_slopes
     v_out = np.empty(n, dtype=F32)
     x_out = np.empty((n, N), dtype=F32)
     p_out = np.empty((n, N, N), dtype=F32)
@@ -349,6 +350,8 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
             rf = rf * cur["g_bv"]
         # the accessor (ecmrt_est_f32_params) at the same SOC
         pa = tab.values(d, soc, kt, wt, fields_all, True, socr)
+        if flat:                     # ECMRT_EST_SLOPES 0: the RC tables flat in SOC
+            pa = {k: (v[0], ZERO) if k != "ocv" else v for k, v in pa.items()}
         if tau_t:            # the state's coefficients kc = 1/tau(T), for step and filter
             cf, cs = omexp(dt * src["kc_f"][t]), omexp(dt * src["kc_s"][t])
             ja = (cf, cs)
@@ -527,6 +530,8 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
                 socr, sds, _ = (tab.surface(xu[0], u_prev[3], kt, wt) if surf
                                 else (xu[0], None, None))
                 pi = tab.values(d, xu[0], kt, wt, ("r0",), True, socr)
+                if flat:
+                    pi["r0"] = (pi["r0"][0], ZERO)
                 (r0i, dr0i) = pi["r0"]
                 if off:
                     h[ib] = -((r0i * fa if arr else r0i) * dg0)

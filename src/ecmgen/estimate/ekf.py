@@ -175,7 +175,7 @@ class Filter:
     first. Subclasses define ``step(dt, i_seen, tw, tw_ocv, tfac, v_meas) -> v_pred``."""
 
     def __init__(self, model: EcmModel, cfg: EstimatorConfig, soc0: float):
-        self.step_model = StepModel(model, cfg.offset_state)
+        self.step_model = StepModel(model, cfg.offset_state, cfg.resistance_slopes)
         self.noise = NoiseModel.from_config(cfg, model.capacity_ah)
         self.x = initial_state(self.step_model, soc0)
         self.P = initial_covariance(self.step_model, self.noise)
