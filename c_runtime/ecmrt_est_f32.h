@@ -99,6 +99,7 @@ typedef struct {
     float corr_s;             /* error_correlation_s */
     float start_a;            /* the RC voltages' start sigma is r_j times this current, A */
     float mem_k;              /* 1 / error_memory_s (0: the model error has no memory), 1/s */
+    float pol_s2;             /* polarization_soc_sigma^2 (0: the RC noise is not scaled) */
 #if ECMRT_FX_HYST
     float p0_h;               /* hysteresis_sigma^2: h's initial variance and its noise scale */
 #endif
@@ -417,7 +418,7 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     const unsigned dir = s->charging;
     float a[N], f[N], q[N], h[N], x0[N], xu[N], xn[N], c[N], k[N], d[N], fp[N * N];
     const float ai = i < 0.0f ? -i : i;
-    float r, e, kk, b, one_a, da, rg, vi;
+    float r, e, kk, b, one_a, da, rg, vi, ps;
     float gf = 1.0f;
     ecmrt_est_f32_par_t p;
     unsigned u, v;
@@ -550,9 +551,13 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 #if ECMRT_EST_OFFSET
     o[1] = -((rbf * one_a) * dgf) - f[1] * ds_di;
 #endif
+    /* the RC noise's factor: s^2 / (s^2 + P_soc) with polarization_soc_sigma s (pol_s2 = s^2),
+     * 1 without: while the SOC is far less certain than s, a slow voltage offset is taken
+     * as SOC error rather than as polarisation */
+    ps = nz->pol_s2 > 0.0f ? nz->pol_s2 / (nz->pol_s2 + P[0]) : 1.0f;
     rg = p.rf * gf;
     e = (nz->pol * rg) * i;
-    q[1] = (e * e) * (1.0f - a[1] * a[1]);
+    q[1] = ((e * e) * (1.0f - a[1] * a[1])) * ps;
 #if ECMRT_TAU_T
     one_a = ecmrt_f32_one_minus_exp_neg(dt * ECMRT_KC(s, dir, ECMRT_K_S));
     a[2] = 1.0f - one_a;
@@ -570,7 +575,7 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     o[2] = -(p.rs * one_a) - f[2] * ds_di;
 #endif
     e = (nz->pol * p.rs) * i;
-    q[2] = (e * e) * (1.0f - a[2] * a[2]);
+    q[2] = ((e * e) * (1.0f - a[2] * a[2])) * ps;
 #if ECMRT_DIFF
     rd = ECMRT_EST_TV(br, ECMRT_B_RD);                /* r_diff, tau_diff: no SOC slope */
 #if ECMRT_TAU_T
@@ -585,7 +590,7 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 #endif
     f[3] = 0.0f;
     e = (nz->pol * rd) * i;
-    q[3] = (e * e) * (1.0f - ad * ad);
+    q[3] = ((e * e) * (1.0f - ad * ad)) * ps;
 #endif
 #if ECMRT_FX_XRC
     /* extra_rc: u_x' = a_x u_x + r_x (1 - a_x) i, no SOC slope */
@@ -596,7 +601,7 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 #endif
     f[ECMRT_EST_IX] = 0.0f;
     e = (nz->pol * m->x_r) * i;
-    q[ECMRT_EST_IX] = (e * e) * (1.0f - a[ECMRT_EST_IX] * a[ECMRT_EST_IX]);
+    q[ECMRT_EST_IX] = ((e * e) * (1.0f - a[ECMRT_EST_IX] * a[ECMRT_EST_IX])) * ps;
 #endif
 #if ECMRT_FX_HYST
     /* hysteresis: h' = a_h h + (1 - a_h) s, a_h = exp(-|i| dt / (3600 decay_ah)); its noise

@@ -292,7 +292,8 @@ def test_the_soc_read_from_the_ocv_alone(model, built):
     s = _cycle("0degC", "us06")
     sl = slice(5000, 8000)
     seen = SCENARIO["gain"] * s.current_a[sl] + SCENARIO["offset"]
-    cfg = EstimatorConfig(start_polarization_c=0.5, resistance_slopes=False)
+    cfg = EstimatorConfig(start_polarization_c=0.5, resistance_slopes=False,
+                          polarization_soc_sigma=0.02)
     flat = compile_spec(built.spec, estimator=prepare_estimator(model, built.spec, cfg))
     args = (seen, cref.dt_from_time(s.time_s[sl]), s.voltage_v[sl], 0.6,
             s.temperature_c[sl])

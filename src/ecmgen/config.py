@@ -66,6 +66,7 @@ class EstimatorConfig:
     # False reads the SOC from the OCV alone (the resistances' SOC slopes are fitted, not
     # validated; in the cold they made the filter confident and wrong)
     resistance_slopes: bool = True
+    polarization_soc_sigma: float = 0.0
 
     def __post_init__(self):
         if self.filter not in ESTIMATOR_FILTERS:

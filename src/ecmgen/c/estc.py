@@ -45,7 +45,8 @@ NOISE_FIELDS = (("p0_soc", "initial SOC variance, soc0_sigma^2"),
                 ("model_error", "model voltage error / model overpotential"),
                 ("corr_s", "error_correlation_s, s"),
                 ("start_a", "the RC voltages' start sigma is r_j times this current, A"),
-                ("mem_k", "1 / error_memory_s (0: the model error has no memory), 1/s"))
+                ("mem_k", "1 / error_memory_s (0: the model error has no memory), 1/s"),
+                ("pol_s2", "polarization_soc_sigma^2 (0: the RC noise is not scaled)"))
 # with a hysteresis effect (ECMRT_FX_HYST) only; with the offset state (ECMRT_EST_OFFSET) only
 HYST_FIELDS = (("p0_h", "hysteresis_sigma^2: h's initial variance and noise scale"),)
 OFFSET_FIELDS = (("p0_b", "offset_a^2: the offset state's initial variance, A^2"),)
@@ -104,6 +105,7 @@ def prepare_estimator(model, spec: CSpec, cfg: EstimatorConfig | None = None,
             "model_error": nm.model_error, "corr_s": nm.error_correlation_s,
             "start_a": nm.start_current_a,
             "mem_k": 1.0 / nm.error_memory_s if nm.error_memory_s > 0 else 0.0,
+            "pol_s2": nm.polarization_soc_sigma ** 2,
             "p0_h": nm.hysteresis_sigma ** 2, "p0_b": nm.offset_sigma_a ** 2}
     # the states of ecmgen.estimate.process.state_layout, in its order
     names = (("soc", "u_fast_v", "u_slow_v") + (("u_diff_v",) if spec.diff else ())

@@ -418,9 +418,10 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
             g[1], f[1] = f[1] * sdu, f[1] * sds
         if off:
             o[1] = -((rbf * one_a) * dgf) - f[1] * ds_di
+        ps = nz["pol_s2"] / (nz["pol_s2"] + P[0][0]) if nz["pol_s2"] > ZERO else ONE
         rg = rf_ * gf
         e = (nz["pol"] * rg) * i
-        q[1] = (e * e) * (ONE - a[1] * a[1])
+        q[1] = ((e * e) * (ONE - a[1] * a[1])) * ps
         one_a = ja[1]
         a[2] = ONE - one_a
         if not tau_t:
@@ -432,20 +433,20 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
         if off:
             o[2] = -(rs_ * one_a) - f[2] * ds_di
         e = (nz["pol"] * rs_) * i
-        q[2] = (e * e) * (ONE - a[2] * a[2])
+        q[2] = ((e * e) * (ONE - a[2] * a[2])) * ps
         if diff:
             ad = ONE - src["c_diff"][t]
             a[3] = ad
             if off:
                 o[3] = -(src["r_diff"][t] * src["c_diff"][t])
             e = (nz["pol"] * src["r_diff"][t]) * i
-            q[3] = (e * e) * (ONE - ad * ad)
+            q[3] = ((e * e) * (ONE - ad * ad)) * ps
         if xrc:
             a[ix] = ONE - cx
             if off:
                 o[ix] = -(x_r * cx)
             e = (nz["pol"] * x_r) * i
-            q[ix] = (e * e) * (ONE - a[ix] * a[ix])
+            q[ix] = ((e * e) * (ONE - a[ix] * a[ix])) * ps
         if hyst:
             a[ih] = ONE - ch
             q[ih] = nz["p0_h"] * (ch * (F32(2.0) - ch))

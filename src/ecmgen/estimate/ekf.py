@@ -79,6 +79,7 @@ class NoiseModel:
     start_current_a: float = 0.0   # the RC voltages' start sigma is r_j times this current
     hysteresis_sigma: float = 0.1
     error_memory_s: float = 0.0    # the model error's overpotential decays over this
+    polarization_soc_sigma: float = 0.0   # RC noise scaled by s^2 / (s^2 + P_soc); 0: off
 
     @staticmethod
     def from_config(cfg: EstimatorConfig, capacity_ah: float) -> "NoiseModel":
@@ -87,7 +88,8 @@ class NoiseModel:
                           cfg.current_gain_error, cfg.current_noise_a, cfg.drift_horizon_s,
                           cfg.polarization_error, cfg.voltage_noise_v, cfg.model_error,
                           cfg.error_correlation_s, cfg.start_polarization_c * capacity_ah,
-                          error_memory_s=cfg.error_memory_s)
+                          error_memory_s=cfg.error_memory_s,
+                          polarization_soc_sigma=cfg.polarization_soc_sigma)
 
     def error_overpotential(self, v_pred: float, ocv: float, dt: float, held: float
                             ) -> float:
@@ -136,10 +138,11 @@ def initial_state(step: StepModel, soc0: float) -> list[float]:
     return x
 
 
-def process_noise(step: StepModel, noise: NoiseModel, aux, dt: float, first: bool = False
-                  ) -> list[float]:
-    """Diagonal Q_k of one step (``aux`` from :meth:`StepModel.predict`); at the first
-    sample also the RC voltages' start variance (:func:`start_polarization`)."""
+def process_noise(step: StepModel, noise: NoiseModel, aux, dt: float, first: bool = False,
+                  p_soc: float = 0.0) -> list[float]:
+    """Diagonal Q_k of one step (``aux`` from :meth:`StepModel.predict``, ``p_soc`` the SOC
+    variance before it); at the first sample also the RC voltages' start variance
+    (:func:`start_polarization`)."""
     q = [0.0] * step.n
     if dt <= 0.0:
         return start_polarization(noise, aux, q) if first else q
@@ -147,15 +150,24 @@ def process_noise(step: StepModel, noise: NoiseModel, aux, dt: float, first: boo
     k = dt * step.soc_per_as
     bias = noise.gain_sigma * abs(i) + (noise.offset_sigma_a if step.i_b < 0 else 0.0)
     q[0] = (bias * k) ** 2 * (noise.drift_horizon_s / dt) + (noise.current_noise_a * k) ** 2
+    ps = polarization_scale(noise, p_soc)
     for s, a, rg in aux.rc:
         e = noise.polarization_error * rg * i
-        q[s] = e * e * (1.0 - a * a)
+        q[s] = e * e * (1.0 - a * a) * ps
     if step.i_h >= 0:
         c = abs(i) * dt / (3600.0 * step.hyst.decay_ah)
         q[step.i_h] = noise.hysteresis_sigma ** 2 * (1.0 - math.exp(-2.0 * c))  # 1 - a_h^2
     if step.i_b >= 0:
         q[step.i_b] = noise.offset_sigma_a ** 2 * dt / noise.drift_horizon_s
     return start_polarization(noise, aux, q) if first else q
+
+
+def polarization_scale(noise: NoiseModel, p_soc: float) -> float:
+    """The RC process noise's factor: 1, or with ``polarization_soc_sigma`` s > 0,
+    s^2 / (s^2 + P_soc): while the SOC is far less certain than s, a slow voltage offset is
+    taken as SOC error rather than as polarisation."""
+    s2 = noise.polarization_soc_sigma ** 2
+    return s2 / (s2 + p_soc) if s2 > 0.0 else 1.0
 
 
 def start_polarization(noise: NoiseModel, aux, q: list[float]) -> list[float]:
@@ -202,7 +214,8 @@ class Ekf(Filter):
                                               tw_ocv=tw_ocv)
         F = np.array(F)
         P = F @ self.P @ F.T
-        P[np.diag_indices(n)] += process_noise(sm, self.noise, aux, dt, self.first)
+        P[np.diag_indices(n)] += process_noise(sm, self.noise, aux, dt, self.first,
+                                               self.P[0][0])
         v_pred, H, ocv = sm.measure(x, aux, tw, tw_ocv, tfac)
         R = self.variance(v_pred, ocv, dt)
         if R > 0.0:
