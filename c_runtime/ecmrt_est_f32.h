@@ -704,7 +704,8 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     h[ECMRT_EST_IB] = -(rb0 * dg0);                   /* d v / d offset = -r0 d(i g0)/di */
 #endif
     /* the overpotential the model's error scales with: |vp - ocv|, or (mem_k > 0) the one
-     * held from before, decayed by exp(-dt / error_memory_s), when that is larger */
+     * held in *eta from before, decayed by exp(-dt / error_memory_s), when that is larger
+     * (eta may be a null pointer when mem_k is 0) */
     e = vp - p.ocv;
     e = e < 0.0f ? -e : e;
     if (nz->mem_k > 0.0f) {
@@ -712,8 +713,8 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
         if (r > e) {
             e = r;
         }
+        *eta = e;
     }
-    *eta = e;
     e = nz->model_error * e;
     r = nz->vn2 + e * e;
     /* a record taken to start rested (start_a = 0): its first sample counts fully */

@@ -310,13 +310,16 @@ def test_the_soc_read_from_the_ocv_alone(model, built):
 def test_the_model_error_held_after_a_current_step(model, built):
     """error_memory_s > 0: the overpotential the model error scales with is held and
     decays after a current step; C == float32 reference, bit for bit; its SOC follows the
-    float64 filter; a held overpotential only widens R, so the SOC sigma ends no smaller."""
+    float64 filter; a held overpotential only widens R, so the SOC sigma ends no smaller;
+    <prefix>_est_t holds it (4 B more than without)."""
     s = _cycle("25degC", "us06")
     sl = slice(0, 3000)
     seen = SCENARIO["gain"] * s.current_a[sl] + SCENARIO["offset"]
     cfg = EstimatorConfig(start_polarization_c=0.5, polarization_error=0.2,
                           error_memory_s=60.0)
     held = compile_spec(built.spec, estimator=prepare_estimator(model, built.spec, cfg))
+    assert held.lib.ecmh_est_size() == est_state_bytes(held.spec, held.estimator) \
+        == est_state_bytes(built.spec, built.estimator) + 4         # the held eta_v
     args = (seen, cref.dt_from_time(s.time_s[sl]), s.voltage_v[sl], 0.6,
             s.temperature_c[sl])
     got = run_estimator_c(held, *args)

@@ -1,8 +1,8 @@
 """The SOC estimator in C (``[c] estimator = "ekf"``): its spec, its rendering next to the
 model's step, and its cffi harness.
 
-``<prefix>_est_f32.h`` declares ``<prefix>_est_f32_t`` (the model's state, the covariance, the
-overpotential the model error holds, a first-sample flag) and ``<prefix>_est_init_f32`` / ``<prefix>_est_step_f32``; their bodies are
+``<prefix>_est_f32.h`` declares ``<prefix>_est_f32_t`` (the model's state, the covariance, with
+``error_memory_s`` the overpotential the model error holds, a first-sample flag) and ``<prefix>_est_init_f32`` / ``<prefix>_est_step_f32``; their bodies are
 appended to ``<prefix>_ecm_f32.c`` (same translation unit as the model's ``static const``
 tables, so the filter's table accessor reads them and the model's step inlines), with the
 filter itself in the hand-written ``c_runtime/ecmrt_est_f32.h``. The filter is the extended
@@ -74,6 +74,11 @@ class EstSpec:
         return self.names[-1] == "offset_a"
 
     @property
+    def memory(self) -> bool:
+        """<prefix>_est_t holds the overpotential the model error holds (eta_v)."""
+        return self.settings.error_memory_s > 0
+
+    @property
     def fields(self) -> tuple[str, ...]:
         """Where <prefix>_est_t holds each filter state, in order (``m.soc``, ...)."""
         return tuple(STATE_FIELDS[k] for k in self.names)
@@ -126,7 +131,7 @@ def render_estimator(env, ctx: dict, est: EstSpec, c_float) -> tuple[str, str]:
     """(the code appended to <prefix>_ecm.c, the text of <prefix>_est.h); ``env`` and
     ``ctx`` the renderer's jinja2 environment and context, ``c_float`` its float literal."""
     ectx = dict(ctx, n=est.n, names=est.names, offset=est.offset,
-                slopes=est.settings.resistance_slopes,
+                slopes=est.settings.resistance_slopes, memory=est.memory,
                 noise=[(k, c_float(est.noise[k]), c) for k, c in est.noise_fields])
     return (env.get_template("ecm_est.c.j2").render(ectx),
             env.get_template("ecm_est.h.j2").render(ectx))
@@ -176,7 +181,8 @@ def cdef(spec: CSpec, est: EstSpec) -> str:
     et = nm["est_t"]
     return "\n".join([
         f"typedef struct {{ {nm['state']} m; float p[{est.n * est.n}]; "
-        + ("float offset_a; " if est.offset else "") + f"float eta_v; uint8_t first; }} {et};",
+        + ("float offset_a; " if est.offset else "") + ("float eta_v; " if est.memory else "")
+        + f"uint8_t first; }} {et};",
         f"void {nm['est_init']}({et} *e, float soc0);",
         f"float {nm['est_step']}({et} *e, float i, float temperature, float dt, float v);",
         _trace_sig(spec) + ";",
@@ -186,5 +192,6 @@ def cdef(spec: CSpec, est: EstSpec) -> str:
 
 def est_state_bytes(spec: CSpec, est: EstSpec) -> int:
     """sizeof(<prefix>_est_t) on a 32-bit target: the model's state, the covariance, the
-    held overpotential, the flag, padded to 4."""
-    return -(-(state_bytes(spec) + 4 * est.n * est.n + 4 * est.offset + 4 + 1) // 4) * 4
+    offset, the held overpotential (error_memory_s), the flag, padded to 4."""
+    return -(-(state_bytes(spec) + 4 * est.n * est.n + 4 * est.offset + 4 * est.memory + 1)
+             // 4) * 4

@@ -506,7 +506,7 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
             r = held - held * omexp(dt * nz["mem_k"])
             if r > e:
                 e = r
-        held = e
+            held = e
         e = nz["model_error"] * e
         R = nz["vn2"] + e * e
         if not (first and nz["start_a"] == ZERO) and dt < nz["corr_s"]:
