@@ -20,8 +20,12 @@
  *       slope: a_x = 1 - c_x, a_h = 1 - c_h, the step's own coefficients), P = F P F^T + Q;
  *   at the first sample Q also carries the RC voltages' start variance (r_j start_a)^2;
  *   H = [dOCV/dsoc + dr0/dsoc g f i, 1, 1 (, 1) (, 1) (, m_v)], R from the model error (of
- *       the overpotential, or of the one held in *eta when that is larger) and its correlation time (R = 0: the sample carries no information, e.g. dt = 0; but
- *       with start_a = 0 the first sample counts fully, the cell taken rested); the resistances and their SOC slopes times the effects' factors
+ *       the overpotential, or of the one held in *eta when that is larger: mem_k > 0) and
+ *       its correlation time (R = 0: the sample carries no information, e.g. dt = 0; but
+ *       with start_a = 0 the first sample counts fully, the cell taken rested); with
+ *       ECMRT_EST_SLOPES 0 the RC tables' SOC slopes are taken as 0 in F and H; the RC
+ *       noise times pol_s2 / (pol_s2 + P_soc) when pol_s2 > 0; the resistances and their
+ *       SOC slopes times the effects' factors
  *       (current_dependent_resistance g on r0 and r_fast, temperature_dependence f on r0,
  *       r_fast and r_slow, as the step);
  *   K = P H^T / (H P H^T + R), iterated (relinearised at the updated SOC, at most 5 times)

@@ -43,6 +43,11 @@ Noise (:class:`NoiseModel`, from the ``[estimator]`` settings):
   as the voltage cannot yet tell the SOC from the polarisation.
   ``model_error`` and ``error_correlation_s`` are measured on validation cycles by
   :mod:`.residual`.
+- Options for a start anywhere (docs/estimator.md): ``error_memory_s`` T > 0 scales the
+  model error with the largest overpotential since, decayed by exp(-dt / T), instead of
+  the sample's own; ``polarization_soc_sigma`` s > 0 scales the RC states' Q by
+  s^2 / (s^2 + P_soc) (P_soc before the step); ``resistance_slopes`` False takes the RC
+  tables as flat in SOC in F and H (:class:`.process.StepModel`).
 """
 
 from __future__ import annotations
@@ -140,7 +145,7 @@ def initial_state(step: StepModel, soc0: float) -> list[float]:
 
 def process_noise(step: StepModel, noise: NoiseModel, aux, dt: float, first: bool = False,
                   p_soc: float = 0.0) -> list[float]:
-    """Diagonal Q_k of one step (``aux`` from :meth:`StepModel.predict``, ``p_soc`` the SOC
+    """Diagonal Q_k of one step (``aux`` from :meth:`StepModel.predict`, ``p_soc`` the SOC
     variance before it); at the first sample also the RC voltages' start variance
     (:func:`start_polarization`)."""
     q = [0.0] * step.n
