@@ -26,6 +26,7 @@
 
 Model: tests/data/panasonic-temperature-model.json, [estimator] defaults.
 Usage: python bench/bench_estimator_c.py [--steps N] [--json] [--no-reference]
+       python bench/bench_estimator_c.py --cost-only [--set NAME=VALUE ...]   (1. and 2.)
 Missing tools (valgrind, arm-none-eabi-gcc) are reported and their part skipped.
 """
 
@@ -256,8 +257,23 @@ def main(argv=None) -> int:
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--no-reference", action="store_true",
                     help="skip the float32 reference (about 1 min per million samples)")
+    ap.add_argument("--cost-only", action="store_true",
+                    help="only 1. and 2. (instructions, flash and RAM)")
+    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                    help="an [estimator] setting for 1. and 2. (e.g. resistance_slopes=false)")
     args = ap.parse_args(argv)
     model = load_model(MODEL)
+    if args.cost_only:
+        cfg = EstimatorConfig()
+        for kv in args.set:
+            k, v = kv.split("=", 1)
+            old = getattr(cfg, k)
+            cfg = replace(cfg, **{k: v.lower() in ("1", "true") if isinstance(old, bool)
+                                  else float(v)})
+        print(json.dumps({"settings": str(cfg),
+                          "instructions": instructions_per_step(model, args.steps, cfg),
+                          "flash_ram": flash_ram(model, cfg)}, indent=1))
+        return 0
     res = {"model": MODEL.name, "instructions": instructions_per_step(model, args.steps),
            "flash_ram": flash_ram(model)}
     res["cycles"], res["covariance"] = accuracy(model, not args.no_reference)

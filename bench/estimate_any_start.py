@@ -44,9 +44,10 @@ GUESS_OFFSETS = (-0.2, 0.2)
 OFFSET_A, GAIN = 0.029, 1.01
 LOAD_A, REST_A = 0.5, 0.05
 MIN_LEFT_S = 2000.0                    # a cut needs this much record (within 2 % after 1800 s)
-# the [estimator] settings for a start anywhere (chosen on CHOOSE, docs/estimator.md);
-# --rested runs the defaults (a record taken to start rested) instead
-ANY_START = dict(polarization_error=0.2, start_polarization_c=0.5)
+# the [estimator] settings for a start anywhere, chosen on CHOOSE (docs/estimator.md); --rested
+# runs the defaults (a record taken to start rested) instead
+ANY_START = dict(start_polarization_c=0.5, resistance_slopes=False, model_error=0.12,
+                 polarization_error=1.0, polarization_soc_sigma=0.01)
 
 
 def cycle_path(folder: str, name: str) -> Path:

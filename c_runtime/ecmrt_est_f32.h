@@ -18,9 +18,13 @@
  *       column through the tables' SOC slopes at the new SOC; u_x and h have no SOC
  *       slope: a_x = 1 - c_x, a_h = 1 - c_h, the step's own coefficients), P = F P F^T + Q;
  *   at the first sample Q also carries the RC voltages' start variance (r_j start_a)^2;
- *   H = [dOCV/dsoc + dr0/dsoc g f i, 1, 1 (, 1) (, 1) (, m_v)], R from the model error and
+ *   H = [dOCV/dsoc + dr0/dsoc g f i, 1, 1 (, 1) (, 1) (, m_v)], R from the model error (of
+ *       the overpotential, or of the one held in *eta when that is larger: mem_k > 0) and
  *       its correlation time (R = 0: the sample carries no information, e.g. dt = 0; but
- *       with start_a = 0 the first sample counts fully, the cell taken rested); the resistances and their SOC slopes times the effects' factors
+ *       with start_a = 0 the first sample counts fully, the cell taken rested); with
+ *       ECMRT_EST_SLOPES 0 the RC tables' SOC slopes are taken as 0 in F and H; the RC
+ *       noise times pol_s2 / (pol_s2 + P_soc) when pol_s2 > 0; the resistances and their
+ *       SOC slopes times the effects' factors
  *       (current_dependent_resistance g on r0 and r_fast, temperature_dependence f on r0,
  *       r_fast and r_slow, as the step);
  *   K = P H^T / (H P H^T + R), iterated (relinearised at the updated SOC, at most 5 times)
@@ -58,6 +62,9 @@
 #if !defined(ECMRT_EST_OFFSET)
 #error "ECMRT_EST_OFFSET (the current-offset state, 0 or 1) is defined by the generated <prefix>_est_f32.c"
 #endif
+#if !defined(ECMRT_EST_SLOPES)
+#define ECMRT_EST_SLOPES 1        /* the Jacobians carry the RC tables' SOC slopes */
+#endif
 
 /* soc, u_fast, u_slow (, u_diff) (, u_x) (, h) (, offset_a) */
 #define ECMRT_EST_N (3u + (unsigned)ECMRT_DIFF + (unsigned)ECMRT_FX_XRC + \
@@ -94,6 +101,8 @@ typedef struct {
     float model_error;        /* model voltage error / model overpotential */
     float corr_s;             /* error_correlation_s */
     float start_a;            /* the RC voltages' start sigma is r_j times this current, A */
+    float mem_k;              /* 1 / error_memory_s (0: the model error has no memory), 1/s */
+    float pol_s2;             /* polarization_soc_sigma^2 (0: the RC noise is not scaled) */
 #if ECMRT_FX_HYST
     float p0_h;               /* hysteresis_sigma^2: h's initial variance and its noise scale */
 #endif
@@ -255,7 +264,7 @@ static inline int ecmrt_est_f32_joseph(float *P, const float *k, const float *c,
  * covariance, row-major, exactly symmetric. */
 static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
                                         const ecmrt_est_f32_noise_t *nz, ECMRT_STATE *s,
-                                        float *P, uint8_t *first,
+                                        float *P, uint8_t *first, float *eta,
                                         const ecmrt_est_f32_prior_t *pr, float i, float temp,
                                         float dt, float vp, float vm, float *ob)
 {
@@ -263,7 +272,7 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     ecmrt_est_f32_vec_t a, f, q, h, x0, xu, xn, c, k;
     float fp[ECMRT_EST_N * ECMRT_EST_N];
     const float ai = i < 0.0f ? -i : i;
-    float r, e, kk, b, one_a, da, rg, vi;
+    float r, e, kk, b, one_a, da, rg, vi, ps;
     float gf = 1.0f;
     ecmrt_est_f32_par_t p;
     unsigned u, v;
@@ -397,9 +406,13 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 #if ECMRT_EST_OFFSET
     o[1] = -((rbf * one_a) * dgf) - f[1] * ds_di;
 #endif
+    /* the RC noise's factor: s^2 / (s^2 + P_soc) with polarization_soc_sigma s (pol_s2 = s^2),
+     * 1 without: while the SOC is far less certain than s, a slow voltage offset is taken
+     * as SOC error rather than as polarisation */
+    ps = nz->pol_s2 > 0.0f ? nz->pol_s2 / (nz->pol_s2 + P[0]) : 1.0f;
     rg = p.rf * gf;
     e = (nz->pol * rg) * i;
-    q[1] = (e * e) * (1.0f - a[1] * a[1]);
+    q[1] = ((e * e) * (1.0f - a[1] * a[1])) * ps;
 #if ECMRT_TAU_T
     one_a = ecmrt_f32_one_minus_exp_neg(dt * ECMRT_KC(s, dir, ECMRT_K_S));
     a[2] = 1.0f - one_a;
@@ -417,7 +430,7 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     o[2] = -(p.rs * one_a) - f[2] * ds_di;
 #endif
     e = (nz->pol * p.rs) * i;
-    q[2] = (e * e) * (1.0f - a[2] * a[2]);
+    q[2] = ((e * e) * (1.0f - a[2] * a[2])) * ps;
 #if ECMRT_DIFF
     rd = ecmrt_est_f32_tv(br, ECMRT_B_RD, wt);        /* r_diff, tau_diff: no SOC slope */
 #if ECMRT_TAU_T
@@ -432,7 +445,7 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 #endif
     f[3] = 0.0f;
     e = (nz->pol * rd) * i;
-    q[3] = (e * e) * (1.0f - ad * ad);
+    q[3] = ((e * e) * (1.0f - ad * ad)) * ps;
 #endif
 #if ECMRT_FX_XRC
     /* extra_rc: u_x' = a_x u_x + r_x (1 - a_x) i, no SOC slope */
@@ -443,7 +456,7 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 #endif
     f[ECMRT_EST_IX] = 0.0f;
     e = (nz->pol * m->x_r) * i;
-    q[ECMRT_EST_IX] = (e * e) * (1.0f - a[ECMRT_EST_IX] * a[ECMRT_EST_IX]);
+    q[ECMRT_EST_IX] = ((e * e) * (1.0f - a[ECMRT_EST_IX] * a[ECMRT_EST_IX])) * ps;
 #endif
 #if ECMRT_FX_HYST
     /* hysteresis: h' = a_h h + (1 - a_h) s, a_h = exp(-|i| dt / (3600 decay_ah)); its noise
@@ -545,7 +558,19 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 #if ECMRT_EST_OFFSET
     h[ECMRT_EST_IB] = -(rb0 * dg0);                   /* d v / d offset = -r0 d(i g0)/di */
 #endif
-    e = nz->model_error * (vp - p.ocv);
+    /* the overpotential the model's error scales with: |vp - ocv|, or (mem_k > 0) the one
+     * held in *eta from before, decayed by exp(-dt / error_memory_s), when that is larger
+     * (eta may be a null pointer when mem_k is 0) */
+    e = vp - p.ocv;
+    e = e < 0.0f ? -e : e;
+    if (nz->mem_k > 0.0f) {
+        r = *eta - *eta * ecmrt_f32_one_minus_exp_neg(dt * nz->mem_k);
+        if (r > e) {
+            e = r;
+        }
+        *eta = e;
+    }
+    e = nz->model_error * e;
     r = nz->vn2 + e * e;
     /* a record taken to start rested (start_a = 0): its first sample counts fully */
     if (!(*first && nz->start_a == 0.0f) && dt < nz->corr_s) {

@@ -153,6 +153,13 @@ static inline void ecmrt_est_f32_params(const ecmrt_f32_model_t *m, const ECMRT_
         ecmrt_est_f32_vs(row, ECMRT_P_KS, w, inv, &p->ts, &p->dts);
 #endif
     }
+#if !ECMRT_EST_SLOPES
+    /* the Jacobians take the RC tables as flat in SOC: the SOC is read from the OCV alone */
+    p->dr0 = 0.0f;
+    if (all) {
+        p->drf = p->dtf = p->drs = p->dts = 0.0f;
+    }
+#endif
 #if ECMRT_OCV_SHARED
     ecmrt_est_f32_vs(row, ECMRT_P_OCV, w, inv, &p->ocv, &p->docv);
 #else

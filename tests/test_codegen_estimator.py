@@ -19,6 +19,7 @@ from ecmgen.c.estcheck import bits_equal, python_filter_soc, run_estimator_c
 from ecmgen.c.estref import simulate_estimator_f32
 from ecmgen.config import EstimatorConfig
 from ecmgen.errors import InputError
+from ecmgen.estimate.run import run_filter
 from ecmgen.model.model import load_model
 from ecmgen.model.simulate import simulate
 
@@ -299,6 +300,53 @@ def test_a_loaded_first_sample_leaves_the_rc_voltages_unknown(model, built, firs
     assert abs(float(rested.soc[0]) - 0.5) > 0.05          # the loaded voltage taken as OCV
     p0_u = built.estimator.noise["p0_u"]
     assert np.all(np.diagonal(got.p[0])[1:4] > np.diagonal(rested.p[0])[1:4] + 5 * p0_u)
+
+
+def test_the_soc_read_from_the_ocv_alone(model, built):
+    """resistance_slopes = false: the Jacobians take the RC tables as flat in SOC; C ==
+    float32 reference, bit for bit, and follows the float64 filter; H's SOC entry is the
+    OCV's slope alone (its SOC sigma differs from the filter with the slopes)."""
+    s = _cycle("0degC", "us06")
+    sl = slice(5000, 8000)
+    seen = SCENARIO["gain"] * s.current_a[sl] + SCENARIO["offset"]
+    cfg = EstimatorConfig(start_polarization_c=0.5, resistance_slopes=False,
+                          polarization_soc_sigma=0.02)
+    flat = compile_spec(built.spec, estimator=prepare_estimator(model, built.spec, cfg))
+    args = (seen, cref.dt_from_time(s.time_s[sl]), s.voltage_v[sl], 0.6,
+            s.temperature_c[sl])
+    got = run_estimator_c(flat, *args)
+    assert bits_equal(got, simulate_estimator_f32(flat.spec, flat.estimator, *args))
+    ref = run_filter(model, s.time_s[sl], seen, s.voltage_v[sl], 0.6, cfg,
+                     s.temperature_c[sl])
+    assert np.max(np.abs(got.soc - ref.soc)) < 1e-3
+    sloped = run_filter(model, s.time_s[sl], seen, s.voltage_v[sl], 0.6,
+                        replace(cfg, resistance_slopes=True), s.temperature_c[sl])
+    assert abs(ref.soc_sigma[-1] - sloped.soc_sigma[-1]) > 1e-4
+
+
+def test_the_model_error_held_after_a_current_step(model, built):
+    """error_memory_s > 0: the overpotential the model error scales with is held and
+    decays after a current step; C == float32 reference, bit for bit; its SOC follows the
+    float64 filter; a held overpotential only widens R, so the SOC sigma ends no smaller;
+    <prefix>_est_t holds it (4 B more than without)."""
+    s = _cycle("25degC", "us06")
+    sl = slice(0, 3000)
+    seen = SCENARIO["gain"] * s.current_a[sl] + SCENARIO["offset"]
+    cfg = EstimatorConfig(start_polarization_c=0.5, polarization_error=0.2,
+                          error_memory_s=60.0)
+    held = compile_spec(built.spec, estimator=prepare_estimator(model, built.spec, cfg))
+    assert held.lib.ecmh_est_size() == est_state_bytes(held.spec, held.estimator) \
+        == est_state_bytes(built.spec, built.estimator) + 4         # the held eta_v
+    args = (seen, cref.dt_from_time(s.time_s[sl]), s.voltage_v[sl], 0.6,
+            s.temperature_c[sl])
+    got = run_estimator_c(held, *args)
+    assert bits_equal(got, simulate_estimator_f32(held.spec, held.estimator, *args))
+    ref = run_filter(model, s.time_s[sl], seen, s.voltage_v[sl], 0.6, cfg,
+                     s.temperature_c[sl])
+    assert np.max(np.abs(got.soc - ref.soc)) < 1e-3
+    plain = run_filter(model, s.time_s[sl], seen, s.voltage_v[sl], 0.6,
+                       replace(cfg, error_memory_s=0.0), s.temperature_c[sl])
+    assert ref.soc_sigma[-1] >= plain.soc_sigma[-1]
 
 
 @pytest.mark.slow

@@ -44,19 +44,27 @@ def _effects_model(case: str):
     return model_over_temperature(effects=ALL_EFFECTS)
 
 
-@pytest.mark.parametrize("case, offset", [("all-effects", False), ("hysteresis-only", False),
-                                          ("curve-layout", False), ("all-effects", True),
-                                          ("hysteresis-only", True)])
-def test_effects_models_bit_identical_with_gaps_and_missing_voltages(case, offset):
+# the start-anywhere settings with the SOC read from the OCV alone and a held model error
+ANYWHERE_FLAT = dict(start_polarization_c=0.5, resistance_slopes=False, error_memory_s=60.0,
+                     polarization_soc_sigma=0.02)
+
+
+@pytest.mark.parametrize("case, offset, settings",
+                         [("all-effects", False, {}), ("hysteresis-only", False, {}),
+                          ("curve-layout", False, {}), ("all-effects", True, {}),
+                          ("hysteresis-only", True, {}), ("all-effects", True, ANYWHERE_FLAT),
+                          ("curve-layout", False, ANYWHERE_FLAT)])
+def test_effects_models_bit_identical_with_gaps_and_missing_voltages(case, offset, settings):
     """Every effect at once (with the diffusion pair and the Butler-Volmer branch; in the
     curve fit's layout too) and the hysteresis alone: random currents both ways, dt = 0,
     gaps up to 20000 s, temperatures beyond the tables, voltages with noise and a few NaN:
     C == float32 reference at every step, state (h and u_x included) and covariance entry;
     SOC within 2e-5 of the float64 Python filter. The raw profile, which drains the truth
     far below empty: bit-identical and finite. With the offset state (last) too, the
-    current the filter sees 50 mA off."""
+    current the filter sees 50 mA off. And with the start-anywhere settings, the SOC read
+    from the OCV alone and a held model error."""
     m = _effects_model(case)
-    cm = _compiled(m, cfg=EstimatorConfig(offset_state=offset))
+    cm = _compiled(m, cfg=EstimatorConfig(offset_state=offset, **settings))
     names = cm.estimator.names
     assert names[-1] == ("offset_a" if offset else "h") and "h" in names
     assert ("u_extra_v" in names) == (case != "hysteresis-only")

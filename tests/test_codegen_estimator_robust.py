@@ -45,13 +45,20 @@ def _surface_model():
     return replace(_effects_model(), surface_soc_gain=0.5)
 
 
+# started anywhere, the SOC read from the OCV alone, a held model error, the RC noise
+# scaled by the SOC's sigma: every setting that changes the C filter's arithmetic
+ANYWHERE = dict(start_polarization_c=0.5, resistance_slopes=False, error_memory_s=60.0,
+                polarization_soc_sigma=0.02)
+
+
 @functools.lru_cache(maxsize=None)
 def _cm(which: str):
     m = {"panasonic": _model, "synthetic": model_over_temperature,
          "effects": _effects_model, "effects-offset": _effects_model,
          "surface-offset": _surface_model}[which]()
     spec = prepare(m, "float", None, "hyp")
-    cfg = EstimatorConfig(offset_state=which.endswith("offset"))
+    cfg = EstimatorConfig(offset_state=which.endswith("offset"),
+                          **(ANYWHERE if which.startswith("surface") else {}))
     return m, cbuild.compile_spec(spec, estimator=prepare_estimator(m, spec, cfg))
 
 
@@ -61,7 +68,8 @@ def test_qemu_cortex_m4f_bit_identical_to_the_host():
     """A real cycle's start in the full-cell scenario (guess 0.8, 29 mA offset, gain 1.01) and a
     synthetic profile with dt = 0, gaps, temperatures beyond the tables and missing
     voltages, on a model without and one with every diagnose effect and the current-offset
-    state (the hysteresis state, the extra RC pair and the offset in the filter): every
+    state (the hysteresis state, the extra RC pair and the offset in the filter), with the
+    default settings and started anywhere (``ANYWHERE``): every
     predicted voltage, state and covariance entry the same bits on the
     emulated Cortex-M4F (hard float, -O2) as on the host."""
     reason = target.skip_reason(qemu=True)
@@ -83,6 +91,9 @@ def test_qemu_cortex_m4f_bit_identical_to_the_host():
         res = qemu_estimator_equivalence(m, t, i + 0.05, v, 0.6, temp,
                                          cfg=EstimatorConfig(offset_state=offset))
         assert res["bit_exact"], res
+        res = qemu_estimator_equivalence(m, t, i + 0.05, v, 0.6, temp,
+                                         cfg=EstimatorConfig(offset_state=offset, **ANYWHERE))
+        assert res["bit_exact"], res
 
 
 # -- sanitizers ------------------------------------------------------------------------
@@ -96,7 +107,8 @@ def test_sanitized_build_through_absurd_inputs(tmp_path, which):
     temperatures, measured voltages (NaN, inf, +-FLT_MAX, denormals) and start SOCs, then
     10^6 random steps: no undefined behaviour, and after every step the SOC in [0, 1], the
     states and the covariance finite (h in [-1, 1] with the effects, which are built with the
-    offset state too), the covariance exactly symmetric with a non-negative diagonal."""
+    offset state too; the surface model also started anywhere, ``ANYWHERE``), the covariance
+    exactly symmetric with a non-negative diagonal."""
     cc = cbuild.host_cc()
     probe = subprocess.run([*cc, *cbuild.SANITIZE_FLAGS, "-x", "c", "-", "-o", tmp_path / "probe"],
                            input="int main(void){return 0;}\n", capture_output=True, text=True)
@@ -105,7 +117,8 @@ def test_sanitized_build_through_absurd_inputs(tmp_path, which):
     fx = which != "panasonic"
     generate_c({"effects": _effects_model, "surface": _surface_model,
                 "panasonic": _model}[which](), tmp_path, prefix="fe",
-               estimator=EstimatorConfig(offset_state=fx))
+               estimator=EstimatorConfig(offset_state=fx,
+                                         **(ANYWHERE if which == "surface" else {})))
     (tmp_path / "main.c").write_text(SAN_MAIN.read_text())
     exe = tmp_path / "san"
     flags = [f for f in cbuild.STRICT_CFLAGS if f != "-Werror"]

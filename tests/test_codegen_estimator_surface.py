@@ -40,14 +40,20 @@ def surface_est_model(case: str):
 
 
 @pytest.mark.parametrize("case", ["plain", "no-bv", "effects", "effects-offset",
-                                  "one-temperature", "irregular"])
+                                  "one-temperature", "irregular", "effects-offset-flat"])
 def test_bit_identical_with_gaps_and_missing_voltages(case):
     """Random currents both ways, dt = 0, gaps, temperatures beyond the tables, noisy
     voltages with a few NaN: C == float32 reference bit for bit; SOC within 2e-5 of the
-    float64 Python filter."""
+    float64 Python filter. "-flat": started anywhere, the SOC read from the OCV alone, a
+    held model error."""
+    flat = case.endswith("-flat")
+    case = case.removesuffix("-flat")
     m = surface_est_model(case)
     offset = case.endswith("offset")
-    cm = _compiled(m, "sf", EstimatorConfig(offset_state=offset))
+    cm = _compiled(m, "sf", EstimatorConfig(
+        offset_state=offset, **(dict(start_polarization_c=0.5, resistance_slopes=False,
+                                     error_memory_s=60.0, polarization_soc_sigma=0.02)
+                                if flat else {})))
     assert cm.spec.surface is not None
     t, i_raw, temp = drive_profile(1500, seed=1)
     i = i_raw - i_raw.mean()

@@ -445,3 +445,37 @@ def test_real_cycle_targets(folder, name):
     # honest sigma: the error is within 3 sigma nearly everywhere
     err = np.abs(run.estimate.soc - run.soc_ref)
     assert np.mean(err <= 3 * run.estimate.soc_sigma) > 0.95
+
+
+def test_a_cold_mid_cycle_start_reads_the_soc_from_the_ocv_honestly():
+    """-10 degC HWFET cut under load at SOC 0.6, told 0.4, with the BMS's sensor errors and
+    the start-anywhere settings: with the RC tables' SOC slopes in the Jacobians the filter
+    is overconfident (NEES above 1, its error beyond 2 sigma on many samples); with the SOC
+    read from the OCV alone (resistance_slopes = false) its error stays within 2 sigma and
+    its RMSE after 600 s is no worse."""
+    from conftest import REPO, SHARED_DATA, need
+    from ecmgen.data.measure import read_timeseries
+    from ecmgen.estimate.run import calibration, estimate_record
+    from ecmgen.model.model import load_model
+
+    path = need(SHARED_DATA / "panasonic-18650pf-n10degC" / "hwfet.mat")
+    model = load_model(REPO / "tests" / "data" / "panasonic-temperature-model.json")
+    s = read_timeseries(path, capacity_ah=model.capacity_ah)
+    ref = coulomb_count(model, s.time_s, s.current_a, 1.0)
+    k0 = int(np.flatnonzero((ref <= 0.6) & (np.abs(s.current_a) >= 0.5))[0])
+    sl = slice(k0, int(np.searchsorted(s.time_s, s.time_s[k0] + 3600.0)))
+    piece = replace(s, time_s=s.time_s[sl], current_a=s.current_a[sl],
+                    voltage_v=s.voltage_v[sl], temperature_c=s.temperature_c[sl],
+                    charge_ah=None)
+    out = {}
+    for slopes in (True, False):
+        cfg = EstimatorConfig(start_polarization_c=0.5, polarization_error=0.2,
+                              resistance_slopes=slopes)
+        run = estimate_record(model, piece, float(ref[k0]) - 0.2, float(ref[k0]), cfg,
+                              current_offset_a=0.029, current_gain=1.01)
+        late = run.estimate.time_s - piece.time_s[0] >= 600.0
+        rmse = float(np.sqrt(np.mean((run.estimate.soc - run.soc_ref)[late] ** 2)))
+        out[slopes] = (calibration(run), rmse)
+    assert out[True][0]["nees"] > 1.2 and out[True][0]["within_2_sigma"] < 0.9, out
+    assert out[False][0]["nees"] < 1.0 and out[False][0]["within_2_sigma"] == 1.0, out
+    assert out[False][1] <= out[True][1], out

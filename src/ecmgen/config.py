@@ -57,10 +57,21 @@ class EstimatorConfig:
     polarization_error: float = 1.5
     # 0: a record starts from a rested cell (its first sample counts fully). Above 0 it may
     # start anywhere (under load, mid-relaxation): the RC voltages start unknown, sigma r_j
-    # times this current in C, and no sample counts fully. For a start anywhere 0.5 with
-    # polarization_error 0.2 were chosen on the 25 and 0 degC cycles cut to start anywhere,
-    # -10 and -20 degC held out (bench/estimate_any_start.py, docs/estimator.md)
+    # times this current in C, and no sample counts fully. For a start anywhere 0.5, with
+    # resistance_slopes false, model_error 0.12, polarization_error 1.0 and
+    # polarization_soc_sigma 0.01, chosen on the 25 and 0 degC cycles cut to start anywhere
+    # (bench/estimate_any_start.py, docs/estimator.md)
     start_polarization_c: float = 0.0
+    # 0: the model error scales with the sample's overpotential; T > 0: with the largest
+    # since, decayed by exp(-dt / T) (the error outlasts a current step)
+    error_memory_s: float = 0.0
+    # the EKF's Jacobians carry the RC tables' SOC slopes (r0, r_fast, tau ... over SOC):
+    # False reads the SOC from the OCV alone (the resistances' SOC slopes are fitted, not
+    # validated; in the cold they made the filter confident and wrong)
+    resistance_slopes: bool = True
+    # 0: off; s > 0: the RC-state process noise times s^2 / (s^2 + P_soc), so that a slow
+    # voltage offset is taken as SOC error while the SOC is far less certain than s
+    polarization_soc_sigma: float = 0.0
 
     def __post_init__(self):
         if self.filter not in ESTIMATOR_FILTERS:

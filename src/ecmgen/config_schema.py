@@ -218,6 +218,14 @@ SECTIONS: tuple[Section, ...] = (
         Key("start_polarization_c", NUMBER, "0: the record starts rested; above: it may "
             "start anywhere, the RC voltages unknown within r times this current", unit="C",
             range=(0.0, 100.0), default="0"),
+        Key("error_memory_s", NUMBER, "0: the model error scales with the overpotential "
+            "of the sample; above: with the largest since, decayed over this time", unit="s",
+            range=(0.0, 1e6), default="0"),
+        Key("resistance_slopes", BOOL, "the Jacobians carry the RC tables' SOC slopes; "
+            "false: the SOC is read from the OCV alone", default="true"),
+        Key("polarization_soc_sigma", NUMBER, "0: off; above: the RC-state process noise "
+            "scaled by s^2 / (s^2 + SOC variance), s this SOC sigma", unit="SOC",
+            range=(0.0, 1.0), default="0"),
     )),
     Section("diagnose", "ecmgen diagnose: missing effects found on data.cycle", (
         Key("judge", FILE, "a second cycle to judge on",

@@ -1,9 +1,9 @@
 """The SOC estimator in C (``[c] estimator = "ekf"``): its spec, its rendering beside the
 model's C, and its cffi harness.
 
-``<prefix>_est_f32.h`` declares ``<prefix>_est_f32_t`` (the model's state, the covariance, a
-first-sample flag) and ``<prefix>_est_init_f32`` / ``<prefix>_est_step_f32``, defined in
-``<prefix>_est_f32.c``: it includes the model's ``<prefix>_ecm_f32_config.h`` (the runtime
+``<prefix>_est_f32.h`` declares ``<prefix>_est_f32_t`` (the model's state, the covariance, with
+``error_memory_s`` the overpotential the model error holds, a first-sample flag) and
+``<prefix>_est_init_f32`` / ``<prefix>_est_step_f32``, defined in ``<prefix>_est_f32.c``: it includes the model's ``<prefix>_ecm_f32_config.h`` (the runtime
 as the model's ``.c`` configures it, and the declaration of the model's ``const`` tables,
 which the filter's table accessor reads), predicts with ``<prefix>_step_f32`` and has the
 filter itself in the hand-written ``c_runtime/ecmrt_est_f32.h``. The filter is the extended
@@ -45,7 +45,9 @@ NOISE_FIELDS = (("p0_soc", "initial SOC variance, soc0_sigma^2"),
                 ("vn2", "voltage_noise_v^2, V^2"),
                 ("model_error", "model voltage error / model overpotential"),
                 ("corr_s", "error_correlation_s, s"),
-                ("start_a", "the RC voltages' start sigma is r_j times this current, A"))
+                ("start_a", "the RC voltages' start sigma is r_j times this current, A"),
+                ("mem_k", "1 / error_memory_s (0: the model error has no memory), 1/s"),
+                ("pol_s2", "polarization_soc_sigma^2 (0: the RC noise is not scaled)"))
 # with a hysteresis effect (ECMRT_FX_HYST) only; with the offset state (ECMRT_EST_OFFSET) only
 HYST_FIELDS = (("p0_h", "hysteresis_sigma^2: h's initial variance and noise scale"),)
 OFFSET_FIELDS = (("p0_b", "offset_a^2: the offset state's initial variance, A^2"),)
@@ -71,6 +73,11 @@ class EstSpec:
     def offset(self) -> bool:
         """The current-offset state is the last state."""
         return self.names[-1] == "offset_a"
+
+    @property
+    def memory(self) -> bool:
+        """<prefix>_est_t holds the overpotential the model error holds (eta_v)."""
+        return self.settings.error_memory_s > 0
 
     @property
     def fields(self) -> tuple[str, ...]:
@@ -103,6 +110,8 @@ def prepare_estimator(model, spec: CSpec, cfg: EstimatorConfig | None = None,
             "pol": nm.polarization_error, "vn2": nm.voltage_noise_v ** 2,
             "model_error": nm.model_error, "corr_s": nm.error_correlation_s,
             "start_a": nm.start_current_a,
+            "mem_k": 1.0 / nm.error_memory_s if nm.error_memory_s > 0 else 0.0,
+            "pol_s2": nm.polarization_soc_sigma ** 2,
             "p0_h": nm.hysteresis_sigma ** 2, "p0_b": nm.offset_sigma_a ** 2}
     # the states of ecmgen.estimate.process.state_layout, in its order
     names = (("soc", "u_fast_v", "u_slow_v") + (("u_diff_v",) if spec.diff else ())
@@ -125,6 +134,7 @@ def render_estimator(env, ctx: dict, est: EstSpec, c_float) -> dict[str, str]:
     """{file name: text} of <prefix>_est_f32.h and .c; ``env`` and ``ctx`` the renderer's
     jinja2 environment and context, ``c_float`` its float literal."""
     ectx = dict(ctx, n=est.n, names=est.names, offset=est.offset,
+                slopes=est.settings.resistance_slopes, memory=est.memory,
                 noise=[(k, c_float(est.noise[k]), c) for k, c in est.noise_fields])
     files = ctx["files"]
     return {files["est_header"]: env.get_template("est.h.j2").render(ectx),
@@ -147,7 +157,8 @@ def cdef(spec: CSpec, est: EstSpec) -> str:
     et = nm["est_t"]
     return "\n".join([
         f"typedef struct {{ {nm['state']} m; float p[{est.n * est.n}]; "
-        + ("float offset_a; " if est.offset else "") + f"uint8_t first; }} {et};",
+        + ("float offset_a; " if est.offset else "") + ("float eta_v; " if est.memory else "")
+        + f"uint8_t first; }} {et};",
         f"void {nm['est_init']}({et} *e, float soc0);",
         f"float {nm['est_step']}({et} *e, float i, float temperature, float dt, float v);",
         est_trace_signature(spec) + ";",
@@ -157,5 +168,6 @@ def cdef(spec: CSpec, est: EstSpec) -> str:
 
 def est_state_bytes(spec: CSpec, est: EstSpec) -> int:
     """sizeof(<prefix>_est_t) on a 32-bit target: the model's state, the covariance, the
-    flag, padded to 4."""
-    return -(-(state_bytes(spec) + 4 * est.n * est.n + 4 * est.offset + 1) // 4) * 4
+    offset, the held overpotential (error_memory_s), the flag, padded to 4."""
+    return -(-(state_bytes(spec) + 4 * est.n * est.n + 4 * est.offset + 4 * est.memory + 1)
+             // 4) * 4

@@ -306,6 +306,8 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
         imax, dband = F32(spec.i_lim_a), F32(spec.deadband)
     k_soc = F32(spec.k_soc)
     first = True
+    held = ZERO                      # est_t's eta_v
+    flat = not est.settings.resistance_slopes
     v_out = np.empty(n, dtype=F32)
     x_out = np.empty((n, N), dtype=F32)
     p_out = np.empty((n, N, N), dtype=F32)
@@ -352,6 +354,8 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
             rf = rf * cur["g_bv"]
         # the accessor (ecmrt_est_f32_params) at the same SOC
         pa = tab.values(d, soc, kt, wt, fields_all, True, socr)
+        if flat:                     # ECMRT_EST_SLOPES 0: the RC tables flat in SOC
+            pa = {k: (v[0], ZERO) if k != "ocv" else v for k, v in pa.items()}
         if tau_t:            # the state's coefficients kc = 1/tau(T), for step and filter
             cf, cs = omexp(dt * src["kc_f"][t]), omexp(dt * src["kc_s"][t])
             ja = (cf, cs)
@@ -418,9 +422,10 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
             g[1], f[1] = f[1] * sdu, f[1] * sds
         if off:
             o[1] = -((rbf * one_a) * dgf) - f[1] * ds_di
+        ps = nz["pol_s2"] / (nz["pol_s2"] + P[0][0]) if nz["pol_s2"] > ZERO else ONE
         rg = rf_ * gf
         e = (nz["pol"] * rg) * i
-        q[1] = (e * e) * (ONE - a[1] * a[1])
+        q[1] = ((e * e) * (ONE - a[1] * a[1])) * ps
         one_a = ja[1]
         a[2] = ONE - one_a
         if not tau_t:
@@ -432,20 +437,20 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
         if off:
             o[2] = -(rs_ * one_a) - f[2] * ds_di
         e = (nz["pol"] * rs_) * i
-        q[2] = (e * e) * (ONE - a[2] * a[2])
+        q[2] = ((e * e) * (ONE - a[2] * a[2])) * ps
         if diff:
             ad = ONE - src["c_diff"][t]
             a[3] = ad
             if off:
                 o[3] = -(src["r_diff"][t] * src["c_diff"][t])
             e = (nz["pol"] * src["r_diff"][t]) * i
-            q[3] = (e * e) * (ONE - ad * ad)
+            q[3] = ((e * e) * (ONE - ad * ad)) * ps
         if xrc:
             a[ix] = ONE - cx
             if off:
                 o[ix] = -(x_r * cx)
             e = (nz["pol"] * x_r) * i
-            q[ix] = (e * e) * (ONE - a[ix] * a[ix])
+            q[ix] = ((e * e) * (ONE - a[ix] * a[ix])) * ps
         if hyst:
             a[ih] = ONE - ch
             q[ih] = nz["p0_h"] * (ch * (F32(2.0) - ch))
@@ -500,7 +505,13 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
             if surf:
                 f_out[t, 1:3, 3] = g[1:3]
             h_out[t] = h
-        e = nz["model_error"] * (vp - pa["ocv"][0])
+        e = _abs(vp - pa["ocv"][0])
+        if nz["mem_k"] > ZERO:
+            r = held - held * omexp(dt * nz["mem_k"])
+            if r > e:
+                e = r
+            held = e
+        e = nz["model_error"] * e
         R = nz["vn2"] + e * e
         if not (first and nz["start_a"] == ZERO) and dt < nz["corr_s"]:
             R = R * (nz["corr_s"] / dt) if dt > ZERO else ZERO
@@ -524,6 +535,8 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
                 socr, sds, _ = (tab.surface(xu[0], u_prev[3], kt, wt) if surf
                                 else (xu[0], None, None))
                 pi = tab.values(d, xu[0], kt, wt, ("r0",), True, socr)
+                if flat:
+                    pi["r0"] = (pi["r0"][0], ZERO)
                 (r0i, dr0i) = pi["r0"]
                 if off:
                     h[ib] = -((r0i * fa if arr else r0i) * dg0)

@@ -43,6 +43,11 @@ Noise (:class:`NoiseModel`, from the ``[estimator]`` settings):
   as the voltage cannot yet tell the SOC from the polarisation.
   ``model_error`` and ``error_correlation_s`` are measured on validation cycles by
   :mod:`.residual`.
+- Options for a start anywhere (docs/estimator.md): ``error_memory_s`` T > 0 scales the
+  model error with the largest overpotential since, decayed by exp(-dt / T), instead of
+  the sample's own; ``polarization_soc_sigma`` s > 0 scales the RC states' Q by
+  s^2 / (s^2 + P_soc) (P_soc before the step); ``resistance_slopes`` False takes the RC
+  tables as flat in SOC in F and H (:class:`.process.StepModel`).
 """
 
 from __future__ import annotations
@@ -78,6 +83,8 @@ class NoiseModel:
     error_correlation_s: float
     start_current_a: float = 0.0   # the RC voltages' start sigma is r_j times this current
     hysteresis_sigma: float = 0.1
+    error_memory_s: float = 0.0    # the model error's overpotential decays over this
+    polarization_soc_sigma: float = 0.0   # RC noise scaled by s^2 / (s^2 + P_soc); 0: off
 
     @staticmethod
     def from_config(cfg: EstimatorConfig, capacity_ah: float) -> "NoiseModel":
@@ -85,13 +92,28 @@ class NoiseModel:
         return NoiseModel(cfg.soc0_sigma, cfg.u0_sigma_v, offset,
                           cfg.current_gain_error, cfg.current_noise_a, cfg.drift_horizon_s,
                           cfg.polarization_error, cfg.voltage_noise_v, cfg.model_error,
-                          cfg.error_correlation_s, cfg.start_polarization_c * capacity_ah)
+                          cfg.error_correlation_s, cfg.start_polarization_c * capacity_ah,
+                          error_memory_s=cfg.error_memory_s,
+                          polarization_soc_sigma=cfg.polarization_soc_sigma)
 
-    def measurement_variance(self, v_pred: float, ocv: float, dt: float, first: bool
-                             ) -> float:
-        """R_k, or 0.0 for a sample that carries no information (dt = 0, but for the
-        first sample of a record taken to start rested)."""
-        eta = self.model_error * (v_pred - ocv)
+    def error_overpotential(self, v_pred: float, ocv: float, dt: float, held: float
+                            ) -> float:
+        """The overpotential the model error scales with: |v_pred - ocv|, or with
+        ``error_memory_s`` the largest of it and the one held from before, decayed by
+        exp(-dt / error_memory_s) (after a current step the model's error outlasts the
+        overpotential it came with)."""
+        eta = abs(v_pred - ocv)
+        if self.error_memory_s > 0.0:
+            held = held * math.exp(-dt / self.error_memory_s)
+            if held > eta:
+                return held
+        return eta
+
+    def measurement_variance(self, eta: float, dt: float, first: bool) -> float:
+        """R_k for the overpotential ``eta`` (:meth:`error_overpotential`), or 0.0 for a
+        sample that carries no information (dt = 0, but for the first sample of a record
+        taken to start rested)."""
+        eta = self.model_error * eta
         var = self.voltage_noise_v * self.voltage_noise_v + eta * eta
         if (first and self.start_current_a == 0.0) or dt >= self.error_correlation_s:
             return var
@@ -121,10 +143,11 @@ def initial_state(step: StepModel, soc0: float) -> list[float]:
     return x
 
 
-def process_noise(step: StepModel, noise: NoiseModel, aux, dt: float, first: bool = False
-                  ) -> list[float]:
-    """Diagonal Q_k of one step (``aux`` from :meth:`StepModel.predict`); at the first
-    sample also the RC voltages' start variance (:func:`start_polarization`)."""
+def process_noise(step: StepModel, noise: NoiseModel, aux, dt: float, first: bool = False,
+                  p_soc: float = 0.0) -> list[float]:
+    """Diagonal Q_k of one step (``aux`` from :meth:`StepModel.predict`, ``p_soc`` the SOC
+    variance before it); at the first sample also the RC voltages' start variance
+    (:func:`start_polarization`)."""
     q = [0.0] * step.n
     if dt <= 0.0:
         return start_polarization(noise, aux, q) if first else q
@@ -132,15 +155,24 @@ def process_noise(step: StepModel, noise: NoiseModel, aux, dt: float, first: boo
     k = dt * step.soc_per_as
     bias = noise.gain_sigma * abs(i) + (noise.offset_sigma_a if step.i_b < 0 else 0.0)
     q[0] = (bias * k) ** 2 * (noise.drift_horizon_s / dt) + (noise.current_noise_a * k) ** 2
+    ps = polarization_scale(noise, p_soc)
     for s, a, rg in aux.rc:
         e = noise.polarization_error * rg * i
-        q[s] = e * e * (1.0 - a * a)
+        q[s] = e * e * (1.0 - a * a) * ps
     if step.i_h >= 0:
         c = abs(i) * dt / (3600.0 * step.hyst.decay_ah)
         q[step.i_h] = noise.hysteresis_sigma ** 2 * (1.0 - math.exp(-2.0 * c))  # 1 - a_h^2
     if step.i_b >= 0:
         q[step.i_b] = noise.offset_sigma_a ** 2 * dt / noise.drift_horizon_s
     return start_polarization(noise, aux, q) if first else q
+
+
+def polarization_scale(noise: NoiseModel, p_soc: float) -> float:
+    """The RC process noise's factor: 1, or with ``polarization_soc_sigma`` s > 0,
+    s^2 / (s^2 + P_soc): while the SOC is far less certain than s, a slow voltage offset is
+    taken as SOC error rather than as polarisation."""
+    s2 = noise.polarization_soc_sigma ** 2
+    return s2 / (s2 + p_soc) if s2 > 0.0 else 1.0
 
 
 def start_polarization(noise: NoiseModel, aux, q: list[float]) -> list[float]:
@@ -160,12 +192,20 @@ class Filter:
     first. Subclasses define ``step(dt, i_seen, tw, tw_ocv, tfac, v_meas) -> v_pred``."""
 
     def __init__(self, model: EcmModel, cfg: EstimatorConfig, soc0: float):
-        self.step_model = StepModel(model, cfg.offset_state)
+        self.step_model = StepModel(model, cfg.offset_state, cfg.resistance_slopes)
         self.noise = NoiseModel.from_config(cfg, model.capacity_ah)
         self.x = initial_state(self.step_model, soc0)
         self.P = initial_covariance(self.step_model, self.noise)
         self.charging = False
         self.first = True
+        self.eta_held = 0.0
+
+    def variance(self, v_pred: float, ocv: float, dt: float) -> float:
+        """R of this sample (and the held overpotential updated); clears ``first``."""
+        self.eta_held = self.noise.error_overpotential(v_pred, ocv, dt, self.eta_held)
+        R = self.noise.measurement_variance(self.eta_held, dt, self.first)
+        self.first = False
+        return R
 
 
 class Ekf(Filter):
@@ -179,10 +219,10 @@ class Ekf(Filter):
                                               tw_ocv=tw_ocv)
         F = np.array(F)
         P = F @ self.P @ F.T
-        P[np.diag_indices(n)] += process_noise(sm, self.noise, aux, dt, self.first)
+        P[np.diag_indices(n)] += process_noise(sm, self.noise, aux, dt, self.first,
+                                               self.P[0][0])
         v_pred, H, ocv = sm.measure(x, aux, tw, tw_ocv, tfac)
-        R = self.noise.measurement_variance(v_pred, ocv, dt, self.first)
-        self.first = False
+        R = self.variance(v_pred, ocv, dt)
         if R > 0.0:
             x0 = np.array(x)
             H = np.array(H)

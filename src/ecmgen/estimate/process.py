@@ -19,7 +19,9 @@ temperature T_k; the filter's current is i_k = i_seen_k - offset_a. With that cu
              + m_v (h - h_table) + m0_v (s_k - h_table)
 
 The Jacobians are analytic: d/dsoc through the piecewise-linear tables (the slope of the
-segment the SOC is in, 0 where a table clamps; at a breakpoint the segment to its right),
+segment the SOC is in, 0 where a table clamps; at a breakpoint the segment to its right;
+with ``resistance_slopes`` False the RC tables' slopes are taken as 0, so that the SOC is
+read from the OCV alone),
 d/d(offset) through the current (d(i g(i))/di = 1/sqrt(1 + x^2) for the Butler-Volmer
 branch) and through soc_k. The direction (deadband) is piecewise constant and has no
 derivative. Everything is scalar arithmetic in a fixed order with exp, asinh and sqrt as
@@ -137,8 +139,10 @@ class StepModel:
     """The model's step for a filter: :meth:`predict` (state and its Jacobian) and
     :meth:`measure` (terminal voltage and its gradient)."""
 
-    def __init__(self, model: EcmModel, offset_state: bool = False):
+    def __init__(self, model: EcmModel, offset_state: bool = False,
+                 resistance_slopes: bool = True):
         self.model = model
+        self.slopes = resistance_slopes   # False: the Jacobians take the RC tables as flat in SOC
         # surface SOC (model.surface_soc_gain): lam / max(dOCV/dSOC, 0.3 V) on the OCV grid
         self.sv_rows = ([[float(v) for v in row] for row in model.surface_per_volt_rows()]
                         if model.surface_soc_gain else None)
@@ -296,6 +300,8 @@ class StepModel:
         u_prev = x[self.i_ud] if self.sv_rows is not None else 0.0
         soc_t, dt_ds, dt_du = self.surface_soc(soc, u_prev, tw_ocv)
         vals, slopes, (r_diff, tau_diff, i0) = self.params(charging, soc_t, tw)
+        if not self.slopes:
+            slopes = [0.0] * 5
         _r0, r_fast, tau_fast, r_slow, tau_slow = vals
         g0, dg0, gf, dgf = self.current_factors(i, i0)
         xn = list(x)
@@ -368,7 +374,7 @@ class StepModel:
         soc = x[0]
         soc_t, dt_ds, _ = self.surface_soc(soc, aux.u_prev, tw_ocv)
         r0, dr0 = self.r0(charging, soc_t, tw)
-        r0, dr0 = r0 * tfac, dr0 * tfac * dt_ds
+        r0, dr0 = r0 * tfac, (dr0 * tfac * dt_ds if self.slopes else 0.0)
         ocv, docv = self.ocv(soc, tw_ocv)
         v = ocv + r0 * g0 * i + x[1] + x[2]
         for s in (self.i_ud, self.i_ux):

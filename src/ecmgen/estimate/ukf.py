@@ -59,12 +59,11 @@ class Ukf(Filter):
         X, Z = np.array(X), np.array(Z)
         xm, zm = X.mean(axis=0), float(Z.mean())
         dX, dZ = X - xm, Z - zm
-        q = np.array(process_noise(sm, self.noise, aux_mean, dt, self.first))
+        q = np.array(process_noise(sm, self.noise, aux_mean, dt, self.first, self.P[0][0]))
         P = dX.T @ dX / (2 * n)
         P[np.diag_indices(n)] += q
         ocv = sm.ocv(float(xm[0]), tw_ocv)[0]
-        R = self.noise.measurement_variance(zm, ocv, dt, self.first)
-        self.first = False
+        R = self.variance(zm, ocv, dt)
         self.charging = charging
         if R > 0.0:
             # additive process noise, points not redrawn: it enters Pzz and Pxz through
