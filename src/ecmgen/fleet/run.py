@@ -57,7 +57,8 @@ class FleetResult:
     table: list[dict] = field(default_factory=list)
     files: list[Path] = field(default_factory=list)
     workers: int = 0
-    seconds: float = 0.0
+    seconds: float = 0.0            # the whole run
+    rows_seconds: float = 0.0       # from the first row submitted to the last one back
 
     def count(self, status: str) -> int:
         return sum(o.status == status for o in self.outcomes)
@@ -70,6 +71,7 @@ class FleetResult:
         return {"rows": len(self.rows), "built": self.count("built"),
                 "unchanged": self.count("unchanged"), "failed": self.count("failed"),
                 "workers": self.workers, "seconds": self.seconds,
+                "rows_seconds": self.rows_seconds,
                 "out": str(self.out_dir), "files": [str(p) for p in self.files],
                 "failures": [{"cell": o.cell, "checkup": o.checkup, "kind": o.kind,
                               "error": o.error} for o in self.failed]}
@@ -93,8 +95,11 @@ def run_fleet(manifest: str | Path, out: str | Path, *, scheduler: str | None = 
     with _client(scheduler, workers) as (client, n_workers):
         progress(f"fleet: {len(rows)} rows on {n_workers} Dask worker"
                  f"{'s' if n_workers != 1 else ''}")
+        t_rows = time.perf_counter()
         outcomes = _run_rows(client, rows, out, options, progress)
-    result = FleetResult(rows=rows, outcomes=outcomes, out_dir=out, workers=n_workers)
+        rows_seconds = time.perf_counter() - t_rows
+    result = FleetResult(rows=rows, outcomes=outcomes, out_dir=out, workers=n_workers,
+                         rows_seconds=rows_seconds)
     result.files.append(write_failures(rows, outcomes, out / "failures.csv"))
     progress("fleet: the fleet table")
     result.table, files = write_fleet_table(rows, out, soc_points, temperatures_c,

@@ -60,6 +60,7 @@ class Outcome:
     checkup: str
     status: str
     seconds: float = 0.0
+    cpu_seconds: float = 0.0        # of the worker process over the row
     error: str = ""
     kind: str = ""
     peak_rss_mb: float | None = None
@@ -81,7 +82,7 @@ def read_record(folder: Path) -> dict | None:
 
 def run_row(row: Row, out: Path, options: Options) -> Outcome:
     """Build one row unless it is done under its current hash (see the module doc)."""
-    t0 = time.perf_counter()
+    t0 = (time.perf_counter(), time.process_time())
     folder = row_folder(Path(out), row)
     try:
         with _ONE_BUILD, warnings.catch_warnings():
@@ -99,14 +100,15 @@ def run_row(row: Row, out: Path, options: Options) -> Outcome:
         text = " ".join(str(exc).split())
         return _failed(row, t0, f"ecmgen fault: {type(exc).__name__}: {text} (at "
                                 f"{Path(last.filename).name}:{last.lineno})", "internal")
-    return Outcome(row.cell, row.checkup, status, time.perf_counter() - t0,
-                   peak_rss_mb=_peak_rss_mb(), worker=_worker_name())
-
-
-def _failed(row: Row, t0: float, error: str, kind: str) -> Outcome:
-    return Outcome(row.cell, row.checkup, "failed", time.perf_counter() - t0,
-                   error=" ".join(error.split()), kind=kind, peak_rss_mb=_peak_rss_mb(),
+    return Outcome(row.cell, row.checkup, status, time.perf_counter() - t0[0],
+                   time.process_time() - t0[1], peak_rss_mb=_peak_rss_mb(),
                    worker=_worker_name())
+
+
+def _failed(row: Row, t0: tuple[float, float], error: str, kind: str) -> Outcome:
+    return Outcome(row.cell, row.checkup, "failed", time.perf_counter() - t0[0],
+                   time.process_time() - t0[1], error=" ".join(error.split()), kind=kind,
+                   peak_rss_mb=_peak_rss_mb(), worker=_worker_name())
 
 
 def _build_if_changed(row: Row, folder: Path, options: Options) -> str:
