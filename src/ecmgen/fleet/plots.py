@@ -101,9 +101,9 @@ def trend_png(table: list[dict], path: Path, soc_points, temperature_c: float,
             ax.set_xlabel(xlabel, fontsize=8)
     if len(cells) <= 10:
         axes[0].legend(fontsize=6, ncol=2)
-    fig.suptitle(f"Fleet of {len(cells)} cells: each figure against the check-ups, "
-                 f"{where_words(table, temperature_c, over_temperature)}; discharge "
-                 "tables (red circles: outliers)", fontsize=10)
+    fig.suptitle(f"Fleet of {len(cells)} cells against the check-ups, "
+                 f"{where_words(table, temperature_c, over_temperature)}\none line per "
+                 "cell, discharge tables, red circles: outliers", fontsize=9)
     w, h = fig.get_size_inches()
     fig.subplots_adjust(left=0.6 / w, right=1 - 0.15 / w, bottom=0.5 / h, top=1 - 0.7 / h,
                         wspace=0.42, hspace=0.55)

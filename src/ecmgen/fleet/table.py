@@ -8,7 +8,8 @@ Columns, in this order:
 
 - ``cell``, ``checkup``, ``cycles``, ``throughput_ah``, ``date`` (from the manifest);
 - ``capacity_ah`` (from the tests, see ``capacity_from``), ``capacity_rel`` (over the
-  cell's first check-up that has one);
+  cell's first check-up that has one), ``pulses_temperature_c`` (the pulse test's median
+  cell temperature), ``temperature_rows`` (of the model's tables);
 - ``<p>_soc<SS>_<T>c`` for each parameter p (``r0_ohm``, ``r_fast_ohm``, ``r_slow_ohm``,
   ``tau_fast_s``, ``tau_slow_s``, ``ocv_v``), SOC point SS (percent) and temperature point
   T (degC; ``m10c`` for -10 degC). A one-temperature model gives its one table at every
