@@ -177,3 +177,25 @@ def test_a_row_is_built_again_exactly_when_an_input_changes(tmp_path):
     assert "capacity.csv" in failed.error
     assert not (out / "cell01" / "0" / "fleet-row.json").exists()
     assert np.isfinite(failed.seconds)
+
+
+def test_a_running_cluster_by_its_address(tmp_path, monkeypatch, capsys):
+    """--scheduler: the rows run on the cluster at that address; an address where no
+    scheduler answers is one line, exit 2, nothing written."""
+    import ecmgen.fleet.run as run
+    from distributed import LocalCluster
+
+    study = tmp_path / "study"
+    manifest = write_study(make_study(cells=1, checkups=2, seed=3), study, with_cycle=False)
+    with LocalCluster(n_workers=1, processes=False, dashboard_address=None) as cluster:
+        assert main(["fleet", str(manifest), "--out", str(tmp_path / "out"), "-q",
+                     "--scheduler", cluster.scheduler_address, "--no-plots"]) == 0
+    assert "2 rows: 2 built, 0 unchanged, 0 failed" in capsys.readouterr().out
+    assert len(read_csv(tmp_path / "out" / "fleet.csv")) == 2
+    monkeypatch.setattr(run, "CONNECT_TIMEOUT_S", 0.5)
+    assert main(["fleet", str(manifest), "--out", str(tmp_path / "none"), "-q",
+                 "--scheduler", "tcp://127.0.0.1:9"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("ecmgen: error: --scheduler tcp://127.0.0.1:9: no Dask scheduler "
+                          "answers there") and err.count("\n") == 1
+    assert not (tmp_path / "none").exists()

@@ -91,8 +91,8 @@ def run_fleet(manifest: str | Path, out: str | Path, *, scheduler: str | None = 
     if parquet:
         _need("pyarrow")
     _need("distributed")
-    out.mkdir(parents=True, exist_ok=True)
     with _client(scheduler, workers) as (client, n_workers):
+        out.mkdir(parents=True, exist_ok=True)
         progress(f"fleet: {len(rows)} rows on {n_workers} Dask worker"
                  f"{'s' if n_workers != 1 else ''}")
         t_rows = time.perf_counter()
@@ -176,7 +176,7 @@ def _client(scheduler: str | None, workers: int | None):
     try:
         if workers:
             client.wait_for_workers(workers, timeout=CONNECT_TIMEOUT_S * 3)
-        yield client, len(client.scheduler_info(n_workers=-1).get("workers", {}))
+        yield client, len(client.nthreads())
     finally:
         client.close()
 
