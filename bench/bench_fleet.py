@@ -83,7 +83,9 @@ def main(argv=None) -> int:
                       f"({again.rows_seconds / rows * 1e3:.0f} ms a row: hash and check), "
                       f"run {wall:.1f} s")
         ratio = bpm[2] / bpm[1]
-        print(f"scaling 1 -> 2 workers: x{ratio:.2f} (ideal x2.00)")
+        cpu = sum(cpu_s[1]) / rows
+        print(f"scaling 1 -> 2 workers: x{ratio:.2f} (ideal x2.00); with a core each, a "
+              f"build's CPU time ({cpu:.2f} s) gives {60 / cpu:.0f} builds/min per worker")
         mean = sum(cpu_s[1]) / rows
         waves = math.ceil(10_000 / 64)
         print(f"on paper, 10 000 check-ups on 64 workers (a core each): {waves} builds per "
