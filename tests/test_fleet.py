@@ -118,6 +118,18 @@ def check_table_against_truth(out: Path, truth: list[dict]):
                                ("capacity_ah", "capacity_ah", 0.005)):
             ratio = float(got["2"][col]) / float(got["0"][col])
             assert ratio == pytest.approx(want["2"][tcol] / want["0"][tcol], abs=tol), (cell, col)
+    # ageing.csv: each cell's rates per cycle, relative to its first check-up (linear
+    # truth: (last / first - 1) / cycles), R0 within 0.01 % per cycle (true 0.04..0.13),
+    # the capacity within 0.002 % per cycle (true -0.016..-0.07)
+    rates = {(a["cell"], a["quantity"]): a for a in read_csv(out / "ageing.csv")}
+    for cell in sorted({r["cell"] for r in rows} - {BROKEN[0]}):
+        for q, tq, tol in (("r0_ohm_soc50_25c", "r0_soc50_ohm", 1e-4),
+                           ("capacity_ah", "capacity_ah", 2e-5)):
+            a, t0, t2 = rates[(cell, q)], true[(cell, "0")], true[(cell, "2")]
+            want = (t2[tq] / t0[tq] - 1.0) / t2["cycles"]
+            assert a["axis"] == "equivalent full cycles" and a["checkups"] == "3"
+            assert float(a["relative_slope"]) == pytest.approx(want, abs=tol), (cell, q)
+            assert (a["outlier"] == "true") == bool(t0["outlier"])
     # the outlier cell (3x the ageing) is marked on capacity and R0 at the later check-ups,
     # no other cell is
     for r in rows:

@@ -422,7 +422,7 @@ def cmd_fleet(args) -> int:
         result = run_fleet(args.manifest, args.out, scheduler=args.scheduler,
                            workers=args.workers, soc_points=args.soc,
                            temperatures_c=args.temperature_c,
-                           options=Options(plots=args.plots, c_code=not args.no_c),
+                           options=Options(plots=args.build_plots, c_code=not args.no_c),
                            plots=not args.no_plots, progress=progress)
     finally:
         getattr(progress, "close", lambda: None)()
@@ -585,18 +585,19 @@ def parser() -> argparse.ArgumentParser:
                         "tabulate their trends (exit 0 all built, 1 some rows failed, 2 bad "
                         "input)")
     fl.add_argument("manifest", help="CSV: cell,checkup,config[,cycles,throughput_ah,date]")
-    fl.add_argument("--out", required=True, help="output folder: <cell>/<checkup>/ per row, "
-                    "fleet.csv, fleet.parquet, failures.csv, trend plots")
-    fl.add_argument("--scheduler", help="address of a running Dask scheduler (default: a "
+    fl.add_argument("--out", required=True, metavar="DIR", help="output folder: <cell>/<checkup>/ "
+                    "per row, fleet.csv, fleet.parquet, ageing.csv, failures.csv, trend plots")
+    fl.add_argument("--scheduler", metavar="ADDRESS", help="address of a running Dask scheduler (default: a "
                     "local cluster)")
-    fl.add_argument("--workers", type=int, help="local worker processes (default: one per "
+    fl.add_argument("--workers", type=int, metavar="N", help="local worker processes (default: one per "
                     "core); with --scheduler, wait for this many workers")
-    fl.add_argument("--soc", type=float, nargs="+", default=[0.2, 0.5, 0.8],
+    fl.add_argument("--soc", type=float, nargs="+", default=[0.2, 0.5, 0.8], metavar="S",
                     help="SOC points of the fleet table (default 0.2 0.5 0.8)")
-    fl.add_argument("--temperature-c", type=float, nargs="+", default=[25.0],
+    fl.add_argument("--temperature-c", type=float, nargs="+", default=[25.0], metavar="T",
                     help="temperature points of the fleet table, degC (default 25; a "
                          "one-temperature model gives its own table)")
-    fl.add_argument("--plots", action="store_true", help="each row's build plots too")
+    fl.add_argument("--build-plots", action="store_true", help="each row's build plots too "
+                    "(none by default)")
     fl.add_argument("--no-plots", action="store_true", help="no trend plots")
     fl.add_argument("--no-c", action="store_true", help="no C for any row")
     fl.add_argument("--json", action="store_true", help="print one JSON object on stdout")

@@ -11,8 +11,9 @@ stderr, and writes into ``out``:
 - ``<cell>/<checkup>/``: each row's build outputs and its record (``fleet-row.json``);
 - ``failures.csv``: ``cell,checkup,config,kind,error``, one line per failed row (the
   header alone when none failed);
-- ``fleet.csv`` and ``fleet.parquet`` (ecmgen.fleet.table) and the trend plots
-  (ecmgen.fleet.plots) over every row that has results.
+- ``fleet.csv`` and ``fleet.parquet`` (ecmgen.fleet.table), ``ageing.csv`` (each cell's
+  rates, ecmgen.fleet.ageing) and the trend plots (ecmgen.fleet.plots) over every row
+  that has results.
 
 A row that fails (its config or files are bad, or ecmgen fails on them) is listed in
 failures.csv; the others go on. Dask is an optional dependency (``pip install
@@ -112,12 +113,17 @@ def run_fleet(manifest: str | Path, out: str | Path, *, scheduler: str | None = 
 def write_fleet_table(rows: list[Row], out: Path, soc_points=DEFAULT_SOC,
                       temperatures_c=DEFAULT_TEMPERATURES_C, *, parquet: bool = True,
                       plots: bool = True) -> tuple[list[dict], list[Path]]:
-    """fleet.csv, fleet.parquet and the trend plots from the rows' outputs in ``out``
+    """fleet.csv, fleet.parquet, ageing.csv and the trend plots from the rows' outputs in ``out``
     (also callable alone, e.g. at other SOC or temperature points)."""
     from .table import table_rows, write_table
 
+    from .ageing import ageing_rows
+    from .table import csv_text
+
     table = table_rows(rows, out, soc_points, temperatures_c)
     files = write_table(table, out, parquet=parquet)
+    write_atomic(out / "ageing.csv", csv_text(ageing_rows(table)))
+    files.append(out / "ageing.csv")
     if plots and table:
         from .plots import trend_pngs
 
