@@ -3,7 +3,8 @@ batch, one task each on Dask (a LocalCluster, or a running cluster), resumable b
 hash of each row's inputs; then the fleet table and its trend plots.
 
     manifest (:mod:`.manifest`) -> one task per row (:mod:`.task`, on :mod:`.run`'s
-    cluster) -> the fleet table (:mod:`.table`) and plots (:mod:`.plots`)
+    cluster) -> the fleet table (:mod:`.table`), each cell's rates (:mod:`.ageing`) and
+    the trend plots (:mod:`.plots`)
 
 Needs the optional dependencies ``pip install 'ecmgen[fleet]'``.
 """
