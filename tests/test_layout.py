@@ -35,6 +35,7 @@ LEVELS = [
     {"c": ("ecmgen.c",), "diagnosis": ("ecmgen.diagnosis",)},
     {"plots": ("ecmgen.plots",), "report": ("ecmgen.report",)},
     {"pipeline": ("ecmgen.pipeline",)},
+    {"fleet": ("ecmgen.fleet",)},
     {"cli": ("ecmgen.cli",)},
 ]
 

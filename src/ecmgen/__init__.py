@@ -18,6 +18,8 @@ stages before it, never a later one (tests/test_layout.py checks this)::
                  settings from the validation residual (residual)
     plots, report    the PNG and text outputs of a build
     pipeline, cli    the chain behind `ecmgen build` / `ecmgen diagnose`, and the CLI
+    fleet/       `ecmgen fleet`: the build of every row of a manifest on Dask, resumable
+                 by the hash of each row's inputs; the fleet table and its trend plots
     config, errors, files, plotting, _version    shared by all: the build config,
                  InputError, atomic writes and hashes, matplotlib set-up, the version
 
@@ -48,6 +50,7 @@ _API = {
     "diagnose": "ecmgen.diagnosis.search",
     "estimate_record": "ecmgen.estimate.run",
     "run_filter": "ecmgen.estimate.run",
+    "run_fleet": "ecmgen.fleet.run",
 }
 
 __all__ = ["__version__", *sorted(_API)]

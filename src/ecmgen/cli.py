@@ -25,7 +25,7 @@ def _given(cfg) -> set[Path]:
 
 # numeric options: (lowest, highest) accepted; NaN and infinities never are. The SOC
 # options are fractions; a temperature outside the cell's life is a typo (degF? K?)
-NUMBER_OPTIONS = {"soc0": (0.0, 1.0), "soc0_guess": (0.0, 1.0),
+NUMBER_OPTIONS = {"soc0": (0.0, 1.0), "soc0_guess": (0.0, 1.0), "soc": (0.0, 1.0),
                   "temperature_c": (-60.0, 100.0), "capacity_ah": (1e-6, 1e5),
                   "current_gain": (1e-3, 1e3), "current_offset_a": (-1e5, 1e5),
                   "dt_s": (1e-6, 3600.0), "times": (1e-6, 1e6), "window_s": (-1e12, 1e12),
@@ -426,6 +426,32 @@ def cmd_diagnose(args) -> int:
     return 0
 
 
+def cmd_fleet(args) -> int:
+    from .fleet import Options, run_fleet
+
+    _check_numbers(args)
+    progress = _progress(not args.quiet)
+    try:
+        result = run_fleet(args.manifest, args.out, scheduler=args.scheduler,
+                           workers=args.workers, soc_points=args.soc,
+                           temperatures_c=args.temperature_c,
+                           options=Options(plots=args.build_plots, c_code=not args.no_c),
+                           plots=not args.no_plots, progress=progress)
+    finally:
+        getattr(progress, "close", lambda: None)()
+    if args.json:
+        print(json_text(result.as_dict(), indent=1))
+    else:
+        failed = result.count("failed")
+        print(f"{len(result.rows)} rows: {result.count('built')} built, "
+              f"{result.count('unchanged')} unchanged, {failed} failed"
+              + (f" (see {_shown_path(result.out_dir / 'failures.csv')})" if failed else "")
+              + f"; fleet table of {len(result.table)} rows in "
+              f"{_shown_path(result.out_dir / 'fleet.csv')} ({result.seconds:.0f} s on "
+              f"{result.workers} worker{'s' if result.workers != 1 else ''})")
+    return 1 if result.count("failed") else 0
+
+
 def cmd_config(args) -> int:
     from .config_schema import reference
 
@@ -572,6 +598,29 @@ def parser() -> argparse.ArgumentParser:
     g.add_argument("-q", "--quiet", action="store_true")
     g.add_argument("--no-plots", action="store_true")
     g.set_defaults(func=cmd_diagnose)
+
+    fl = sub.add_parser("fleet", help="build every cell x check-up of a manifest on Dask and "
+                        "tabulate their trends (exit 0 all built, 1 some rows failed, 2 bad "
+                        "input)")
+    fl.add_argument("manifest", help="CSV: cell,checkup,config[,cycles,throughput_ah,date]")
+    fl.add_argument("--out", required=True, metavar="DIR", help="output folder: <cell>/<checkup>/ "
+                    "per row, fleet.csv, fleet.parquet, ageing.csv, failures.csv, trend plots")
+    fl.add_argument("--scheduler", metavar="ADDRESS", help="address of a running Dask scheduler (default: a "
+                    "local cluster)")
+    fl.add_argument("--workers", type=int, metavar="N", help="local worker processes (default: one per "
+                    "core); with --scheduler, wait for this many workers")
+    fl.add_argument("--soc", type=float, nargs="+", default=[0.2, 0.5, 0.8], metavar="S",
+                    help="SOC points of the fleet table (default 0.2 0.5 0.8)")
+    fl.add_argument("--temperature-c", type=float, nargs="+", default=[25.0], metavar="T",
+                    help="temperature points of the fleet table, degC (default 25; a "
+                         "one-temperature model gives its own table)")
+    fl.add_argument("--build-plots", action="store_true", help="each row's build plots too "
+                    "(none by default)")
+    fl.add_argument("--no-plots", action="store_true", help="no trend plots")
+    fl.add_argument("--no-c", action="store_true", help="no C for any row")
+    fl.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    fl.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
+    fl.set_defaults(func=cmd_fleet)
 
     k = sub.add_parser("config", help="print the config reference (every section and key)")
     k.add_argument("--explain", action="store_true", help="every key: type, unit, range, "

@@ -16,6 +16,14 @@
 The pool starts on the first task given to it (a build with one pulse test never starts
 it). Scripts that call it must guard their top level with ``if __name__ == "__main__":``
 (Python's rule for started processes); notebooks and the command line need nothing.
+
+Why the standard library's pool and not Dask (which ``ecmgen fleet`` runs its builds on):
+measured on the bundled build over temperature (bench/bench_parallel_engine.py, see
+docs/results.md), Dask's local scheduler is itself a concurrent.futures process pool
+underneath and costs the same CPU; a dask.distributed LocalCluster costs about 15 % more
+CPU for the same tasks (its event loops, nannies and heartbeats) and would make Dask a
+dependency of every build. A fleet runs each of its builds on one process (workers=1):
+the fleet's workers already use the cores.
 """
 
 from __future__ import annotations
