@@ -306,22 +306,34 @@ def test_the_soc_read_from_the_ocv_alone(model, built):
     """resistance_slopes = false: the Jacobians take the RC tables as flat in SOC; C ==
     float32 reference, bit for bit, and follows the float64 filter; H's SOC entry is the
     OCV's slope alone (its SOC sigma differs from the filter with the slopes)."""
-    s = _cycle("0degC", "us06")
-    sl = slice(5000, 8000)
-    seen = SCENARIO["gain"] * s.current_a[sl] + SCENARIO["offset"]
     cfg = EstimatorConfig(start_polarization_c=0.5, resistance_slopes=False,
                           polarization_soc_sigma=0.02)
-    flat = compile_spec(built.spec, estimator=prepare_estimator(model, built.spec, cfg))
+    _, ref, again = _c_against_references(model, built, ("0degC", "us06"),
+                                          slice(5000, 8000), cfg)
+    sloped = again(replace(cfg, resistance_slopes=True))
+    assert abs(ref.soc_sigma[-1] - sloped.soc_sigma[-1]) > 1e-4
+
+
+def _c_against_references(model, built, cycle, sl, cfg):
+    """The C filter with ``cfg`` on a slice of a shared cycle (SCENARIO's sensor errors,
+    start 0.6): bit-exact to its float32 reference and within 0.1 % SOC of the float64
+    filter. Returns (the compiled filter, the float64 run, a float64 run with other
+    settings)."""
+    s = _cycle(*cycle)
+    seen = SCENARIO["gain"] * s.current_a[sl] + SCENARIO["offset"]
+    compiled = compile_spec(built.spec, estimator=prepare_estimator(model, built.spec, cfg))
     args = (seen, cref.dt_from_time(s.time_s[sl]), s.voltage_v[sl], 0.6,
             s.temperature_c[sl])
-    got = run_estimator_c(flat, *args)
-    assert bits_equal(got, simulate_estimator_f32(flat.spec, flat.estimator, *args))
-    ref = run_filter(model, s.time_s[sl], seen, s.voltage_v[sl], 0.6, cfg,
-                     s.temperature_c[sl])
+    got = run_estimator_c(compiled, *args)
+    assert bits_equal(got, simulate_estimator_f32(compiled.spec, compiled.estimator, *args))
+
+    def again(settings):
+        return run_filter(model, s.time_s[sl], seen, s.voltage_v[sl], 0.6, settings,
+                          s.temperature_c[sl])
+
+    ref = again(cfg)
     assert np.max(np.abs(got.soc - ref.soc)) < 1e-3
-    sloped = run_filter(model, s.time_s[sl], seen, s.voltage_v[sl], 0.6,
-                        replace(cfg, resistance_slopes=True), s.temperature_c[sl])
-    assert abs(ref.soc_sigma[-1] - sloped.soc_sigma[-1]) > 1e-4
+    return compiled, ref, again
 
 
 def test_the_model_error_held_after_a_current_step(model, built):
@@ -329,23 +341,13 @@ def test_the_model_error_held_after_a_current_step(model, built):
     decays after a current step; C == float32 reference, bit for bit; its SOC follows the
     float64 filter; a held overpotential only widens R, so the SOC sigma ends no smaller;
     <prefix>_est_t holds it (4 B more than without)."""
-    s = _cycle("25degC", "us06")
-    sl = slice(0, 3000)
-    seen = SCENARIO["gain"] * s.current_a[sl] + SCENARIO["offset"]
     cfg = EstimatorConfig(start_polarization_c=0.5, polarization_error=0.2,
                           error_memory_s=60.0)
-    held = compile_spec(built.spec, estimator=prepare_estimator(model, built.spec, cfg))
+    held, ref, again = _c_against_references(model, built, ("25degC", "us06"),
+                                             slice(0, 3000), cfg)
     assert held.lib.ecmh_est_size() == est_state_bytes(held.spec, held.estimator) \
         == est_state_bytes(built.spec, built.estimator) + 4         # the held eta_v
-    args = (seen, cref.dt_from_time(s.time_s[sl]), s.voltage_v[sl], 0.6,
-            s.temperature_c[sl])
-    got = run_estimator_c(held, *args)
-    assert bits_equal(got, simulate_estimator_f32(held.spec, held.estimator, *args))
-    ref = run_filter(model, s.time_s[sl], seen, s.voltage_v[sl], 0.6, cfg,
-                     s.temperature_c[sl])
-    assert np.max(np.abs(got.soc - ref.soc)) < 1e-3
-    plain = run_filter(model, s.time_s[sl], seen, s.voltage_v[sl], 0.6,
-                       replace(cfg, error_memory_s=0.0), s.temperature_c[sl])
+    plain = again(replace(cfg, error_memory_s=0.0))
     assert ref.soc_sigma[-1] >= plain.soc_sigma[-1]
 
 
