@@ -514,7 +514,7 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
     notes: list[str] = []
 
     def judged(effects, base=None):
-        model = (base or base_model).with_effects(effects)
+        model = (base_model if base is None else base).with_effects(effects)
         sj = sim_judge(model)
         e1 = sj.voltage_v[judge_start:] - vj
         sf = sj if same else sim_fit(model)

@@ -205,11 +205,14 @@ class _Problem:
                                                  r0_spans or {})
         hd = np.hstack([hats(rec.soc, b) * m[:, None]
                         for b, m in zip(self.bases, rec.dir_mask.values())])
-        drive = rec.i if i0_a is None else i0_a * np.arcsinh(rec.i / i0_a)
         if current_factor is not None:
             # a resistance factor of the current (a current-dependent resistance effect)
             # on r0 and r_fast, as the model's step applies it
             drive = rec.i * current_factor(rec.i)
+        elif i0_a is not None:
+            drive = i0_a * np.arcsinh(rec.i / i0_a)
+        else:
+            drive = rec.i
         self.u_fast = np.multiply(hd, drive[:, None], order="F")
         self.u_slow = np.multiply(hd, rec.i[:, None], order="F")
         self.u_diff = np.asfortranarray(np.column_stack([m * rec.i for m in rec.dir_mask.values()]))

@@ -119,8 +119,8 @@ def fit_exchange_current(table, capacity_ah: float, *, t_s: float = 1.0,
                "without current dependence) on the fast branch",))
 
 
-# ln(i0 / capacity) searched by best_exchange_current: from a tenth of 1 C (strongly curved
-# over a pulse test's currents) to 30 C (g = 1 - x^2/6 within 0.4 % at 2 C: no dependence)
+# i0 / capacity searched by best_exchange_current: from a tenth of 1 C (strongly curved
+# over a pulse test's currents) to 30 C (g = asinh(x)/x > 0.999 at 2 C: no dependence)
 I0_SEARCH_C = (0.1, 30.0)
 
 
