@@ -298,6 +298,38 @@ def test_usabc_leaf_hppc_gives_both_directions_within_5_percent():
             assert np.all(np.abs(got / want - 1) < 0.05), (d, p.soc, got / want - 1)
 
 
+def test_pulses_without_a_rest_after_them_take_the_other_directions_slow_pair():
+    """The regen pulses of a USABC/Leaf HPPC run straight into the SOC move: nothing shows
+    their slow polarisation decaying on its own, so the charge slow pair is the
+    discharge one's (said), and no resistance is left at 0."""
+    from conftest import make_usabc_hppc
+
+    truth = synthetic_nca_model(tau_fast_s=2.0, tau_slow_s=30.0)
+    series = make_usabc_hppc(truth, seed=1)
+    pulses = find_pulses(series, truth.capacity_ah, soc0=1.0)
+    fit = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, diffusion=False)
+    assert any("the charge slow pair is the discharge one's" in n for n in fit.notes)
+    np.testing.assert_array_equal(fit.charge.r_slow_ohm, fit.discharge.r_slow_ohm)
+    for d in ("charge", "discharge"):
+        t = fit.table(d)
+        assert min(t.r0_ohm.min(), t.r_fast_ohm.min(), t.r_slow_ohm.min()) > 0, d
+
+
+def test_the_fast_range_reaches_pulses_longer_than_it():
+    """30 s pulses against a 10 s fast range: the range reaches 30 s (said); a pulse within
+    one grid step of the range leaves it as configured."""
+    from ecmgen.fit.curve_levels import data_tau_ranges
+
+    ranges = {"fast": (0.1, 10.0), "slow": (5.0, 500.0)}
+    got, notes = data_tau_ranges(ranges, 0.5, 3600.0, pulse_s=30.0)
+    assert got["fast"] == (0.5, 30.0) and got["slow"] == (5.0, 500.0)
+    assert any("longest pulse" in n for n in notes)
+    got, _ = data_tau_ranges(ranges, 0.1, 3600.0, pulse_s=10.9)
+    assert got["fast"] == (0.1, 10.0)
+    got, _ = data_tau_ranges(ranges, 0.1, 3600.0)
+    assert got["fast"] == (0.1, 10.0)
+
+
 def test_a_current_dependent_resistance_is_found_on_the_pulse_test():
     from ecmgen.fit.rate import best_exchange_current
     from ecmgen.model.effects import CurrentDependentResistance

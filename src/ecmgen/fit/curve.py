@@ -37,8 +37,11 @@ left-out rows after refitting only the nuisance offsets there, over a log grid o
 (:func:`ecmgen.fit.curve_levels.choose_penalty`); the resistances are then solved again at
 that weight, at the time constants the search found (:func:`_fit_time_constants`).
 
-Time constants the test can show: tau_fast not shorter than the sampling in the pulses, the
-slow and diffusion ones not longer than the longest relaxation after a current change. A
+Time constants the test can show: tau_fast not shorter than the sampling in the pulses (and
+reaching the longest pulse where that is longer than its range), the slow and diffusion
+ones not longer than the longest relaxation after a current change. A direction whose
+pulses run straight into another current (no rest after them) takes the other direction's
+slow and diffusion pairs (:func:`ecmgen.fit.curve_levels.tied_slow_pairs`). A
 diffusion pair whose tau_diff ends on a bound is dropped and the rest refitted; a fast or
 slow pair on a bound is kept there and said (``fit.checks`` flags it).
 
@@ -94,7 +97,8 @@ from ..data.measure import TimeSeries
 from ..data.ocv import OcvTable
 from ..data.steps import merge_soc_steps
 from ..errors import InputError
-from .curve_levels import choose_penalty, data_tau_ranges, level_nodes, level_windows
+from .curve_levels import (choose_penalty, data_tau_ranges, level_nodes, level_windows,
+                           tied_slow_pairs)
 from .curve_record import Record, W_SPAN_S, hats, pulse_record, rc_response, side_by_side
 from .lsq import log_grid, nelder_mead, solve_bounded
 
@@ -186,8 +190,9 @@ class _Problem:
     def __init__(self, rec: Record, bases: dict, ocv_nodes: np.ndarray, i0_a: float | None,
                  r0_spans: dict | None = None, levels: np.ndarray | None = None,
                  split_ocv: bool = False, soc_span: tuple | None = None,
-                 current_factor=None):
+                 current_factor=None, tied: dict | None = None):
         self.rec = rec
+        self.tied = dict(tied or {})     # direction -> the one whose slow pairs it uses
         self.dirs = list(rec.dir_mask)
         self.ndir = len(self.dirs)
         self.bases = [np.asarray(bases[d], dtype=np.float64) for d in self.dirs]
@@ -214,10 +219,18 @@ class _Problem:
         else:
             drive = rec.i
         self.u_fast = np.multiply(hd, drive[:, None], order="F")
-        self.u_slow = np.multiply(hd, rec.i[:, None], order="F")
-        self.u_diff = np.asfortranarray(np.column_stack([m * rec.i for m in rec.dir_mask.values()]))
+        u_lin = np.multiply(hd, rec.i[:, None], order="F")
+        self.u_slow = u_lin
+        masks = [self._pair_mask(d) for d in self.dirs]
+        if self.tied:
+            # a tied direction's columns carry no rows (they solve to 0); its rows drive
+            # the source direction's columns
+            self.u_slow = np.multiply(np.hstack([hats(rec.soc, b) * m[:, None]
+                                                 for b, m in zip(self.bases, masks)]),
+                                      rec.i[:, None], order="F")
+        self.u_diff = np.asfortranarray(np.column_stack([m * rec.i for m in masks]))
         # r0 * i on the node basis, then the OCV correction
-        u_r0 = self.u_slow if current_factor is None else self.u_fast
+        u_r0 = u_lin if current_factor is None else self.u_fast
         self.r0_full = np.asfortranarray(np.hstack([u_r0, ocv_cols]))
         inside = np.ones(rec.t.size, bool) if soc_span is None else \
             (rec.soc >= soc_span[0]) & (rec.soc <= soc_span[1])
@@ -232,6 +245,16 @@ class _Problem:
         # the SOC level (index) each row belongs to, -1 between levels (leave-one-out)
         self.level = np.full(self.rows.size, -1) if levels is None else levels[self.rows]
         self._cache: dict = {}
+
+    def _pair_mask(self, d: str) -> np.ndarray:
+        """The rows driving direction ``d``'s slow and diffusion columns."""
+        if d in self.tied:
+            return np.zeros(self.rec.t.size, bool)
+        m = self.rec.dir_mask[d].copy()
+        for t, src in self.tied.items():
+            if src == d:
+                m |= self.rec.dir_mask[t]
+        return m
 
     def block(self, kind: str, tau: float, full: bool = False) -> np.ndarray:
         """The unit responses of branch ``kind`` at ``tau``: weighted rows (cached; the
@@ -468,12 +491,16 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
     rec = pulse_record(record, soc0, ocv, capacity_ah, directions=directions,
                        deadband_a=deadband, relax_s=relax_s, rows_per_decade=rows_per_decade,
                        min_weight_s=min_weight_s)
-    ranges, n = data_tau_ranges(ranges, _pulse_sampling_s(series, complete), rec.rest_used_s)
+    ranges, n = data_tau_ranges(ranges, _pulse_sampling_s(series, complete), rec.rest_used_s,
+                                None if blocks_both_ways else
+                                max(p.duration_s for p in complete))
     notes.extend(n)
     spans = _r0_spans(complete, directions)
+    tied, n = ({}, []) if blocks_both_ways else tied_slow_pairs(complete, series.time_s)
+    notes.extend(n)
     prob, got, n = _fit_problem(rec, complete, directions, capacity_ah, i0_a, spans, ranges,
                                 series, progress, may_split=not blocks_both_ways,
-                                current_factor=current_factor)
+                                current_factor=current_factor, tied=tied)
     notes.extend(n)
     taus, x, cost, n_eval, search_notes, ranges = got
     notes.extend(search_notes)
@@ -509,7 +536,7 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
 
 def _fit_problem(rec: Record, complete, directions, capacity_ah: float, i0_a, spans: dict,
                  ranges: dict, series: TimeSeries, progress=None, may_split: bool = True,
-                 current_factor=None):
+                 current_factor=None, tied=None):
     """The linear problem of the record and its fit (:func:`_fit_time_constants`), with the
     OCV offsets at the levels or also half-way between them (a SOC move passes where the
     OCV table is interpolated between the rests, and its curvature there must not go into
@@ -529,7 +556,7 @@ def _fit_problem(rec: Record, complete, directions, capacity_ah: float, i0_a, sp
     fits = []
     for nodes_ocv in _ocv_node_sets(ocv_nodes):
         prob = _Problem(rec, bases, nodes_ocv, i0_a, spans, levels, split_ocv=split,
-                        soc_span=span, current_factor=current_factor)
+                        soc_span=span, current_factor=current_factor, tied=tied)
         if prob.rows.size < 4 * (prob.jd + prob.n_ocv):
             raise InputError(series.source, f"only {prob.rows.size} samples to fit the curve "
                                             "method on")
@@ -556,9 +583,12 @@ def _direction_fits(prob: _Problem, x: np.ndarray, kinds, nodes: np.ndarray, com
     fits = {}
     for n_d, d in enumerate(rec.dir_mask):
         a0, nb, basis = prob.offsets[n_d], prob.sizes[n_d], prob.bases[n_d]
-        r0, rf, rs = (np.interp(nodes, basis, x[at[k] + a0:at[k] + a0 + nb])
-                      for k in ("r0", "fast", "slow"))
-        rd = float(x[at["diff"] + n_d]) if "diff" in at else None
+        r0, rf = (np.interp(nodes, basis, x[at[k] + a0:at[k] + a0 + nb])
+                  for k in ("r0", "fast"))
+        n_s = prob.dirs.index(prob.tied.get(d, d))     # the direction whose slow pairs
+        s0, ns = prob.offsets[n_s], prob.sizes[n_s]
+        rs = np.interp(nodes, prob.bases[n_s], x[at["slow"] + s0:at["slow"] + s0 + ns])
+        rd = float(x[at["diff"] + n_s]) if "diff" in at else None
         low = min(p.soc for p in complete if p.direction == d)
         high = max(p.soc for p in complete if p.direction == d)
         ident = _identified(nodes, low, high)

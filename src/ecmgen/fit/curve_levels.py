@@ -8,11 +8,11 @@ from __future__ import annotations
 import numpy as np
 
 from ..data.dcir import Pulse
-from .lsq import solve_bounded
+from .lsq import GRID_RATIO, solve_bounded
 from .points import SOC_LEVEL_GAP
 
 # candidate weights of the second-difference penalty (relative to the column scale)
-PENALTIES = tuple(10.0 ** np.arange(-6.0, 1.01, 0.5))
+PENALTIES = tuple(10.0 ** np.arange(-6.0, 3.01, 0.5))
 CV_TIE = 0.01      # held-out errors this close (relative) are one: the smoother is kept
 
 
@@ -64,20 +64,30 @@ def level_windows(complete: list[Pulse], t: np.ndarray, t_rec: np.ndarray
     return np.array(nodes), level
 
 
-def data_tau_ranges(ranges: dict, sampling_s: float, relaxation_s: float) -> tuple[dict, list]:
+def data_tau_ranges(ranges: dict, sampling_s: float, relaxation_s: float,
+                    pulse_s: float | None = None) -> tuple[dict, list]:
     """The search ranges cut to what the record can show: no time constant shorter than the
     sampling in the pulses, no slow or diffusion one longer than the longest relaxation
-    after a current change. Returns (ranges, notes)."""
+    after a current change; and a fast one as long as the longest pulse (``pulse_s``)
+    where that is more than one grid step (GRID_RATIO) beyond the fast range: pulses that
+    long show a pair that slow inside them (the Leaf's 30 s pulses: with tau_fast held at
+    10 s its pair and the slow one traded resistance down to 0 at the ends of the SOC
+    range; up to 30 s, no value near 0 and roughness 0.12 / 0.15 at 25 / 40 degC).
+    Returns (ranges, notes)."""
     out, notes = {}, []
     for k, (lo, hi) in ranges.items():
         lo2 = max(lo, sampling_s) if k == "fast" else lo
         hi2 = min(hi, relaxation_s) if k in ("slow", "diff") and relaxation_s > 0 else hi
+        if k == "fast" and pulse_s is not None and pulse_s > hi * GRID_RATIO:
+            hi2 = pulse_s
         if hi2 <= lo2 * 1.5:          # nothing left to search: keep the configured range
             lo2, hi2 = lo, hi
-        if lo2 > lo * 1.01 or hi2 < hi / 1.01:
+        why = [w for w, moved in (("sampling", lo2 > lo * 1.01),
+                                  ("longest pulse", hi2 > hi * 1.01),
+                                  ("longest relaxation", hi2 < hi / 1.01)) if moved]
+        if why:
             notes.append(f"curve: tau_{k} searched in {lo2:.3g} .. {hi2:.3g} s (the "
-                         f"{'sampling' if lo2 > lo * 1.01 else 'longest relaxation'} of the "
-                         "test)")
+                         f"{' and the '.join(why)} of the test)")
         out[k] = (float(lo2), float(hi2))
     return out, notes
 
@@ -112,3 +122,24 @@ def choose_penalty(prob, z: np.ndarray, lay: dict) -> tuple[float, dict]:
     best = min(errors.values())
     lam = max(k for k, v in errors.items() if v <= (1.0 + CV_TIE) * best)
     return lam, errors
+
+
+def tied_slow_pairs(complete: list[Pulse], t: np.ndarray) -> tuple[dict, list[str]]:
+    """The directions whose slow and diffusion pairs are the other direction's: those whose
+    complete pulses run into another current (median rest after them shorter than the
+    pulses) while the other direction's relax. Without a relaxation after the pulse its
+    slow polarisation decays under the next current's own response, and the split between
+    the fast and slow pairs is not identified (a ridge the least squares walk along to a
+    zero resistance). Returns ({direction: source direction}, notes)."""
+    def relaxes(d):
+        ps = [p for p in complete if p.direction == d]
+        rest = [t[min(p.next_start, t.size - 1)] - t[p.stop - 1] for p in ps]
+        return bool(np.median(rest) >= np.median([p.duration_s for p in ps]))
+
+    dirs = sorted({p.direction for p in complete})
+    if len(dirs) < 2:
+        return {}, []
+    ok = {d: relaxes(d) for d in dirs}
+    tied = {d: o for d, o in zip(dirs, dirs[::-1]) if not ok[d] and ok[o]}
+    return tied, [f"curve: the {d} pulses run into another current (no rest after them): "
+                  f"the {d} slow pair is the {s} one's" for d, s in tied.items()]

@@ -79,7 +79,10 @@ def feasible(m, q, x, passive):
     return np.maximum(x, 0.0)
 
 
-def log_grid(lo: float, hi: float, ratio: float = 2.2) -> np.ndarray:
+GRID_RATIO = 2.2      # between neighbouring points of a time-constant search grid
+
+
+def log_grid(lo: float, hi: float, ratio: float = GRID_RATIO) -> np.ndarray:
     n = max(2, int(np.ceil(np.log(hi / lo) / np.log(ratio))) + 1)
     return np.geomspace(lo, hi, n)
 
