@@ -49,6 +49,26 @@ def test_lfp_names_hysteresis():
     assert h.ocv_table_state > 0.5                    # the OCV table is the charge branch
 
 
+def test_plett_a123_names_hysteresis_from_its_dynamic_test(tmp_path):
+    """The shared A123 (examples/a123-dynamic: OCV from its four OCV files, tables from its
+    dynamic test), diagnosed on that dynamic test with its last 40 % held out: the LFP
+    hysteresis is named and pays there (10.6 -> 3.7 mV above 10 % SOC). Below 10 % SOC the
+    held-out end is not judged: the end-of-discharge knee made the gain look like noise."""
+    from dataclasses import replace
+
+    from conftest import REPO, SHARED_DATA
+    from ecmgen.config import load_config
+    from ecmgen.pipeline import run_diagnose
+
+    dyn = need(SHARED_DATA / "plett-a123-lfp" / "dyn_data" / "A123_DYN_50_P25_s1.csv")
+    cfg = load_config(REPO / "examples" / "a123-dynamic" / "config.toml")
+    cfg = replace(cfg, cycle=dyn, extra_cycles=())
+    r, _, _ = run_diagnose(cfg, tmp_path / "out", plots=False)
+    assert r.effects[:1] == ("hysteresis",), r.to_json_dict()["verdict"]
+    assert r.mae_after_v < 0.5 * r.mae_before_v
+    assert r.model.effects[0].m_v > 0.005              # mV-scale LFP hysteresis
+
+
 def _panasonic_base():
     """A 10 s-pulse model: each HPPC pulse fitted with 10 s of relaxation
     (ecmgen.diagnosis.synthcell.fit_pulses), parameters averaged over the C-rates of a pulse set;
@@ -73,9 +93,11 @@ def test_panasonic_us06_judged_on_hwfet():
     r = diagnose(base, us06, hwfet)
     d = r.to_json_dict()
     print({k: d[k] for k in ("effects", "mae_before_v", "mae_after_v")})
-    assert r.mae_before_v > 0.025                    # the 10 s-pulse model: ~40 mV
+    assert r.mae_before_v > 0.02                     # the 10 s-pulse model: ~25 mV
     assert r.effects, "nothing found"
     assert "extra_rc" in r.effects                   # minutes-long polarisation
-    assert r.mae_after_v <= 0.015
-    # validate gives the same number on the augmented model
-    assert validate(r.model, hwfet).overall.mae_v == pytest.approx(r.mae_after_v, rel=1e-9)
+    assert r.mae_after_v <= 0.01
+    # the end of HWFET below 10 % SOC is not judged; validate gives the same number there
+    assert "above 10 % SOC" in r.split
+    assert validate(r.model, hwfet).soc_above_10.mae_v == pytest.approx(r.mae_after_v,
+                                                                        rel=1e-9)

@@ -392,12 +392,25 @@ def _mae(e: np.ndarray) -> float:
     return float(np.mean(np.abs(e))) if e.size else float("nan")
 
 
+JUDGE_SOC_MIN = 0.1      # held-out samples at or below this SOC are not judged
+
+
+def _judged_samples(soc: np.ndarray, soc_min: float) -> tuple[np.ndarray, int]:
+    """Indices of the held-out samples judged (SOC above ``soc_min``; all of them when fewer
+    than 50 would be left) and how many were left out."""
+    keep = np.flatnonzero(soc > soc_min)
+    if keep.size < 50:
+        return np.arange(soc.size), 0
+    return keep, int(soc.size - keep.size)
+
+
 def diagnose(base_model: EcmModel, fit_series: TimeSeries,
              judge_series: TimeSeries | None = None, soc0: float | None = None,
              judge_soc0: float | None = None, *, split: float = 0.6,
              candidates=fx.EFFECT_NAMES, max_effects: int = 4, min_rel_gain: float = 0.08,
              min_gain_noise: float = 1.0, min_gain_v: float = 2e-4, confidence: float = 0.99,
-             block_s: float | None = None, max_fit_samples: int = 12000, max_nfev: int = 40,
+             block_s: float | None = None, judge_soc_min: float = JUDGE_SOC_MIN,
+             max_fit_samples: int = 12000, max_nfev: int = 40,
              loss_scale_v: float | None = None, seed: int = 0,
              progress: Callable[[str], None] | None = None,
              base_refits: dict | None = None) -> DiagnoseResult:
@@ -413,6 +426,10 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
     min_rel_gain, min_gain_noise, min_gain_v, confidence
                      the held-out test (module doc); ``block_s`` is the bootstrap block
                      length (default: 1/20 of the held-out duration, at least 60 s)
+    judge_soc_min    held-out samples where the base model's SOC is at or below this are
+                     not judged (the end-of-discharge knee of the OCV: there the error
+                     measures where the cell ends, not the effect; the validation's MAE
+                     above 10 % SOC leaves them out for the same reason)
     max_fit_samples  longer fit parts are block-averaged to this many samples for the
                      parameter fits (judging is always at full resolution)
     max_nfev         Gauss-Newton iterations per fit
@@ -474,11 +491,14 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
         return simulate(model, fit_series.time_s, fit_series.current_a, soc0,
                         fit_series.temperature_c)
 
-    vj = judge.voltage_v[judge_start:]
     base_fit_sim = sim_fit(base_model)
     base_judge_sim = base_fit_sim if same else sim_judge(base_model)
+    keep, below = _judged_samples(base_judge_sim.soc[judge_start:], judge_soc_min)
+    if below:
+        split_words += f", above {100 * judge_soc_min:.0f} % SOC ({below} samples below left out)"
+    vj = judge.voltage_v[judge_start:][keep]
     e_fit0 = base_fit_sim.voltage_v[:fit_stop] - fit_series.voltage_v[:fit_stop]
-    e_j0 = base_judge_sim.voltage_v[judge_start:] - vj
+    e_j0 = base_judge_sim.voltage_v[judge_start:][keep] - vj
     mae0 = _mae(e_j0)
     fit_mae0 = _mae(e_fit0)
     say(f"base model: held-out MAE {mae0 * 1e3:.2f} mV, fit-part MAE {fit_mae0 * 1e3:.2f} mV, "
@@ -516,7 +536,7 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
     def judged(effects, base=None):
         model = (base_model if base is None else base).with_effects(effects)
         sj = sim_judge(model)
-        e1 = sj.voltage_v[judge_start:] - vj
+        e1 = sj.voltage_v[judge_start:][keep] - vj
         sf = sj if same else sim_fit(model)
         fit_mae1 = _mae(sf.voltage_v[:fit_stop] - fit_series.voltage_v[:fit_stop])
         return model, sj, e1, _mae(e1), fit_mae1
