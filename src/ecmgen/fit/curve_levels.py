@@ -11,7 +11,8 @@ from ..data.dcir import Pulse
 from .lsq import GRID_RATIO, solve_bounded
 from .points import SOC_LEVEL_GAP
 
-# candidate weights of the second-difference penalty (relative to the column scale)
+# candidate weights of the second-difference penalty (relative to the column scale); up to
+# 1e3: on the Leaf's 1 mV-resolution tests the held-out optimum lies at 30-100
 PENALTIES = tuple(10.0 ** np.arange(-6.0, 3.01, 0.5))
 CV_TIE = 0.01      # held-out errors this close (relative) are one: the smoother is kept
 
