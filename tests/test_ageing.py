@@ -231,3 +231,24 @@ def test_sanitized_set_age_and_step(tmp_path):
     run = subprocess.run([tmp_path / "san"], capture_output=True, text=True, timeout=300)
     assert "runtime error" not in run.stderr and "AddressSanitizer" not in run.stderr, run.stderr
     assert run.returncode == 0 and "bad 0" in run.stdout, run.stdout + run.stderr
+
+
+def test_an_age_for_a_model_without_a_law_is_refused(tmp_path):
+    plain = replace(_model(), ageing=None)
+    t, i, temps = _drive(50)
+    with pytest.raises(ValueError, match="no ageing law"):
+        simulate(plain, t, i, 0.9, temps, equivalent_full_cycles=100.0)
+    path = plain.save(tmp_path / "plain.json")
+    cycle = tmp_path / "cycle.csv"
+    cycle.write_text("time_s,current_a,voltage_v,temperature_c\n" + "".join(
+        f"{a:.3f},{b:.3f},3.9,{c:.1f}\n" for a, b, c in zip(t, i, temps)))
+    res = subprocess.run([sys.executable, "-m", "ecmgen.cli", "validate", path, cycle,
+                          "--soc0", "0.9", "--equivalent-full-cycles", "100"],
+                         capture_output=True, text=True)
+    assert res.returncode == 2 and "no ageing law" in res.stderr and "plain.json" in res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1, res.stderr
+    aged = _model().save(tmp_path / "aged.json")
+    res = subprocess.run([sys.executable, "-m", "ecmgen.cli", "validate", aged, cycle,
+                          "--soc0", "0.9", "--equivalent-full-cycles", "100", "--json"],
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr

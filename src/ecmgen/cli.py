@@ -202,6 +202,9 @@ def cmd_validate(args) -> int:
     if args.plot:
         check_output_file(args.plot, inputs, "--plot")
     model = load_model(args.model)
+    if args.equivalent_full_cycles is not None and model.ageing is None:
+        raise InputError(args.model, "has no ageing law: --equivalent-full-cycles needs one "
+                                     "(ecmgen age writes it)")
     if args.config:
         # a CSV from another cycler: the config's [data.columns] (or [data.columns.cycle])
         from .config import load_config

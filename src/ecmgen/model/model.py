@@ -415,9 +415,13 @@ class EcmModel:
 
     def at_age(self, equivalent_full_cycles=None) -> "EcmModel":
         """The model of the cell at that age (None: the model as it is): every resistance
-        and the capacity scaled by the ageing law, which the result no longer carries."""
-        if equivalent_full_cycles is None or self.ageing is None:
+        and the capacity scaled by the ageing law, which the result no longer carries. An
+        age for a model without a law is an error, not a silent fresh cell."""
+        if equivalent_full_cycles is None:
             return self
+        if self.ageing is None:
+            raise ValueError("this model has no ageing law: an age means nothing to it "
+                             "(ecmgen age writes one)")
         k_r, k_q = (float(v) for v in self.ageing.at(float(equivalent_full_cycles)))
 
         def scaled(t: RcTable) -> RcTable:
