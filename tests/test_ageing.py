@@ -252,3 +252,18 @@ def test_an_age_for_a_model_without_a_law_is_refused(tmp_path):
                           "--soc0", "0.9", "--equivalent-full-cycles", "100", "--json"],
                          capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
+
+
+@pytest.mark.parametrize("cpu", ["m4f", "m0"])
+def test_fixed_point_set_age_and_step_have_no_division_nor_float(tmp_path, cpu):
+    if target.skip_reason(qemu=False):
+        pytest.skip(target.skip_reason(qemu=False))
+    from test_target import DIV64, FIXED_HELPERS
+
+    for dt_s in (None, 0.1):
+        obj = target.cross_compile(prepare(_model(), numeric="fixed", dt_s=dt_s), tmp_path /
+                                   str(dt_s), cpu=cpu, opt="-Os")
+        assert obj.warnings == ""
+        undefined = set(target.undefined_symbols(obj.obj))
+        assert undefined <= FIXED_HELPERS and not undefined & DIV64, undefined
+        assert target.float_instructions(obj.obj) == [] and target.float_helpers(obj.obj) == []
