@@ -267,3 +267,16 @@ def test_fixed_point_set_age_and_step_have_no_division_nor_float(tmp_path, cpu):
         undefined = set(target.undefined_symbols(obj.obj))
         assert undefined <= FIXED_HELPERS and not undefined & DIV64, undefined
         assert target.float_instructions(obj.obj) == [] and target.float_helpers(obj.obj) == []
+
+
+@pytest.mark.parametrize("cpu", ["m4f", "m3"])
+def test_qemu_set_age_bit_for_bit_with_the_host(cpu):
+    """The aged C on the emulated core and on the host (cffi), every recorded state field
+    (voltage, SOC, u_diff) bit for bit: float and fixed on the M4F, fixed on the M3."""
+    if target.skip_reason(qemu=True):
+        pytest.skip(target.skip_reason(qemu=True))
+    t, i, temps = _drive(1200)
+    for efc in (412.0, 5000.0):
+        res = target.qemu_equivalence(_model(), t, i, 0.9, cpu=cpu, temperature_c=temps,
+                                      efc=efc)
+        assert res["variants"] and all(v["bit_exact"] for v in res["variants"].values()), res
