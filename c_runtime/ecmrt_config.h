@@ -33,6 +33,8 @@
  *   ECMRT_SURFACE      (with ECMRT_DIFF, never ECMRT_OCV_SHARED) the RC tables read at the
  *                      surface SOC clamp(soc + sv u_diff, 0, 1), sv = lam / max(dOCV/dSOC,
  *                      0.3 V) a table on the OCV's grid (fixed point: ECMRT_Q_SV, ecmrt_q.h)
+ *   ECMRT_AGE          (optional: 0 unless defined) an ageing law: set_age(state, equivalent
+ *                      full cycles) scales every resistance and the capacity  age_r, k_soc
  * capacity_error needs no switch: the generator folds it into k_soc.
  */
 #ifndef ECMRT_CONFIG_H
@@ -50,6 +52,11 @@
     !defined(ECMRT_FX_HYST) || !defined(ECMRT_FX_XRC) || !defined(ECMRT_FX_CDR) || \
     !defined(ECMRT_FX_ARR) || !defined(ECMRT_SURFACE)
 #error "the runtime needs every ECMRT_* switch of a generated <prefix>_ecm_<s>_config.h"
+#endif
+/* the optional switches: 0 where a generated config does not define them (the generator
+ * writes them only when 1, so that the C of a model without them stays as it was) */
+#if !defined(ECMRT_AGE)
+#define ECMRT_AGE 0
 #endif
 #if ECMRT_SURFACE && (!ECMRT_DIFF || ECMRT_OCV_SHARED)
 #error "ECMRT_SURFACE needs ECMRT_DIFF and the OCV's own grid"

@@ -152,6 +152,11 @@ typedef struct {
     float a_k;                /* temperature_dependence: activation_k, K */
     float a_inv_ref;          /* 1 / (t_ref_c + 273.15) */
 #endif
+#if ECMRT_AGE
+    ecmrt_f32_grid_t age;     /* ageing law: equivalent full cycles */
+    const float *age_scale;   /* per breakpoint the pairs (resistance scale, difference to the
+                               * next), (1 / capacity scale, difference to the next) */
+#endif
 } ecmrt_f32_model_t;
 
 /* Segment k (0 <= k <= n-2) holding v, returned in *kp, and the weight w in [0, 1] of
@@ -439,6 +444,24 @@ static inline float ecmrt_f32_surface(const ECMRT_STATE *s, float soc, float sv)
 }
 #endif
 
+#if ECMRT_AGE
+/* The cell's age, efc equivalent full cycles (clamped to the law's breakpoints; NaN: the
+ * first): the resistance scale and the SOC's k_soc over the aged capacity, kept in the state
+ * until the next call (the age changes over weeks; the step only multiplies). The table holds
+ * 1 / capacity scale, so nothing divides. */
+static inline void ecmrt_f32_age(const ecmrt_f32_model_t *m, ECMRT_STATE *s, float efc)
+{
+    unsigned k = 0u;
+    const float w = ecmrt_f32_locate(&m->age, efc, &k);
+    const float *a = m->age_scale + 4u * k;
+    s->age_r = ecmrt_f32_lerp(a, w);
+    s->k_soc = m->k_soc * ecmrt_f32_lerp(a + 2u, w);
+}
+#define ECMRT_F32_K_SOC(m, s) ((s)->k_soc)
+#else
+#define ECMRT_F32_K_SOC(m, s) ((m)->k_soc)
+#endif
+
 static inline void ecmrt_f32_init(const ecmrt_f32_model_t *m, ECMRT_STATE *s, float soc0)
 {
     if (soc0 != soc0) {
@@ -460,6 +483,9 @@ static inline void ecmrt_f32_init(const ecmrt_f32_model_t *m, ECMRT_STATE *s, fl
 #endif
 #if ECMRT_TAU_T
     ecmrt_f32_coefs(m, s, 0u, 0.0f);         /* those of k_t = 0, w_t = 0 */
+#endif
+#if ECMRT_AGE
+    ecmrt_f32_age(m, s, 0.0f);               /* fresh: both scales exactly 1 */
 #endif
     (void)m;
 }
@@ -551,9 +577,9 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
     /* 2. SOC first (the parameters are looked up at the new SOC); Kahan-compensated sum,
      *    so a long run of equal small increments does not drift */
 #if ECMRT_VARIABLE_DT
-    y = (i * dt) * m->k_soc - s->soc_c;
+    y = (i * dt) * ECMRT_F32_K_SOC(m, s) - s->soc_c;
 #else
-    y = i * m->k_soc - s->soc_c;
+    y = i * ECMRT_F32_K_SOC(m, s) - s->soc_c;
 #endif
     soc = s->soc + y;
     s->soc_c = (soc - s->soc) - y;
@@ -656,6 +682,11 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
     g = ecmrt_f32_asinh(&x);
     rf = rf * (g / x);
 #endif
+#if ECMRT_AGE
+    r0 = r0 * s->age_r;                     /* the cell's age (ecmrt_f32_age) */
+    rf = rf * s->age_r;
+    rs = rs * s->age_r;
+#endif
 #if ECMRT_OCV_SHARED
     ocv = ECMRT_F32_AT(s, row, ECMRT_P_OCV, w);
 #else
@@ -690,6 +721,9 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
     v = ((ocv + r0 * i) + uf) + us;
 #if ECMRT_DIFF
     rd = ECMRT_F32_TV(br, ECMRT_B_RD, wt);      /* the diffusion pair: as the others */
+#if ECMRT_AGE
+    rd = rd * s->age_r;
+#endif
     ud = s->u_diff;
 #if ECMRT_TAU_T && ECMRT_VARIABLE_DT
     ud = ud + ecmrt_f32_one_minus_exp_neg(dt * ECMRT_KC(s, dir, ECMRT_K_D)) * (rd * i - ud);
@@ -738,4 +772,5 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
 
 #undef ECMRT_F32_AT
 #undef ECMRT_F32_TV
+#undef ECMRT_F32_K_SOC
 #endif /* ECMRT_F32_H */

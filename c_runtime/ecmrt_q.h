@@ -25,6 +25,8 @@
  *   extra_rc:         ECMRT_FX_SH_XR
  *   current_dependent_resistance: ECMRT_FX_SH_GX, ECMRT_FX_CDR_QX, ECMRT_FX_CDR_QG
  *   temperature_dependence: ECMRT_FX_ARR_QB, ECMRT_FX_ARR_QF
+ *   with ECMRT_AGE:   ECMRT_Q_GA (inverse spacings of the age grid, per Q8 equivalent full
+ *                     cycle), ECMRT_Q_AR (resistance scale), ECMRT_Q_AQ (1 / capacity scale)
  *   with ECMRT_SURFACE: ECMRT_Q_SV, the table sv = lam /
  *                     max(dOCV/dSOC, 0.3 V) in Q_SV 1/V (chosen by the generator from its
  *                     largest value, lam / 0.3 V at most; Q_SV + Q_V - 30 >= 1)
@@ -176,6 +178,10 @@ typedef struct {
 #if ECMRT_FX_ARR
     int32_t a_b;             /* temperature_dependence: B = activation_k / 233.15 K, Q(ARR_QB) */
     int32_t a_fmax;          /* F = the factor at -40 degC, Q(ARR_QF) */
+#endif
+#if ECMRT_AGE
+    ecmrt_q_grid_t age;      /* ageing law: equivalent full cycles, Q8 */
+    const int32_t *age_scale; /* per breakpoint: resistance scale (Q_AR), 1 / capacity scale (Q_AQ) */
 #endif
 } ecmrt_q_model_t;
 
@@ -465,6 +471,30 @@ static inline int32_t ecmrt_q_arrhenius(const ecmrt_q_model_t *m, int32_t temp)
 }
 #endif
 
+#if ECMRT_AGE
+#if !defined(ECMRT_Q_GA) || !defined(ECMRT_Q_AR) || !defined(ECMRT_Q_AQ)
+#error "ECMRT_AGE needs ECMRT_Q_GA, ECMRT_Q_AR and ECMRT_Q_AQ"
+#endif
+/* The cell's age, efc equivalent full cycles in Q8 (clamped to the law's breakpoints): the
+ * resistance scale and k_soc times 1 / capacity scale (a table: no division), rounded half up
+ * and saturated, kept in the state until the next call. The generator chose k_soc's format
+ * for the largest 1 / capacity scale, so the saturation is a guard that never acts. */
+static inline void ecmrt_q_age(const ecmrt_q_model_t *m, ECMRT_STATE *s, int32_t efc)
+{
+    unsigned k = 0u;
+    const int32_t w = ecmrt_q_locate(&m->age, efc, &k, ECMRT_Q_GA);
+    const int32_t *a = m->age_scale + 2u * k;
+    s->age_r = ecmrt_q_lerp(a, 2u, w);
+    s->k_soc = ecmrt_q_sat32(ECMRT_RSHR((int64_t)m->k_soc * ecmrt_q_lerp(a + 1u, 2u, w), ECMRT_Q_AQ));
+}
+#define ECMRT_Q_K_SOC(m, s) ((s)->k_soc)
+/* a product r i (Q_V, int64, < 2^31 by Q_V's choice) times the resistance scale */
+#define ECMRT_Q_AGED(s, t) ECMRT_RSHR((t) * (s)->age_r, ECMRT_Q_AR)
+#else
+#define ECMRT_Q_K_SOC(m, s) ((m)->k_soc)
+#define ECMRT_Q_AGED(s, t) (t)
+#endif
+
 /* soc0 in Q30 (1.0 = 1 << 30) */
 static inline void ecmrt_q_init(const ecmrt_q_model_t *m, ECMRT_STATE *s, int32_t soc0)
 {
@@ -480,6 +510,9 @@ static inline void ecmrt_q_init(const ecmrt_q_model_t *m, ECMRT_STATE *s, int32_
 #endif
 #if ECMRT_TAU_T
     ecmrt_q_coefs(m, s, 0u, 0);              /* those of k_t = 0, w_t = 0 */
+#endif
+#if ECMRT_AGE
+    ecmrt_q_age(m, s, 0);                    /* fresh: both scales exactly 1 */
 #endif
     (void)m;
 }
@@ -585,11 +618,11 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
 #if ECMRT_VARIABLE_DT
     {
         /* |i k_soc| < 2^31 after the shift: Q_RATE holds i_max k_soc */
-        const int32_t rate = (int32_t)ECMRT_RSHR((int64_t)i * m->k_soc, ECMRT_SH_RATE);
+        const int32_t rate = (int32_t)ECMRT_RSHR((int64_t)i * ECMRT_Q_K_SOC(m, s), ECMRT_SH_RATE);
         acc = s->soc_rem + (int64_t)rate * dt;
     }
 #else
-    acc = s->soc_rem + (int64_t)i * m->k_soc;
+    acc = s->soc_rem + (int64_t)i * ECMRT_Q_K_SOC(m, s);
 #endif
     dsoc = acc >> ECMRT_SH_DSOC;                                     /* floor */
     s->soc_rem = acc & (((int64_t)1 << ECMRT_SH_DSOC) - 1);          /* in [0, 2^SH_DSOC) */
@@ -683,6 +716,11 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
                                                                     sh - ECMRT_BV_K)), ECMRT_BV_QX);
     tf = ECMRT_RSHR(tf * g, ECMRT_Q30);
 #endif
+#if ECMRT_AGE
+    t0 = ECMRT_Q_AGED(s, t0);               /* the cell's age (ecmrt_q_age) */
+    tf = ECMRT_Q_AGED(s, tf);
+    ts = ECMRT_Q_AGED(s, ts);
+#endif
     /* 4. u += c (r i - u) */
     uf = ECMRT_Q_RC(s->u_fast, cf, tf, ECMRT_QC_F);
     s->u_fast = uf;
@@ -716,16 +754,16 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
 #else
     cd = ecmrt_q_c_dt_tau(dt, ECMRT_Q_TV(br, ECMRT_B_KD, wt));
 #endif
-    ud = ECMRT_Q_RC(s->u_diff, cd, ECMRT_RSHR((int64_t)ECMRT_Q_TV(br, ECMRT_B_RD, wt) * i,
-                                             ECMRT_Q_RD + ECMRT_Q_I - ECMRT_Q_V), ECMRT_Q30);
+    ud = ECMRT_Q_RC(s->u_diff, cd, ECMRT_Q_AGED(s, ECMRT_RSHR((int64_t)ECMRT_Q_TV(br, ECMRT_B_RD, wt) * i,
+                                             ECMRT_Q_RD + ECMRT_Q_I - ECMRT_Q_V)), ECMRT_Q30);
 #else
 #if ECMRT_TAU_T
     cd = ECMRT_KC(s, dir, ECMRT_K_D);
 #else
     cd = ecmrt_q_inv_d(ECMRT_Q_TV(br, ECMRT_B_KD, wt), ECMRT_Q_CD + ECMRT_Q_DD);
 #endif
-    ud = ECMRT_Q_RC(s->u_diff, cd, ECMRT_RSHR((int64_t)ECMRT_Q_TV(br, ECMRT_B_RD, wt) * i,
-                                             ECMRT_Q_RD + ECMRT_Q_I - ECMRT_Q_V), ECMRT_Q_CD);
+    ud = ECMRT_Q_RC(s->u_diff, cd, ECMRT_Q_AGED(s, ECMRT_RSHR((int64_t)ECMRT_Q_TV(br, ECMRT_B_RD, wt) * i,
+                                             ECMRT_Q_RD + ECMRT_Q_I - ECMRT_Q_V)), ECMRT_Q_CD);
 #endif
     s->u_diff = ud;
     v = v + ud;
@@ -762,6 +800,8 @@ static inline int32_t ecmrt_q_step(const ecmrt_q_model_t *m, ECMRT_STATE *s, int
 
 #undef ECMRT_Q_AT
 #undef ECMRT_Q_TV
+#undef ECMRT_Q_K_SOC
+#undef ECMRT_Q_AGED
 #undef ECMRT_QC_F
 #undef ECMRT_QC_S
 #endif /* ECMRT_Q_H */

@@ -29,7 +29,8 @@ NUMBER_OPTIONS = {"soc0": (0.0, 1.0), "soc0_guess": (0.0, 1.0), "soc": (0.0, 1.0
                   "temperature_c": (-60.0, 100.0), "capacity_ah": (1e-6, 1e5),
                   "current_gain": (1e-3, 1e3), "current_offset_a": (-1e5, 1e5),
                   "dt_s": (1e-6, 3600.0), "times": (1e-6, 1e6), "window_s": (-1e12, 1e12),
-                  "ocv_soc_step": (1, 16), "rc_soc_step": (1, 16)}
+                  "ocv_soc_step": (1, 16), "rc_soc_step": (1, 16),
+                  "equivalent_full_cycles": (0.0, 1e6)}
 
 
 def _check_numbers(args) -> None:
@@ -201,6 +202,9 @@ def cmd_validate(args) -> int:
     if args.plot:
         check_output_file(args.plot, inputs, "--plot")
     model = load_model(args.model)
+    if args.equivalent_full_cycles is not None and model.ageing is None:
+        raise InputError(args.model, "has no ageing law: --equivalent-full-cycles needs one "
+                                     "(ecmgen age writes it)")
     if args.config:
         # a CSV from another cycler: the config's [data.columns] (or [data.columns.cycle])
         from .config import load_config
@@ -218,7 +222,7 @@ def cmd_validate(args) -> int:
         series = read_timeseries(args.cycle, capacity_ah=model.capacity_ah)
     if args.window_s is not None:
         series = series.window(*args.window_s)
-    val = validate(model, series, args.soc0, args.temperature_c)
+    val = validate(model, series, args.soc0, args.temperature_c, args.equivalent_full_cycles)
     if args.plot:
         from .files import write_atomic
         from .plots import validation_png
@@ -363,6 +367,10 @@ def cmd_verify(args) -> int:
     return 1 if failed else 0
 
 
+AGED_ESTIMATOR = ("the estimator predicts with the fresh cell (age 0: the model's own tables); "
+                  "it has no set_age input, the model's step has")
+
+
 def cmd_codegen(args) -> int:
     from .c.codegen import file_names, generate_c, prepare
     from .c.golden import vector_names, write_golden
@@ -399,6 +407,8 @@ def cmd_codegen(args) -> int:
         if exc.path is not None:
             raise
         raise InputError(args.model, exc.message) from None
+    if estimator is not None and model.ageing is not None:
+        print(f"note: {AGED_ESTIMATOR}", file=sys.stderr)
     if not args.quiet:
         for f in files:
             print(f)
@@ -450,6 +460,17 @@ def cmd_fleet(args) -> int:
               f"{_shown_path(result.out_dir / 'fleet.csv')} ({result.seconds:.0f} s on "
               f"{result.workers} worker{'s' if result.workers != 1 else ''})")
     return 1 if result.count("failed") else 0
+
+
+def cmd_age(args) -> int:
+    from .fleet.law import write_aged_model
+
+    out, law, base = write_aged_model(args.fleet_dir, args.out, args.base)
+    x = law.equivalent_full_cycles
+    print(f"ageing law over {x[0]:g}..{x[-1]:g} equivalent full cycles ({x.size} check-ups): "
+          f"resistance x{law.resistance_scale[-1]:.3f}, capacity x{law.capacity_scale[-1]:.3f} "
+          f"at the last; base {_shown_path(base)}; wrote {_shown_path(out)}")
+    return 0
 
 
 def cmd_config(args) -> int:
@@ -526,6 +547,8 @@ def parser() -> argparse.ArgumentParser:
     v.add_argument("--soc0", type=float, help="start SOC (default: from the OCV)")
     v.add_argument("--temperature-c", type=float, default=None,
                    help="cell temperature in degC for a file without a temperature column")
+    v.add_argument("--equivalent-full-cycles", type=float, default=None, metavar="EFC",
+                   help="the cell's age, for a model with an ageing law (default: fresh)")
     v.add_argument("--json", action="store_true")
     v.add_argument("--plot", help="write measured vs simulated PNG here")
     v.add_argument("--config", help="a build config whose [data.columns] maps the cycle's CSV")
@@ -621,6 +644,14 @@ def parser() -> argparse.ArgumentParser:
     fl.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     fl.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
     fl.set_defaults(func=cmd_fleet)
+
+    ag = sub.add_parser("age", help="fit the fleet's ageing law (resistance and capacity over "
+                        "equivalent full cycles) into a model.json")
+    ag.add_argument("fleet_dir", help="the --out folder of `ecmgen fleet` (its fleet.csv)")
+    ag.add_argument("--out", required=True, metavar="MODEL.json", help="the aged model")
+    ag.add_argument("--base", metavar="MODEL.json", help="the model the law is written into "
+                    "(default: the first non-outlier cell's model at its first check-up)")
+    ag.set_defaults(func=cmd_age)
 
     k = sub.add_parser("config", help="print the config reference (every section and key)")
     k.add_argument("--explain", action="store_true", help="every key: type, unit, range, "

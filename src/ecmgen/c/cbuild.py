@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from . import cref
+from .spec import aged_efc
 from .codegen import CSpec, file_names, prepare, render, state_fields
 from .names import c_names
 
@@ -135,7 +136,7 @@ def _cdef(spec: CSpec) -> str:
         trace + ";",
         stress + ";",
         "size_t ecmh_state_size(void);",
-    ])
+    ] + ([f"void {nm['set_age']}({st} *s, {t} efc);"] if spec.age is not None else []))
 
 
 # --------------------------------------------------------------------------------------
@@ -277,10 +278,19 @@ class CModel:
     def names(self) -> dict[str, str]:
         return c_names(self.spec.prefix, self.spec.numeric)
 
-    def new_state(self, soc0):
+    def new_state(self, soc0, efc=None):
+        """A state from init(soc0), then set_age(efc) unless efc is None (native values)."""
         s = self.ffi.new(f"{self.names['state']} *")
         getattr(self.lib, self.names["init"])(s, soc0)
+        if efc is not None:
+            getattr(self.lib, self.names["set_age"])(s, efc)
         return s
+
+    def native_efc(self, efc):
+        """Equivalent full cycles as the C caller passes them (float32, or Q8 raw)."""
+        if efc is None:
+            return None
+        return cref.efc_to_raw(efc) if self.spec.fixed else float(np.float32(efc))
 
     def _buf(self, a):
         return self.ffi.from_buffer(f"{'int32_t' if self.spec.fixed else 'float'}[]", a)
@@ -293,14 +303,14 @@ class CModel:
         t = np.asarray(temp, dtype=self._t)
         return np.ascontiguousarray(np.broadcast_to(t, (n,)) if t.ndim == 0 else t)
 
-    def trace_native(self, i, dt=None, soc0=None, temp=None) -> cref.RefResult:
+    def trace_native(self, i, dt=None, soc0=None, temp=None, efc=None) -> cref.RefResult:
         """Run on native inputs (float32 arrays, or int32 raw), recording the state."""
         t = self._t
         i = np.ascontiguousarray(i, dtype=t)
         n = i.size
         if soc0 is None:
             soc0 = cref.ONE30 if self.spec.fixed else 1.0
-        s = self.new_state(soc0)
+        s = self.new_state(soc0, efc)
         v, soc, uf, us = (np.empty(n, dtype=t) for _ in range(4))
         chg = np.empty(n, dtype=np.uint8)
         temp = self._temp(temp, n)
@@ -321,13 +331,13 @@ class CModel:
         self.lib.ecmh_trace(*args, n)
         return cref.RefResult(v, soc, uf, us, chg, **extra)
 
-    def run_native(self, i, dt=None, soc0=None, temp=None) -> np.ndarray:
+    def run_native(self, i, dt=None, soc0=None, temp=None, efc=None) -> np.ndarray:
         """Voltages only, through the generated <prefix>_run loop."""
         t = self._t
         i = np.ascontiguousarray(i, dtype=t)
         if soc0 is None:
             soc0 = cref.ONE30 if self.spec.fixed else 1.0
-        s = self.new_state(soc0)
+        s = self.new_state(soc0, efc)
         v = np.empty(i.size, dtype=t)
         temp = self._temp(temp, i.size)
         run = getattr(self.lib, self.names["run"])
@@ -357,19 +367,21 @@ class CModel:
         return (cref.temperature_to_raw(t).astype(np.int32) if self.spec.fixed
                 else t.astype(np.float32))
 
-    def simulate(self, current_a, dt_s=None, soc0: float = 1.0, temperature_c=None) -> np.ndarray:
-        """Voltage in V (float64) for SI inputs."""
+    def simulate(self, current_a, dt_s=None, soc0: float = 1.0, temperature_c=None,
+                 efc=None) -> np.ndarray:
+        """Voltage in V (float64) for SI inputs (``efc``: the age, equivalent full cycles)."""
         i, dt, s0 = self.native_inputs(current_a, dt_s if self.spec.variable_dt else None, soc0)
-        v = self.run_native(i, dt, s0, self.native_temperature(temperature_c, i.size))
+        v = self.run_native(i, dt, s0, self.native_temperature(temperature_c, i.size),
+                            self.native_efc(efc))
         return cref.volts(self.spec, v) if self.spec.fixed else v.astype(np.float64)
 
     def reference(self, current_a, dt_s=None, soc0: float = 1.0,
-                  temperature_c=None) -> cref.RefResult:
+                  temperature_c=None, efc=None) -> cref.RefResult:
         """The Python reference (float32 or bit-true) on the same SI inputs."""
         dt = dt_s if self.spec.variable_dt else None
         if self.spec.fixed:
-            return cref.simulate_fixed(self.spec, current_a, dt, soc0, temperature_c)[0]
-        return cref.simulate_f32(self.spec, current_a, dt, soc0, temperature_c)
+            return cref.simulate_fixed(self.spec, current_a, dt, soc0, temperature_c, efc)[0]
+        return cref.simulate_f32(self.spec, current_a, dt, soc0, temperature_c, efc)
 
     def stress(self, n: int, seed: int = 1, soc0=None, i_amp: float | None = None,
                dt_max: float = 10.0) -> dict:
@@ -414,7 +426,7 @@ def _bits_equal(a: np.ndarray, b: np.ndarray) -> bool:
 
 
 def python_voltage(model, time_s, current_a, soc0: float, dt_s: float | None = None,
-                   temperature_c=None) -> np.ndarray:
+                   temperature_c=None, efc=None) -> np.ndarray:
     """The float64 model (simulate.py, with the model's diagnose effects, all of which the C
     implements) the C is compared with, at the cell temperature ``temperature_c`` (degC per
     sample or one value; None for a model that does not read it).
@@ -425,6 +437,7 @@ def python_voltage(model, time_s, current_a, soc0: float, dt_s: float | None = N
     is the C's step k (simulate.py gives its first sample dt = 0)."""
     from ..model.simulate import simulate
 
+    model = model.at_age(efc)
     current_a = np.asarray(current_a, dtype=np.float64)
     temps = None
     if temperature_c is not None:
@@ -439,16 +452,17 @@ def python_voltage(model, time_s, current_a, soc0: float, dt_s: float | None = N
 
 
 def compare(model, cm: CModel, time_s, current_a, soc0: float, measured_v=None,
-            temperature_c=None) -> dict:
-    """Drive the compiled model and its reference over (time, current, temperature) and
-    compare with the float64 Python model (simulate.py, with the model's effects) and the
-    measurement."""
+            temperature_c=None, efc=None) -> dict:
+    """Drive the compiled model and its reference over (time, current, temperature; at the
+    age ``efc``, equivalent full cycles, set after init) and compare with the float64 Python
+    model (simulate.py, with the model's effects) and the measurement."""
     time_s = np.asarray(time_s, dtype=np.float64)
     current_a = np.asarray(current_a, dtype=np.float64)
     dt = cref.dt_from_time(time_s)
     i_n, dt_n, s0 = cm.native_inputs(current_a, dt if cm.spec.variable_dt else None, soc0)
-    got = cm.trace_native(i_n, dt_n, s0, cm.native_temperature(temperature_c, i_n.size))
-    ref = cm.reference(current_a, dt, soc0, temperature_c)
+    got = cm.trace_native(i_n, dt_n, s0, cm.native_temperature(temperature_c, i_n.size),
+                          cm.native_efc(efc))
+    ref = cm.reference(current_a, dt, soc0, temperature_c, efc)
     fields = ("v", "soc", "u_fast", "u_slow", "charging") + extra_states(cm.spec)
     exact = all(_bits_equal(getattr(got, f), getattr(ref, f)) for f in fields)
     if cm.spec.fixed:
@@ -456,7 +470,7 @@ def compare(model, cm: CModel, time_s, current_a, soc0: float, measured_v=None,
     else:
         v_c, v_ref = got.v.astype(np.float64), ref.v.astype(np.float64)
     v64 = python_voltage(model, time_s, current_a, soc0,
-                         None if cm.spec.variable_dt else cm.spec.dt_s, temperature_c)
+                         None if cm.spec.variable_dt else cm.spec.dt_s, temperature_c, efc)
     out = {
         "steps": int(time_s.size),
         "dt": "variable" if cm.spec.variable_dt else cm.spec.dt_s,
@@ -518,4 +532,9 @@ def c_equivalence(model, series, soc0: float | None = None, *, dt_s: float | Non
     for numeric in numerics:
         cm = build(model, numeric=numeric, dt_s=dt_s, prefix=prefix, i_max_a=i_max_a, cache=cache)
         out[numeric] = compare(model, cm, t, i, soc0, v, temps)
+        if model.ageing is not None:    # and the cell at the law's middle age
+            efc = aged_efc(model.ageing.equivalent_full_cycles)
+            out[numeric]["aged"] = dict(compare(model, cm, t, i, soc0, None, temps, efc),
+                                        equivalent_full_cycles=efc)
     return out
+

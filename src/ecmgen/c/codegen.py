@@ -45,7 +45,7 @@ import numpy as np
 
 from ..files import write_atomic
 from .names import c_names
-from .runtime import runtime_dir, switches, templates_dir
+from .runtime import optional_switches, runtime_dir, switches, templates_dir
 from .qformat import INT32_MAX, Q30, Q_D, Q_TEMP, quantize
 from .spec import (C_EFFECTS, FX_FIXED_KEYS, FX_FLOAT_KEYS, NUMERICS, CDir, CGrid, CSpec,
                    _as_model, begin, prepare_float, state_fields)
@@ -172,6 +172,16 @@ def surface_rows(spec: CSpec) -> np.ndarray:
     return _pairs(spec.surface, 0 if spec.temp else 1)
 
 
+def age_rows(spec: CSpec) -> np.ndarray:
+    """The ageing law's scales as the runtime reads them (m->age_scale): per breakpoint the
+    resistance scale and 1 / capacity scale (float: each a pair with its difference to the
+    next breakpoint)."""
+    cols = (spec.age["r"], spec.age["iq"])
+    if spec.fixed:
+        return np.stack(cols, axis=-1)
+    return np.concatenate([_pairs(c, 0) for c in cols], axis=-1)
+
+
 def _ranges(spec: CSpec) -> list[dict]:
     """Rows of the fixed-point format table in the header."""
     q = spec.q
@@ -239,6 +249,13 @@ def _ranges(spec: CSpec) -> list[dict]:
         rows.append(row("x_cdr (run time)", fx["CDR_QX"], "|i| / i0_a", f"[0, 2^{fx['CDR_E']})"))
         rows.append(row("g_cdr (run time)", fx["CDR_QG"], "scale asinh(x)/x, table + linear interp.",
                         f"(0, {fx['g_max']:.6g}], saturated"))
+    if spec.age is not None:
+        rows.append(row("efc", Q_TEMP, "equivalent full cycles (ageing input, set_age)",
+                        "[0, 8388608), clamped to the law"))
+        rows.append(row("inv_dx_age", q["Q_GA"], "1 / age breakpoint spacing (per Q8 cycle)",
+                        "raw < 2^31"))
+        rows.append(row("age_r", q["Q_AR"], "resistance scale", top("Q_AR")))
+        rows.append(row("age_iq", q["Q_AQ"], "1 / capacity scale (times k_soc)", top("Q_AQ")))
     if fx.get("arr"):
         rows.append(row("B", fx["ARR_QB"], "activation_k / 233.15 K", "-"))
         rows.append(row("f_arr (run time)", fx["ARR_QF"], "Arrhenius factor, T in [-40, 85] degC",
@@ -250,17 +267,17 @@ def _qtypes(spec: CSpec) -> list[dict]:
     """The fixed-point API's value types: name (its format in it), Q and 2^(Q+1)."""
     q = spec.q
     rows = [("amp", q["Q_I"]), ("volt", q["Q_V"]), ("soc", Q30), ("degc", Q_TEMP)] + \
-        ([("sec", Q_D)] if spec.variable_dt else [])
+        ([("sec", Q_D)] if spec.variable_dt else []) + ([("efc", Q_TEMP)] if spec.age else [])
     return [{"name": f"{name}_q{qf}", "q": qf, "twice": 2 ** (qf + 1)} for name, qf in rows]
 
 
 def _api_types(spec: CSpec) -> dict[str, str]:
     """The C types of the API's arguments: float, or the fixed-point value types."""
     if not spec.fixed:
-        return dict.fromkeys(("i", "v", "t", "dt", "soc"), "float")
+        return dict.fromkeys(("i", "v", "t", "dt", "soc", "efc"), "float")
     p, q = spec.prefix, spec.q
     return {"i": f"{p}_amp_q{q['Q_I']}_t", "v": f"{p}_volt_q{q['Q_V']}_t", "t": f"{p}_degc_q8_t",
-            "dt": f"{p}_sec_q16_t", "soc": f"{p}_soc_q30_t"}
+            "dt": f"{p}_sec_q16_t", "soc": f"{p}_soc_q30_t", "efc": f"{p}_efc_q8_t"}
 
 
 def _context(spec: CSpec) -> dict:
@@ -329,7 +346,16 @@ def _context(spec: CSpec) -> dict:
             (f"Q{spec.q['Q_SV']} 1/V" if fixed else "1/V") + pair + rows_note
         scalars.append(("sv", arrays.add("surface_per_volt", sv, what), ""))
     scalars += _fx_scalars(spec, arrays)
-    macros = {f"ECMRT_{k}": v for k, v in spec.switches.items()}
+    if spec.age is not None:
+        scalars.append(("age", grid(spec.age["grid"], "age", "equivalent full cycles" +
+                                    (" (Q8)" if fixed else ""), "efc")["init"], ""))
+        scalars.append(("age_scale", arrays.add(
+            "age_scale", age_rows(spec), "ageing law: per breakpoint the resistance scale, "
+            "1 / capacity scale" + (f" (Q{spec.q['Q_AR']}, Q{spec.q['Q_AQ']})" if fixed else
+                                    " (each with the difference to the next breakpoint)")), ""))
+    # an optional switch is written only when on: the C of a model without it is as before
+    macros = {f"ECMRT_{k}": v for k, v in spec.switches.items()
+              if v or k not in optional_switches()}
     if fixed:
         names = ["Q_I", "Q_V", "Q_G", "Q_R0", "Q_RF", "Q_RS", "SH_DSOC"]
         names += ["Q_T", "SH_RATE"] if spec.variable_dt else ["Q_DF", "Q_DS", "Q_CF", "Q_CS"]
@@ -340,6 +366,7 @@ def _context(spec: CSpec) -> dict:
         names += (["Q_RD"] + ([] if spec.variable_dt else ["Q_DD", "Q_CD"])) if spec.diff else []
         names += ["Q_I0"] if spec.has_bv else []
         names += ["Q_SV"] if spec.surface is not None else []
+        names += ["Q_GA", "Q_AR", "Q_AQ"] if spec.age is not None else []
         fmts = {n: f"{nm['M']}_{n[2:] if n.startswith('Q_') else n}" for n in names}
         macros.update({f"ECMRT_{n}": v for n, v in fmts.items()})
         qfmt = [(v, spec.q[n]) for n, v in fmts.items() if n not in ("Q_I", "Q_V")]
@@ -364,7 +391,9 @@ def _context(spec: CSpec) -> dict:
         "runtime": RUNTIME_FILES[spec.numeric][-1], "notes": spec.notes,
         "rt": "ecmrt_q" if fixed else "ecmrt_f32", "vt": "int32_t" if fixed else "float",
         "macros": macros, "state": state_fields(spec), "sw": spec.switches,
-        "diff": spec.diff, "bv": spec.has_bv, "fx": spec.fx,
+        "diff": spec.diff, "bv": spec.has_bv, "fx": spec.fx, "age": spec.age is not None,
+        "age_range": None if spec.age is None else
+        tuple(float(x) / (256.0 if fixed else 1.0) for x in spec.age["grid"].x[[0, -1]]),
     }
 
 

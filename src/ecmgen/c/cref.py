@@ -295,9 +295,19 @@ def _branch_f32(spec: CSpec, d, kt, wt) -> dict:
     return p
 
 
-def _u_diff_f32(spec: CSpec, per_dir, chg, i, dt) -> np.ndarray:
+def age_f32(spec: CSpec, efc):
+    """ecmrt_f32_age: (resistance scale, k_soc) at efc equivalent full cycles (None: 0)."""
+    g = spec.age["grid"]
+    e = F32(0.0 if efc is None else efc)
+    k, w = _weight_f32(g, np.array([e if e >= g.x[0] else g.x[0]], dtype=F32))
+    return (_lerp_f32(spec.age["r"], k, w)[0],
+            (spec.k_soc * _lerp_f32(spec.age["iq"], k, w))[0])
+
+
+def _u_diff_f32(spec: CSpec, per_dir, chg, i, dt, age_r=None) -> np.ndarray:
     """The diffusion pair's voltage after every step (its values depend on T only)."""
-    t = (_pick(chg, per_dir, "r_diff").astype(F32) * i).astype(F32)
+    rd = _pick(chg, per_dir, "r_diff").astype(F32)
+    t = ((rd if age_r is None else (rd * age_r).astype(F32)) * i).astype(F32)
     kd = _pick(chg, per_dir, "k_diff").astype(F32)
     with np.errstate(all="ignore"):
         if spec.tau_t:
@@ -308,12 +318,14 @@ def _u_diff_f32(spec: CSpec, per_dir, chg, i, dt) -> np.ndarray:
 
 
 def simulate_f32(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0,
-                 temperature_c=None) -> RefResult:
+                 temperature_c=None, efc=None) -> RefResult:
     """Float32 reference of a numeric="float" spec. ``dt_s``: per-step dt array (variable-dt
     spec; e.g. dt_from_time(t)) or None (fixed-dt spec); ``temperature_c``: the cell
-    temperature per step or one value (needed when the spec reads it)."""
+    temperature per step or one value (needed when the spec reads it); ``efc``: the age set
+    after init (a spec with an ageing law; None: fresh)."""
     if spec.fixed:
         raise ValueError("simulate_f32 needs a numeric='float' spec")
+    age_r, k_soc = age_f32(spec, efc) if spec.age is not None else (None, spec.k_soc)
     i = np.asarray(current_a, dtype=np.float64).astype(F32)
     n = i.size
     imax = F32(spec.i_lim_a)
@@ -326,10 +338,10 @@ def simulate_f32(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0,
         if dt.shape != i.shape:
             raise ValueError("current and dt differ in length")
         dt = np.where(dt > 0, np.minimum(dt, F32(DT_MAX_S)), F32(0.0)).astype(F32)
-        dsoc = (i * dt) * spec.k_soc
+        dsoc = (i * dt) * k_soc
     else:
         dt = None
-        dsoc = i * spec.k_soc
+        dsoc = i * k_soc
     chg = _direction(i, spec.deadband)
     s0 = F32(soc0)
     s0 = F32(0.0) if np.isnan(s0) else np.clip(s0, F32(-SOC_LIM), F32(SOC_LIM))
@@ -341,7 +353,8 @@ def simulate_f32(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0,
 
     soc_rc = soc
     if spec.surface is not None:        # ecmrt_f32_surface: u_diff needs no SOC
-        ud = _u_diff_f32(spec, [_branch_f32(spec, d, kt, wt) for d in spec.dirs], chg, i, dt)
+        ud = _u_diff_f32(spec, [_branch_f32(spec, d, kt, wt) for d in spec.dirs], chg, i, dt,
+                         age_r)
         ko, wo = _weight_f32(spec.ocv_grid, soc, spec.ocv_uniform)
         sv = _lerp_f32(spec.surface, ko, wo, kt, wt)
         r = (soc + sv * np.concatenate([[F32(0.0)], ud[:-1]]).astype(F32)).astype(F32)
@@ -371,6 +384,9 @@ def simulate_f32(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0,
         with np.errstate(all="ignore"):
             a, x = asinh_f32(ai / p["i0"])
             p["r_fast"] = (p["r_fast"] * (a / x)).astype(F32)
+    if age_r is not None:
+        for name in RESISTANCES:
+            p[name] = (p[name] * age_r).astype(F32)
     if spec.tau_t:
         if spec.variable_dt:
             with np.errstate(all="ignore"):
@@ -395,7 +411,7 @@ def simulate_f32(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0,
     v = ((ocv + p["r0"] * i) + uf) + us
     out = {}
     if spec.diff:
-        ud = _u_diff_f32(spec, per_dir, chg, i, dt)
+        ud = _u_diff_f32(spec, per_dir, chg, i, dt, age_r)
         v = v + ud
         out["u_diff"] = ud
     if fx.get("hyst"):
@@ -604,7 +620,21 @@ def _branch_q(spec: CSpec, d, kt, wt) -> dict:
     return p
 
 
-def _u_diff_q(spec: CSpec, per_dir, chg, i, dt) -> np.ndarray:
+def age_q(spec: CSpec, efc_raw):
+    """ecmrt_q_age: (resistance scale in Q_AR, k_soc) at efc (Q8 raw; None: 0)."""
+    q = spec.q
+    k, w = _weight_q(spec.age["grid"], np.array([0 if efc_raw is None else efc_raw],
+                                                dtype=np.int64), q["Q_GA"])
+    iq = _lerp_q(np.asarray(spec.age["iq"], dtype=np.int64), k, w)[0]
+    return (int(_lerp_q(np.asarray(spec.age["r"], dtype=np.int64), k, w)[0]),
+            int(_sat32(_rshr(np.int64(spec.k_soc) * iq, q["Q_AQ"]))))
+
+
+def _aged_q(spec: CSpec, t, age_r):
+    return t if age_r is None else _rshr(t * np.int64(age_r), spec.q["Q_AR"])
+
+
+def _u_diff_q(spec: CSpec, per_dir, chg, i, dt, age_r=None) -> np.ndarray:
     """The diffusion pair's voltage (Q_V) after every step (its values depend on T only)."""
     q = spec.q
     k_diff = _pick(chg, per_dir, "k_diff")
@@ -615,16 +645,19 @@ def _u_diff_q(spec: CSpec, per_dir, chg, i, dt) -> np.ndarray:
     else:
         qcd = q["Q_CD"]
         cd = inv_d_q(k_diff, qcd + q["Q_DD"])
-    return _rc_q(cd, _rshr(_pick(chg, per_dir, "r_diff") * i, q["Q_RD"] + q["Q_I"] - q["Q_V"]), qcd)
+    t = _rshr(_pick(chg, per_dir, "r_diff") * i, q["Q_RD"] + q["Q_I"] - q["Q_V"])
+    return _rc_q(cd, _aged_q(spec, t, age_r), qcd)
 
 
 def simulate_fixed_raw(spec: CSpec, i_raw, dt_raw=None, soc0_raw: int = ONE30,
-                       temp_raw=None) -> RefResult:
+                       temp_raw=None, efc_raw=None) -> RefResult:
     """Bit-true reference of a numeric="fixed" spec on raw integers: i in Q_I, dt in Q16
-    (variable dt), soc0 in Q30, temperature in Q8 degC. Returns raw int64 arrays (v in Q_V)."""
+    (variable dt), soc0 in Q30, temperature in Q8 degC, the age set after init in Q8
+    equivalent full cycles (None: fresh). Returns raw int64 arrays (v in Q_V)."""
     if not spec.fixed:
         raise ValueError("simulate_fixed_raw needs a numeric='fixed' spec")
     q = spec.q
+    age_r, k_soc = age_q(spec, efc_raw) if spec.age is not None else (None, spec.k_soc)
     i = _sat32(np.asarray(i_raw, dtype=np.int64))
     n = i.size
     temp = _sat32(_temperatures(spec, temp_raw, n, np.int64).astype(np.int64))
@@ -634,10 +667,10 @@ def simulate_fixed_raw(spec: CSpec, i_raw, dt_raw=None, soc0_raw: int = ONE30,
         dt = np.maximum(_sat32(np.asarray(dt_raw, dtype=np.int64)), 0)
         if dt.shape != i.shape:
             raise ValueError("current and dt differ in length")
-        inc = _rshr(i * spec.k_soc, q["SH_RATE"]) * dt    # < 2^31 before * dt (Q_RATE)
+        inc = _rshr(i * k_soc, q["SH_RATE"]) * dt    # < 2^31 before * dt (Q_RATE)
     else:
         dt = None
-        inc = i * spec.k_soc
+        inc = i * k_soc
     chg = _direction(i, spec.deadband)
     soc = _soc_q(int(np.clip(soc0_raw, INT32_MIN, INT32_MAX)), inc, q["SH_DSOC"])
     kt = wt = None
@@ -647,7 +680,7 @@ def simulate_fixed_raw(spec: CSpec, i_raw, dt_raw=None, soc0_raw: int = ONE30,
     branches = [_branch_q(spec, d, kt, wt) for d in spec.dirs]
     soc_rc = soc
     if spec.surface is not None:        # ecmrt_q_surface: u_diff needs no SOC
-        ud = _u_diff_q(spec, branches, chg, i, dt)
+        ud = _u_diff_q(spec, branches, chg, i, dt, age_r)
         ko, wo = _weight_q(spec.ocv_grid, soc, q["Q_G"], spec.ocv_uniform)
         sv = _lerp2_q(spec.surface, ko, wo, kt, wt)
         prev = np.concatenate([[0], ud[:-1]]).astype(np.int64)
@@ -692,6 +725,7 @@ def simulate_fixed_raw(spec: CSpec, i_raw, dt_raw=None, soc0_raw: int = ONE30,
         r, sh = recip_q(p["i0"])
         x = _sat32(_rshr(ai * r, sh - spec.bv["K"]))
         tf = _rshr(tf * gtab_q(spec.bv["tab"], x, spec.bv["QX"]), 30)
+    t0, tf, ts = (_aged_q(spec, t, age_r) for t in (t0, tf, ts))
     uf = _rc_q(cf, tf, qcf)
     us = _rc_q(cs, ts, qcs)
     k, w = (_weight_q(spec.dirs[0].grid, soc, q["Q_G"], spec.rc_uniform) if spec.ocv_shared else
@@ -700,7 +734,7 @@ def simulate_fixed_raw(spec: CSpec, i_raw, dt_raw=None, soc0_raw: int = ONE30,
     v = ((ocv + t0) + uf) + us
     out = {}
     if spec.diff:
-        ud = _u_diff_q(spec, per_dir, chg, i, dt)
+        ud = _u_diff_q(spec, per_dir, chg, i, dt, age_r)
         v = v + ud
         out["u_diff"] = ud
     if fx.get("hyst"):
@@ -747,7 +781,13 @@ def volts(spec: CSpec, v_raw) -> np.ndarray:
     return np.ldexp(np.asarray(v_raw, dtype=np.float64), -spec.q["Q_V"])
 
 
-def simulate_fixed(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0, temperature_c=None):
+def efc_to_raw(efc) -> int | None:
+    """Equivalent full cycles -> the fixed-point age input (Q8); None stays None."""
+    return None if efc is None else int(quantize([efc], Q_TEMP)[0])
+
+
+def simulate_fixed(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0, temperature_c=None,
+                   efc=None):
     """Quantise SI inputs as the C caller would, run the bit-true reference.
     Returns (RefResult of raw integers, voltage in V as float64)."""
     i_raw = current_to_raw(spec, current_a)
@@ -756,5 +796,5 @@ def simulate_fixed(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0, tempera
     if temperature_c is not None:
         t_raw = temperature_to_raw(np.broadcast_to(np.asarray(temperature_c, dtype=np.float64),
                                                    np.shape(i_raw)))
-    ref = simulate_fixed_raw(spec, i_raw, dt_raw, soc_to_raw(soc0), t_raw)
+    ref = simulate_fixed_raw(spec, i_raw, dt_raw, soc_to_raw(soc0), t_raw, efc_to_raw(efc))
     return ref, volts(spec, ref.v)

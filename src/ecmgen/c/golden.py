@@ -48,6 +48,7 @@ class Segment:
     current_a: np.ndarray
     dt_s: np.ndarray | None
     temperature_c: np.ndarray
+    efc: float = 0.0          # the age set after init (a model with an ageing law), cycles
 
 
 def edge_segment(spec: CSpec) -> Segment:
@@ -107,15 +108,17 @@ def cycle_segment(spec: CSpec, series, soc0: float, steps: int = CYCLE_STEPS) ->
 def _native(spec: CSpec, seg: Segment) -> dict:
     """The segment as the C takes it, and the reference's v and SOC."""
     if spec.fixed:
-        ref = cref.simulate_fixed(spec, seg.current_a, seg.dt_s, seg.soc0, seg.temperature_c)[0]
+        ref = cref.simulate_fixed(spec, seg.current_a, seg.dt_s, seg.soc0, seg.temperature_c,
+                                  seg.efc)[0]
         return {"i": cref.current_to_raw(spec, seg.current_a).astype(np.int32),
+                "age": np.int32(cref.efc_to_raw(seg.efc)),
                 "t": cref.temperature_to_raw(seg.temperature_c).astype(np.int32),
                 "dt": None if seg.dt_s is None else cref.dt_to_raw(seg.dt_s).astype(np.int32),
                 "soc0": np.int32(cref.soc_to_raw(seg.soc0)),
                 "v": np.asarray(ref.v, dtype=np.int32), "soc": np.asarray(ref.soc, dtype=np.int32)}
-    ref = cref.simulate_f32(spec, seg.current_a, seg.dt_s, seg.soc0, seg.temperature_c)
+    ref = cref.simulate_f32(spec, seg.current_a, seg.dt_s, seg.soc0, seg.temperature_c, seg.efc)
     f = np.float32
-    return {"i": seg.current_a.astype(f), "t": seg.temperature_c.astype(f),
+    return {"i": seg.current_a.astype(f), "t": seg.temperature_c.astype(f), "age": f(seg.efc),
             "dt": None if seg.dt_s is None else seg.dt_s.astype(f), "soc0": f(seg.soc0),
             "v": np.asarray(ref.v, dtype=f), "soc": np.asarray(ref.soc, dtype=f)}
 
@@ -140,6 +143,7 @@ def render_vectors(spec: CSpec, segments: list[Segment]) -> dict[str, str]:
         cat["dt"] = np.concatenate([p["dt"] for p in parts])
     starts = np.cumsum([0] + [p["i"].size for p in parts[:-1]])
     soc0 = np.array([p["soc0"] for p in parts])
+    ages = np.array([p["age"] for p in parts])
     M, vp = nm["M"], f"{spec.prefix}_vec_{nm['suffix']}"
     ctype = "int32_t" if spec.fixed else "uint32_t"
     what = "raw Q integers" if spec.fixed else "float32 bit patterns"
@@ -151,7 +155,10 @@ def render_vectors(spec: CSpec, segments: list[Segment]) -> dict[str, str]:
         f" * Segments (each from {nm['init']}(soc0)): the first steps of a measured cycle (or, "
         "from ecmgen codegen, a drive of pulses and rests), then an edge-case set",
         " * (currents past the limit, temperatures past the tables" +
-        (", dt 0, long and negative)." if spec.variable_dt else ")."),
+        (", dt 0, long and negative)." if spec.variable_dt else ").") +
+        (f" Each segment sets its age with {nm['set_age']}() after init (the"
+         "\n * cycle fresh, then aged; the edge-case set past the ageing law's last breakpoint)."
+         if spec.age is not None else ""),
         f" * Inputs and expected outputs (voltage, SOC after the step) are {what}; the",
         " * expected outputs are the Python reference's (ecmgen.c.cref). */",
         f"#ifndef {M}_VECTORS_H", f"#define {M}_VECTORS_H", "", "#include <stdint.h>", "",
@@ -166,6 +173,9 @@ def render_vectors(spec: CSpec, segments: list[Segment]) -> dict[str, str]:
     lines.append("")
     body = [c_array("uint32_t", f"{vp}_seg_start", starts),
             c_array(ctype, f"{vp}_soc0", soc0)]
+    if spec.age is not None:
+        body.append("/* the age set after init, equivalent full cycles */\n" +
+                    c_array(ctype, f"{vp}_age", ages))
     for key, what in (("i", "current"), ("t", "temperature"), ("dt", "dt"), ("v", "voltage"),
                       ("soc", "SOC")):
         if key in cat:
@@ -184,6 +194,14 @@ def write_golden(spec: CSpec, out_dir, series=None, soc0: float = 1.0) -> list[P
     None: :func:`drive_segment`) from ``soc0``, then the edge-case set."""
     first = cycle_segment(spec, series, soc0) if series is not None else drive_segment(spec)
     segments = [first, edge_segment(spec)]
+    if spec.age is not None:     # the cycle again, aged; the edge cases past the law's end
+        from dataclasses import replace
+
+        from .spec import aged_efc
+
+        law = np.asarray(spec.age["grid"].x, dtype=np.float64) / (256.0 if spec.fixed else 1.0)
+        segments = [first, replace(first, efc=aged_efc(law)),
+                    replace(segments[1], efc=2.0 * float(law[-1]))]
     return write_texts(out_dir, render_vectors(spec, segments))
 
 

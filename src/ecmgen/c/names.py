@@ -39,6 +39,7 @@ def c_names(prefix: str, numeric: str) -> dict[str, str]:
         "config": f"{prefix}_ecm_{s}_config.h", "tables": f"{prefix}_model_{s}",
         "state": f"{prefix}_state_{s}_t", "init": f"{prefix}_init_{s}",
         "step": f"{prefix}_step_{s}", "run": f"{prefix}_run_{s}",
+        "set_age": f"{prefix}_set_age_{s}",
         "M": f"{P}_ECM_{s.upper()}",
         "est_header": f"{prefix}_est_f32.h", "est_source": f"{prefix}_est_f32.c",
         "est_t": f"{prefix}_est_f32_t",

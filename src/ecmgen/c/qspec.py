@@ -170,9 +170,12 @@ def prepare_fixed(ctx: SimpleNamespace) -> CSpec:
     # (temperature_dependence); the Butler-Volmer factor is <= 1
     g_max = max(1.0, float(np.max(cdr_table(cdr.scale_at_zero, 1)))) if cdr is not None else 1.0
     f_max = max(1.0, arrhenius_range(arr)[0]) if arr is not None else 1.0
+    law = ctx.model.ageing      # its largest scales widen Q_V and k_soc's formats
+    r_age = 1.0 if law is None else float(np.max(law.resistance_scale))
+    q_age = 1.0 if law is None else float(np.max(1.0 / law.capacity_scale))
     v_bound = float(np.max(src.ocv_v)) + i_lim * (
-        (vmax("r0_ohm") + vmax("r_fast_ohm")) * g_max * f_max + vmax("r_slow_ohm") * f_max
-        + (bmax("r_diff_ohm") if diff else 0.0) + (xrc.r_ohm if xrc is not None else 0.0))
+        ((vmax("r0_ohm") + vmax("r_fast_ohm")) * g_max * f_max + vmax("r_slow_ohm") * f_max
+         + (bmax("r_diff_ohm") if diff else 0.0)) * r_age + (xrc.r_ohm if xrc is not None else 0.0))
     if hyst is not None:
         v_bound += 2.0 * (hyst.m_v + hyst.m0_v)
     q["Q_V"] = min(30, _q_fit(v_bound * 1.001))
@@ -209,6 +212,7 @@ def prepare_fixed(ctx: SimpleNamespace) -> CSpec:
         temp_grid = _qgrid(tq, q["Q_GT"])
 
     k_soc64 = ctx.k_soc64
+    k_top = k_soc64 * q_age     # the largest k_soc of the step: at the most faded capacity
     taus = [("tau_fast_s", "Q_DF", "Q_CF"), ("tau_slow_s", "Q_DS", "Q_CS")]
     if variable_dt:
         tau_all = [c[k] for _, c, _ in dirs_raw for k in ("tau_fast_s", "tau_slow_s")]
@@ -225,12 +229,12 @@ def prepare_fixed(ctx: SimpleNamespace) -> CSpec:
         if math.ldexp(tau_min, q["Q_T"]) < 1024:
             notes.append(f"the smallest time constant {tau_min:.3g} s has under 10 bits in Q{q['Q_T']}")
 
-        q["Q_K"] = _q_fit(k_soc64)
-        q["Q_RATE"] = _q_fit(i_lim * k_soc64 * 1.001)
+        q["Q_K"] = _q_fit(k_top)
+        q["Q_RATE"] = _q_fit(i_lim * k_top * 1.001)
         q["SH_RATE"] = q_i + q["Q_K"] - q["Q_RATE"]
         q["SH_DSOC"] = q["Q_RATE"] + Q_D - Q30
     else:
-        q["Q_K"] = _q_fit(k_soc64)
+        q["Q_K"] = _q_fit(k_top)
         q["SH_DSOC"] = q_i + q["Q_K"] - Q30
         if diff:
             taus.append(("tau_diff_s", "Q_DD", "Q_CD"))
@@ -249,7 +253,8 @@ def prepare_fixed(ctx: SimpleNamespace) -> CSpec:
                                    f"({name} = {q[name]})")
     # the C takes the SOC rate i k_soc (shifted) as int32 without saturation
     if "SH_RATE" in q:
-        assert (2**31 * k_soc + (1 << (q["SH_RATE"] - 1))) >> q["SH_RATE"] <= INT32_MAX
+        k_raw = int(quantize([k_top], q["Q_K"])[0])
+        assert (2**31 * k_raw + (1 << (q["SH_RATE"] - 1))) >> q["SH_RATE"] <= INT32_MAX
 
     bv_spec: dict = {}
     if bv:
@@ -309,4 +314,19 @@ def prepare_fixed(ctx: SimpleNamespace) -> CSpec:
                  dirs=tuple(dirs), deadband=db, k_soc=k_soc, temp_grid=temp_grid, q=q,
                  notes=tuple(notes), fx=fx, bv=bv_spec,
                  surface=None if src.surface is None else quantize(src.surface, q["Q_SV"]),
-                 **ctx.common)
+                 age=_age_fixed(law, q), **ctx.common)
+
+
+def _age_fixed(law, q: dict) -> dict | None:
+    """The ageing law as the fixed-point C holds it (CSpec.age), its formats into ``q``:
+    the age in Q8 equivalent full cycles, the scales in the largest Q holding their largest
+    value (1 exactly at the first breakpoint: 2^Q)."""
+    if law is None:
+        return None
+    x = quantize(law.equivalent_full_cycles, Q_TEMP)
+    q["Q_GA"] = _grid_shift([x], "ageing.equivalent_full_cycles")
+    inv = 1.0 / law.capacity_scale
+    q["Q_AR"] = min(30, _q_fit(float(np.max(law.resistance_scale))))
+    q["Q_AQ"] = min(30, _q_fit(float(np.max(inv))))
+    return {"grid": _qgrid(x, q["Q_GA"]), "r": quantize(law.resistance_scale, q["Q_AR"]),
+            "iq": quantize(inv, q["Q_AQ"])}

@@ -39,4 +39,14 @@ def switches() -> tuple[str, ...]:
     text = (runtime_dir() / "ecmrt_config.h").read_text()
     block = text[text.index("/* the switches"):]
     block = block[:block.index("#error")]
-    return tuple(re.findall(r"defined\(ECMRT_(\w+)\)", block))
+    return tuple(re.findall(r"defined\(ECMRT_(\w+)\)", block)) + optional_switches()
+
+
+@functools.lru_cache(maxsize=None)
+def optional_switches() -> tuple[str, ...]:
+    """The switches ecmrt_config.h sets to 0 when a config leaves them out (the generator
+    writes them only when 1): the ``defined()`` checks after its "the optional switches"
+    comment."""
+    text = (runtime_dir() / "ecmrt_config.h").read_text()
+    block = text[text.index("/* the optional switches"):]
+    return tuple(re.findall(r"!defined\(ECMRT_(\w+)\)", block))

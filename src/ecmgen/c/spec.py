@@ -136,6 +136,10 @@ class CSpec:
     # surface SOC (model.surface_soc_gain): lam / max(dOCV/dSOC, 0.3 V) at the OCV's
     # breakpoints, (n_t, n_ocv), 1/V; None: off (ECMRT_SURFACE)
     surface: np.ndarray | None = None
+    # ageing law (model.ageing): {"grid": CGrid of equivalent full cycles (float32, or Q8 raw),
+    # "r": resistance scales, "iq": 1 / capacity scales (float32, or raw in Q_AR / Q_AQ)};
+    # None: off (ECMRT_AGE)
+    age: dict | None = None
 
     @property
     def fixed(self) -> bool:
@@ -212,7 +216,7 @@ class CSpec:
                 "DIFF": int(self.diff), "BV": int(self.has_bv),
                 "FX_HYST": int(bool(fx.get("hyst"))), "FX_XRC": int(bool(fx.get("xrc"))),
                 "FX_CDR": int(bool(fx.get("cdr"))), "FX_ARR": int(bool(fx.get("arr"))),
-                "SURFACE": int(self.surface is not None)}
+                "SURFACE": int(self.surface is not None), "AGE": int(self.age is not None)}
         names = switches()
         if set(on) != set(names):
             raise AssertionError(f"the generator's switches {sorted(on)} are not "
@@ -237,6 +241,9 @@ def state_fields(spec: CSpec) -> list[tuple[str, str, str]]:
         out.append((t, "h", "hysteresis state in [-1, 1]" + (", Q30" if spec.fixed else "")))
     if spec.fx.get("xrc"):
         out.append((t, "u_x", f"voltage over the extra_rc pair,{v} V"))
+    if spec.age is not None:
+        out += [(t, "age_r", "resistance scale at the cell's age" + (", Q_AR" if spec.fixed else "")),
+                (t, "k_soc", "k_soc over the capacity at the cell's age")]
     if spec.temp:
         out += [("int32_t" if spec.fixed else "uint32_t", "t_in",
                  "temperature of the last step" + ("" if spec.fixed else " (its bits)")),
@@ -585,12 +592,34 @@ def begin(model, numeric: str, dt_s: float | None, prefix: str, i_max_a: float |
         lo, hi = ARR_T_RANGE_C
         notes.append(f"effect temperature_dependence: the C saturates the temperature to "
                      f"[{lo:g}, {hi:g}] degC for its factor")
+    if model.ageing is not None:
+        x = model.ageing.equivalent_full_cycles
+        notes.append(f"ageing law over {x[0]:g}..{x[-1]:g} equivalent full cycles: set the "
+                     "cell's age with set_age() (init: fresh); the estimator, if generated, "
+                     "runs the fresh cell")
     common = dict(prefix=prefix, numeric=numeric, variable_dt=dt_s is None, dt_s=dt_s,
                   i_lim_a=i_lim, model_sha256=model.sha256(), capacity_ah=cap)
     return SimpleNamespace(
         model=model, src=source_tables(model), by_name=by_name, common=common, notes=notes,
         dt_s=dt_s, variable_dt=dt_s is None, q_i=q_i, i_lim=i_lim,
         k_soc64=1.0 / (3600.0 * q_eff) if dt_s is None else dt_s / (3600.0 * q_eff))
+
+
+def aged_efc(breakpoints) -> float:
+    """The age the checks and golden vectors run an aged cell at: 70 % along the law's
+    breakpoints (equivalent full cycles), in whole cycles (between breakpoints as a rule, so
+    the interpolation is exercised)."""
+    x = np.asarray(breakpoints, dtype=np.float64)
+    return float(round(x[0] + 0.7 * (x[-1] - x[0])))
+
+
+def age_float(law) -> dict | None:
+    """The ageing law as the float C holds it (CSpec.age); None without one."""
+    if law is None:
+        return None
+    return {"grid": _float_grid(law.equivalent_full_cycles, "ageing.equivalent_full_cycles"),
+            "r": _f32(law.resistance_scale, "ageing.resistance_scale"),
+            "iq": _f32(1.0 / law.capacity_scale, "ageing.capacity_scale")}
 
 
 def prepare_float(ctx: SimpleNamespace) -> CSpec:
@@ -622,4 +651,4 @@ def prepare_float(ctx: SimpleNamespace) -> CSpec:
                  k_soc=np.float32(ctx.k_soc64), temp_grid=tg, q={}, notes=tuple(ctx.notes),
                  fx=_fx_float(ctx.by_name, dt_s),
                  surface=None if src.surface is None else _f32(src.surface, "surface_soc_gain"),
-                 **ctx.common)
+                 age=age_float(ctx.model.ageing), **ctx.common)

@@ -177,6 +177,7 @@ class TargetRun:
     dt: np.ndarray | None
     soc0: float | int
     temp: np.ndarray | None = None
+    efc: float | int | None = None      # the age set after init (native); None: not set
 
     @property
     def fields(self) -> tuple[str, ...]:
@@ -216,6 +217,8 @@ def firmware_main(runs: list[TargetRun]) -> str:
                     "t": "int32_t" if fixed else "float", "f": "" if fixed else ".f",
                     "vdt": r.spec.variable_dt, "fields": r.fields, "size": len(r.fields) * n,
                     "soc0": str(int(r.soc0)) if fixed else f"{float(np.float32(r.soc0)).hex()}f",
+                    "efc": None if r.efc is None else str(int(r.efc)) if fixed
+                    else f"{float(np.float32(r.efc)).hex()}f",
                     "arrays": "".join(_array(f"{p}_in_{k}", a, fixed) for k, a in ins)})
     return render_main(out)
 
@@ -267,13 +270,14 @@ def run_qemu(elf, cpu: str = "m4f", timeout: float = 120) -> bytes:
 
 def qemu_equivalence(model, time_s, current_a, soc0: float, cpu: str = "m4f",
                      variants=(("float", None), ("float", 0.1), ("fixed", None), ("fixed", 0.1)),
-                     out_dir=None, cache=None, temperature_c=None) -> dict:
+                     out_dir=None, cache=None, temperature_c=None, efc=None) -> dict:
     """Run the generated models on the emulated target and on the host (cffi) over the same
     inputs; compare voltages and SOC (and the optional states u_diff, h, u_x) bit for bit.
     ``variants``: (numeric, dt_s) pairs; a fixed-dt variant ignores the record's time
     stamps (each step lasts dt_s). ``model``: one model, or a dict numeric -> model (a model
     per numeric, e.g. with different effects). ``temperature_c``: the cell temperature per
-    step (degC), for models that read it."""
+    step (degC), for models that read it; ``efc``: the age set after init (equivalent full
+    cycles, a model with an ageing law)."""
     import tempfile
 
     from . import cref
@@ -291,8 +295,9 @@ def qemu_equivalence(model, time_s, current_a, soc0: float, cpu: str = "m4f",
         cm = compile_spec(spec, cache=cache)
         i_n, dt_n, s0 = cm.native_inputs(current_a, dt if dt_s is None else None, soc0)
         t_n = cm.native_temperature(temperature_c, i_n.size)
-        ref = cm.trace_native(i_n, dt_n, s0, t_n)
-        runs.append(TargetRun(spec, i_n, dt_n, s0, t_n))
+        e_n = cm.native_efc(efc)
+        ref = cm.trace_native(i_n, dt_n, s0, t_n, e_n)
+        runs.append(TargetRun(spec, i_n, dt_n, s0, t_n, e_n))
         host.append(ref)
     tmp = None
     if out_dir is None:

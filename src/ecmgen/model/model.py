@@ -38,6 +38,7 @@ from .._version import __version__
 from ..data.ocv import OcvTable, _f64, check_ocv
 from ..errors import InputError, reading
 from ..files import write_atomic
+from .ageing import AgeingLaw, ageing_from_json
 from .model_schema import check_model_json, check_model_ranges
 
 SCHEMA = "ecmgen.model"
@@ -358,6 +359,8 @@ class EcmModel:
     # lam of the surface SOC soc + lam * u_diff / max(dOCV/dSOC, 0.3 V) at which the RC
     # tables are read (dimensionless; 0: off); needs the diffusion RC pair
     surface_soc_gain: float = 0.0
+    # resistances and capacity over the cell's age (None: a model of one age)
+    ageing: AgeingLaw | None = None
 
     def __post_init__(self):
         if isinstance(self.ocv, OcvTable):
@@ -410,6 +413,26 @@ class EcmModel:
         return interp_2d(self.ocv.temperature_c, self.ocv.soc, self.surface_per_volt_rows(),
                          soc, temperature_c)
 
+    def at_age(self, equivalent_full_cycles=None) -> "EcmModel":
+        """The model of the cell at that age (None: the model as it is): every resistance
+        and the capacity scaled by the ageing law, which the result no longer carries. An
+        age for a model without a law is an error, not a silent fresh cell."""
+        if equivalent_full_cycles is None:
+            return self
+        if self.ageing is None:
+            raise ValueError("this model has no ageing law: an age means nothing to it "
+                             "(ecmgen age writes one)")
+        k_r, k_q = (float(v) for v in self.ageing.at(float(equivalent_full_cycles)))
+
+        def scaled(t: RcTable) -> RcTable:
+            r = {f: k_r * getattr(t, f) for f in ("r0_ohm", "r_fast_ohm", "r_slow_ohm")}
+            if t.r_diff_ohm is not None:
+                r["r_diff_ohm"] = k_r * t.r_diff_ohm
+            return replace(t, **r)
+
+        return replace(self, charge=scaled(self.charge), discharge=scaled(self.discharge),
+                       capacity_ah=k_q * self.capacity_ah, ageing=None)
+
     def with_effects(self, effects) -> "EcmModel":
         return replace(self, effects=tuple(effects))
 
@@ -438,6 +461,7 @@ class EcmModel:
             "ocv": {"temperature_c": _temps(self.ocv.temperature_c),
                     "soc": _floats(self.ocv.soc), "ocv_v": _rows(self.ocv.ocv_v)},
             "rc": {"charge": table(self.charge), "discharge": table(self.discharge)},
+            **({"ageing": self.ageing.to_json_dict()} if self.ageing is not None else {}),
             "effects": [_effect_to_json(e) for e in self.effects],
             "inputs": [{"role": r.role, "name": r.name, "sha256": r.sha256} for r in self.inputs],
             "notes": list(self.notes),
@@ -604,6 +628,12 @@ def _model_from_checked_json(raw: dict, path, version: int) -> EcmModel:
     inputs = tuple(InputRecord(str(r["role"]), str(r["name"]), str(r["sha256"]))
                    for r in raw.get("inputs", []))
     seed = raw.get("seed")
+    ageing = None
+    if "ageing" in raw:
+        def fail(message):
+            raise InputError(path, message)
+
+        ageing = ageing_from_json(raw["ageing"], fail)
     try:     # EcmModel checks what the tables alone cannot (surface_soc_gain among it)
         return EcmModel(
             capacity_ah=capacity,
@@ -618,6 +648,7 @@ def _model_from_checked_json(raw: dict, path, version: int) -> EcmModel:
             effects=effects,
             tool_version=str(raw.get("tool_version", "")),
             surface_soc_gain=raw.get("surface_soc_gain", 0.0),
+            ageing=ageing,
         )
     except ValueError as exc:
         raise InputError(path, str(exc)) from None

@@ -36,7 +36,8 @@ TOP_LEVEL = {
     "schema": (TEXT, True), "schema_version": (INTEGER, True), "tool_version": (TEXT, False),
     "method": (TEXT, False), "seed": (INTEGER, False), "capacity_ah": (NUMBER, True),
     "direction_deadband_a": (NUMBER, False), "surface_soc_gain": (NUMBER, False),
-    "ocv": (OBJECT, True), "rc": (OBJECT, True), "effects": (LIST, False),
+    "ocv": (OBJECT, True), "rc": (OBJECT, True), "ageing": (OBJECT, False),
+    "effects": (LIST, False),
     "inputs": (LIST, False), "notes": (LIST, False),
 }
 OCV_KEYS = ("temperature_c", "soc", "ocv_v")

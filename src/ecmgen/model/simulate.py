@@ -160,10 +160,12 @@ def _rc_state(dt, tau_s, r_ohm, current_a) -> np.ndarray:
 
 
 def simulate(model: EcmModel, time_s, current_a, soc0: float,
-             temperature_c=None) -> SimResult:
+             temperature_c=None, equivalent_full_cycles=None) -> SimResult:
     """Simulate the model over a current profile (A, positive = charge) from ``soc0``.
     ``temperature_c``: the cell temperature per sample (degC) or one number; needed when
-    the model has tables over temperature."""
+    the model has tables over temperature. ``equivalent_full_cycles``: the cell's age for
+    a model with an ageing law (None: the model's own tables, the fresh cell)."""
+    model = model.at_age(equivalent_full_cycles)
     time_s = np.asarray(time_s, dtype=np.float64)
     current_a = np.asarray(current_a, dtype=np.float64)
     temperature_c = sample_temperatures(model, time_s.size, temperature_c)
@@ -311,10 +313,13 @@ class Validation:
 
 
 def validate(model: EcmModel, series: TimeSeries, soc0: float | None = None,
-             temperature_c: float | None = None) -> Validation:
+             temperature_c: float | None = None,
+             equivalent_full_cycles: float | None = None) -> Validation:
     """Simulate ``series``' current and compare with its voltage. The cell temperature is
     the record's own column, else ``temperature_c`` (one value for the whole record); a
-    model over temperature needs one of the two."""
+    model over temperature needs one of the two. ``equivalent_full_cycles``: the cell's
+    age, for a model with an ageing law (None: fresh)."""
+    model = model.at_age(equivalent_full_cycles)
     if series.temperature_c is None and temperature_c is not None:
         series = replace(series, temperature_c=np.full(series.time_s.size, float(temperature_c)))
     temps = sample_temperatures(model, series.time_s.size, series.temperature_c,
