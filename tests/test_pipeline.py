@@ -189,12 +189,15 @@ def test_diagnose_cli_on_the_bundled_example(tmp_path):
     for step in doc["effects"]:
         assert set(step) >= {"name", "mae_before_v", "mae_after_v"}
         assert step["mae_after_v"] < step["mae_before_v"]
-    # measured: 15.24 mV -> 9.59 mV (extra_rc)
-    assert doc["mae_after_v"] <= 0.015
-    # the augmented model validates on the judge cycle with the same figure
+    # measured above 10 % SOC: 14.91 mV -> 6.37 mV (capacity_error x1.017, then extra_rc)
+    assert doc["mae_after_v"] <= 0.01
+    # the augmented model validates on the judge cycle with about that figure above 10 %
+    # SOC (diagnose leaves out where the base model is below 10 %, validate where the
+    # augmented one is: with a capacity error added they end at different samples)
     res2 = run_cli("validate", doc["model"], REPO / "examples" / "panasonic-25degC" / "hwfet-a.mat",
                    "--soc0", "1.0", "--json")
-    assert json.loads(res2.stdout)["mae_v"] == pytest.approx(doc["mae_after_v"], rel=1e-9)
+    assert json.loads(res2.stdout)["soc_above_10"]["mae_v"] == pytest.approx(
+        doc["mae_after_v"], rel=0.15)
 
 
 def test_codegen_cli_writes_c_for_a_model_and_refuses_bad_ones(tmp_path):
