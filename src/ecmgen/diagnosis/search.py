@@ -633,7 +633,11 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
                 last = layout[-1]
                 vals_j, effects_j = fitted(layout, [last[1]], {})
                 judged_j = judged(effects_j)
-                if judged_j[3] <= mae1:
+                # kept only where it leaves no parameter on its search bound (a candidate
+                # that ends there does not pass either)
+                bound_j = any(_on_bound(v, sp) for (_, _, sp), v in
+                              zip(new_added, vals_j[n_fixed:]))
+                if judged_j[3] <= mae1 and not bound_j:
                     model, sj, e1, mae1, fit_mae1 = judged_j
                     new_added = [(n, v, sp) for (n, _, sp), v in
                                  zip(new_added, vals_j[n_fixed:])]
