@@ -85,6 +85,28 @@ def test_effects_models_bit_identical_with_gaps_and_missing_voltages(case, offse
     assert np.all(np.isfinite(got.x)) and np.all(np.isfinite(got.p))
 
 
+@pytest.mark.parametrize("settings", [{}, ANYWHERE_FLAT])
+def test_a_start_anywhere_leaves_the_hysteresis_direction_unknown(settings):
+    """A rested start takes the effect's initial_state (variance hysteresis_sigma^2); a start
+    anywhere puts h at 0 with the variance of a uniform [-1, 1]: which way the cell last
+    ran is as unknown as its polarisation. C init == the Python filter's start."""
+    from ecmgen.c.names import c_names
+    from ecmgen.estimate.ekf import Ekf
+
+    m = _effects_model("hysteresis-only")
+    cfg = EstimatorConfig(**settings)
+    cm = _compiled(m, cfg=cfg)
+    n, ih = cm.estimator.n, cm.estimator.names.index("h")
+    nm = c_names(cm.spec.prefix, "float")
+    e = cm.ffi.new(f"{nm['est_t']} *")
+    getattr(cm.lib, nm["est_init"])(e, 0.5)
+    f = Ekf(m, cfg, 0.5)
+    want_h, want_p = ((0.0, 1.0 / 3.0) if settings else
+                      (m.effects[0].initial_state, 0.1 ** 2))
+    assert e.m.h == np.float32(want_h) and f.x[ih] == want_h
+    assert e.p[ih * n + ih] == np.float32(want_p) and f.P[ih][ih] == pytest.approx(want_p)
+
+
 def _grids(m):
     return np.concatenate([m.ocv.soc, m.charge.soc, m.discharge.soc])
 

@@ -213,6 +213,31 @@ def test_second_cycle_as_judge_and_given_soc():
     assert "all of" in r.split
 
 
+def test_a_judge_that_never_rises_above_10_percent_soc_is_refused():
+    """Below 10 % SOC the error measures where the cell ends, not a missing effect: a
+    held-out part that never rises above it is refused, not judged."""
+    from ecmgen.diagnosis.search import NothingToJudge
+
+    cell = random_cell(8, "hysteresis")
+    fit = cell.drive_cycle(seed=1)
+    judge = cell.drive_cycle(seed=2, soc_start=0.9)
+    with pytest.raises(NothingToJudge, match="above 10 % SOC in only 0 of"):
+        diagnose(cell.base_model(), fit, judge, soc0=0.95, judge_soc0=0.08)
+
+
+def test_a_fit_on_a_magnitude_bound_does_not_pass():
+    """A hysteresis of 0.3 V (its search bound) or a capacity 0.7x is no explanation."""
+    from ecmgen.diagnosis.search import _on_bound
+
+    model = random_cell(8, "hysteresis").base_model()
+    h = _specs("hysteresis", model, {})
+    assert _on_bound({"m_v": 0.2999, "ocv_table_state": 1.0, "initial_state": -1.0}, h)
+    assert not _on_bound({"m_v": 0.0, "ocv_table_state": 1.0, "initial_state": -1.0}, h)
+    c = _specs("capacity_error", model, {})
+    assert _on_bound({"capacity_scale": 0.7}, c) and _on_bound({"capacity_scale": 1.4}, c)
+    assert not _on_bound({"capacity_scale": 0.95}, c)
+
+
 def test_candidates_can_be_restricted_and_bad_names_fail(synthetic_model):
     cell = random_cell(9, "capacity_error")
     base = cell.base_model()
@@ -228,15 +253,18 @@ def test_config_section_options():
     from ecmgen.diagnosis.search import diagnose_options
     from ecmgen.errors import InputError
 
-    assert diagnose_options(None) == {"judge": None}
+    assert diagnose_options(None) == {"judge": None, "cycle": None}
     o = diagnose_options({"judge": "hwfet-a.mat", "split": 0.5, "effects": ["extra_rc"],
                           "max_effects": 2, "confidence": 0.95, "judge_soc0": 1.0,
-                          "min_rel_gain": 0.1}, "c.toml")
+                          "min_rel_gain": 0.1, "cycle": "us06.mat", "cycle_soc0": 0.9},
+                         "c.toml")
     assert o == {"judge": "hwfet-a.mat", "split": 0.5, "candidates": ("extra_rc",),
-                 "max_effects": 2, "confidence": 0.95, "judge_soc0": 1.0, "min_rel_gain": 0.1}
+                 "max_effects": 2, "confidence": 0.95, "judge_soc0": 1.0, "min_rel_gain": 0.1,
+                 "cycle": "us06.mat", "soc0": 0.9}
     for bad, words in (({"splitt": 0.5}, "unknown key"), ({"split": 2.0}, "diagnose.split"),
                        ({"effects": ["x"]}, "diagnose.effects"),
-                       ({"max_effects": 1.5}, "integer"), ({"judge": 3}, "file name")):
+                       ({"max_effects": 1.5}, "integer"), ({"judge": 3}, "file name"),
+                       ({"cycle": ""}, "file name"), ({"cycle_soc0": 2}, "cycle_soc0")):
         with pytest.raises(InputError, match=words) as err:
             diagnose_options(bad, "c.toml")
         assert str(err.value).startswith("c.toml: ")

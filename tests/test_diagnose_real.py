@@ -50,19 +50,17 @@ def test_lfp_names_hysteresis():
 
 
 def test_plett_a123_names_hysteresis_from_its_dynamic_test(tmp_path):
-    """The shared A123 (examples/a123-dynamic: OCV from its four OCV files, tables from its
-    dynamic test), diagnosed on that dynamic test with its last 40 % held out: the LFP
-    hysteresis is named and pays there (10.6 -> 3.7 mV above 10 % SOC). Below 10 % SOC the
-    held-out end is not judged: the end-of-discharge knee made the gain look like noise."""
-    from dataclasses import replace
-
+    """The shared A123 (examples/a123-dynamic as it is: OCV from its four OCV files, tables
+    from its dynamic test), diagnosed on that dynamic test ([diagnose] cycle) with its last
+    40 % held out: the LFP hysteresis is named and pays there (10.6 -> 3.7 mV above 10 %
+    SOC). Below 10 % SOC the held-out end is not judged: the end-of-discharge knee made the
+    gain look like noise."""
     from conftest import REPO, SHARED_DATA
     from ecmgen.config import load_config
     from ecmgen.pipeline import run_diagnose
 
-    dyn = need(SHARED_DATA / "plett-a123-lfp" / "dyn_data" / "A123_DYN_50_P25_s1.csv")
+    need(SHARED_DATA / "plett-a123-lfp" / "dyn_data" / "A123_DYN_50_P25_s1.csv")
     cfg = load_config(REPO / "examples" / "a123-dynamic" / "config.toml")
-    cfg = replace(cfg, cycle=dyn, extra_cycles=())
     r, _, _ = run_diagnose(cfg, tmp_path / "out", plots=False)
     assert r.effects[:1] == ("hysteresis",), r.to_json_dict()["verdict"]
     assert r.mae_after_v < 0.5 * r.mae_before_v
@@ -101,3 +99,21 @@ def test_panasonic_us06_judged_on_hwfet():
     assert "above 10 % SOC" in r.split
     assert validate(r.model, hwfet).soc_above_10.mae_v == pytest.approx(r.mae_after_v,
                                                                         rel=1e-9)
+
+
+def test_a_cycle_below_10_percent_soc_is_refused_with_its_name(tmp_path, capsys):
+    """The A123 example without its [diagnose] cycle diagnoses data.cycle, the discharge to
+    2.0 V that never rises above 10 % SOC: exit 2 naming that file, nothing written."""
+    from conftest import REPO, SHARED_DATA
+    from ecmgen.cli import main
+
+    s2 = need(SHARED_DATA / "plett-a123-lfp" / "dyn_data" / "A123_DYN_50_P25_s2.csv")
+    text = (REPO / "examples" / "a123-dynamic" / "config.toml").read_text()
+    text = text[:text.index("[diagnose]")].replace("../../../shared/data",
+                                                   str(SHARED_DATA))
+    (tmp_path / "config.toml").write_text(text)
+    assert main(["diagnose", str(tmp_path / "config.toml"), "--out", str(tmp_path / "out"),
+                 "-q", "--no-plots"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(s2) in err[0] and "above 10 % SOC in only 0" in err[0]
+    assert not (tmp_path / "out").exists()

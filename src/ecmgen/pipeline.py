@@ -684,19 +684,17 @@ def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _qu
     missing effects on ``data.cycle`` (judged on ``[diagnose] judge`` or on the held-out
     end of the cycle), and write the augmented model, plots and report into out_dir."""
     from .diagnosis.output import write_diagnose_outputs
-    from .diagnosis.search import diagnose, diagnose_options
+    from .diagnosis.search import NothingToJudge, diagnose, diagnose_options
 
     options = diagnose_options(cfg.raw.get("diagnose"), cfg.path)
-    judge_name = options.pop("judge")
-    if cfg.cycle is None:
-        raise InputError(cfg.path, "diagnose needs data.cycle (the record to diagnose on)")
-    judge_path = None
-    if judge_name is not None:
-        judge_path = (cfg.path.resolve().parent / judge_name).resolve()
-        if not judge_path.is_file():
-            raise InputError(cfg.path, f"diagnose.judge names a missing file: {judge_name}")
+    judge_path = _diagnose_file(cfg, "judge", options.pop("judge"))
+    cycle_path = _diagnose_file(cfg, "cycle", options.pop("cycle")) or cfg.cycle
+    if cycle_path is None:
+        raise InputError(cfg.path, "diagnose needs data.cycle or diagnose.cycle (the record "
+                                   "to diagnose on)")
+    soc0 = options.pop("soc0", cfg.soc0 if cycle_path == cfg.cycle else None)
     out_dir = Path(out_dir).resolve()
-    given = _given(cfg) | ({judge_path.resolve()} if judge_path is not None else set())
+    given = _given(cfg) | {p for p in (judge_path, cycle_path) if p is not None}
     check_output_folder(out_dir, given)
     fit_cfg = cfg if cfg.methods == (cfg.best,) else _only_method(cfg, cfg.best)
     if "curve_branches" not in (cfg.raw.get("fit") or {}):
@@ -707,19 +705,32 @@ def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _qu
                  "[fit] curve_branches = true fits them into the base)")
     models, raw, inputs, _ = fit_all(fit_cfg, progress)
     base = models[cfg.best]
-    fit_series = read_series(cfg, cfg.cycle, "cycle")
+    fit_series = read_series(cfg, cycle_path, "cycle")
     judge = read_series(cfg, judge_path, "judge") if judge_path is not None else None
     refits = {}
     if cfg.best == "curve" and not cfg.over_temperature:
         refits["current_dependent_resistance"] = lambda: _refit_with_current_dependence(
             fit_cfg, inputs, raw["curve_fit"], progress)
-    result = diagnose(base, fit_series, judge, soc0=cfg.soc0, progress=progress,
-                      base_refits=refits, **options)
+    try:
+        result = diagnose(base, fit_series, judge, soc0=soc0, progress=progress,
+                          base_refits=refits, **options)
+    except NothingToJudge as exc:
+        raise InputError(judge_path or cycle_path, str(exc)) from None
 
     with staged(out_dir, given) as (staging, files):
         base.save(staging / "model-base.json")
         write_diagnose_outputs(result, staging, plots=plots)
     return result, out_dir, files
+
+
+def _diagnose_file(cfg: BuildConfig, key: str, name: str | None) -> Path | None:
+    """The file ``[diagnose] key`` names, resolved beside the config (None: not set)."""
+    if name is None:
+        return None
+    path = (cfg.path.resolve().parent / name).resolve()
+    if not path.is_file():
+        raise InputError(cfg.path, f"diagnose.{key} names a missing file: {name}")
+    return path
 
 
 def _refit_with_current_dependence(cfg: BuildConfig, inputs: Inputs, base_fit, progress):

@@ -28,7 +28,7 @@ import numpy as np
 
 from ..config import EstimatorConfig
 from ..errors import InputError
-from ..estimate.ekf import NoiseModel
+from ..estimate.ekf import HYSTERESIS_START_VAR, NoiseModel
 from .names import c_names
 from .spec import CSpec, state_bytes
 
@@ -133,7 +133,10 @@ def est_file_names(prefix: str) -> dict[str, str]:
 def render_estimator(env, ctx: dict, est: EstSpec, c_float) -> dict[str, str]:
     """{file name: text} of <prefix>_est_f32.h and .c; ``env`` and ``ctx`` the renderer's
     jinja2 environment and context, ``c_float`` its float literal."""
-    ectx = dict(ctx, n=est.n, names=est.names, offset=est.offset,
+    # a start anywhere: the hysteresis state at 0, variance 1/3 (ecmgen.estimate.ekf)
+    h_start = (c_float(np.float32(HYSTERESIS_START_VAR))
+               if "h" in est.names and est.noise["start_a"] != 0.0 else None)
+    ectx = dict(ctx, n=est.n, names=est.names, offset=est.offset, h_start=h_start,
                 slopes=est.settings.resistance_slopes, memory=est.memory,
                 noise=[(k, c_float(est.noise[k]), c) for k, c in est.noise_fields])
     files = ctx["files"]

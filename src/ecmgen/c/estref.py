@@ -23,6 +23,7 @@ import numpy as np
 
 from . import cref
 from .codegen import branch_rows, ocv_rows, surface_rows, table_rows
+from ..estimate.ekf import HYSTERESIS_START_VAR
 from .estc import EstSpec
 from .qformat import DT_MAX_S, SOC_LIM
 from .spec import CSpec
@@ -294,8 +295,9 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
     for r in range(1, N):
         P[r][r] = nz["p0_u"]
     if hyst:
-        P[ih][ih] = nz["p0_h"]
-        u[ih] = F32(fx["h_init"])
+        anywhere = nz["start_a"] != ZERO       # a start anywhere: the direction unknown
+        P[ih][ih] = F32(HYSTERESIS_START_VAR) if anywhere else nz["p0_h"]
+        u[ih] = ZERO if anywhere else F32(fx["h_init"])
         h_k, h_m, h_m0, h_ref = (F32(fx[k]) for k in ("h_k", "h_m", "h_m0", "h_ref"))
     if xrc:
         x_r = F32(fx["x_r"])

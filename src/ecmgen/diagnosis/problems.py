@@ -31,25 +31,38 @@ class _Spec:
     lo: float
     hi: float
     log: bool
+    # a fit that ends on this bound lies outside what the effect can be (a scale's both
+    # ends; a magnitude's upper end: its lower end, 0, is the effect switched off)
+    limit_lo: bool | None = None
+    limit_hi: bool | None = None
+
+    def ends_on_limit(self, v: float, rtol: float = 0.01) -> bool:
+        lo = self.log if self.limit_lo is None else self.limit_lo
+        hi = self.log if self.limit_hi is None else self.limit_hi
+        if self.log:
+            return (lo and v <= self.lo * (1 + rtol)) or (hi and v >= self.hi / (1 + rtol))
+        span = rtol * (self.hi - self.lo)
+        return (lo and v <= self.lo + span) or (hi and v >= self.hi - span)
 
 
 def _specs(name: str, model: EcmModel, ctx: dict) -> dict[str, _Spec]:
     """Free parameters of an effect and their bounds (native units)."""
     q = model.capacity_ah
     if name == fx.Hysteresis.name:
-        return {"m_v": _Spec(0.0, 0.3, False), "decay_ah": _Spec(0.002 * q, 0.5 * q, True),
-                "m0_v": _Spec(0.0, 0.1, False), "ocv_table_state": _Spec(-1.0, 1.0, False),
+        return {"m_v": _Spec(0.0, 0.3, False, limit_hi=True),
+                "decay_ah": _Spec(0.002 * q, 0.5 * q, True),
+                "m0_v": _Spec(0.0, 0.1, False, limit_hi=True), "ocv_table_state": _Spec(-1.0, 1.0, False),
                 "initial_state": _Spec(-1.0, 1.0, False)}
     if name == fx.CurrentDependentResistance.name:
         return {"scale_at_zero": _Spec(0.2, 5.0, True), "i0_a": _Spec(0.02 * q, 50.0 * q, True)}
     if name == fx.ExtraRc.name:
         r_hi = max(0.5, 20.0 * ctx["r_total_ohm"])
-        return {"r_ohm": _Spec(0.0, r_hi, False),
+        return {"r_ohm": _Spec(0.0, r_hi, False, limit_hi=True),
                 "tau_s": _Spec(ctx["tau_min_s"], ctx["tau_max_s"], True)}
     if name == fx.CapacityError.name:
-        return {"capacity_scale": _Spec(0.7, 1.4, False)}
+        return {"capacity_scale": _Spec(0.7, 1.4, False, limit_lo=True, limit_hi=True)}
     if name == fx.TemperatureDependence.name:
-        return {"activation_k": _Spec(0.0, 15000.0, False)}
+        return {"activation_k": _Spec(0.0, 15000.0, False, limit_hi=True)}
     raise ValueError(name)
 
 

@@ -378,11 +378,12 @@ def _starts(name: str, sig: Signature, ctx: dict, specs: dict[str, _Spec]) -> li
 # -- the greedy search ----------------------------------------------------------------------
 
 def _on_bound(values: dict, specs: dict, rtol: float = 0.01) -> str:
-    """The first scale parameter (log-spaced search: a time constant, a decay, a current)
-    that ended on its search bound, as 'name = value', or ''."""
+    """The first parameter that ended on a search bound beyond which the effect is not
+    physical (either end of a scale: a time constant, a decay, a current; the upper end of a
+    magnitude; either end of the capacity scale), as 'name = value', or ''."""
     for k, sp in specs.items():
         v = values.get(k)
-        if sp.log and v is not None and (v <= sp.lo * (1 + rtol) or v >= sp.hi / (1 + rtol)):
+        if v is not None and sp.ends_on_limit(v, rtol):
             return f"{k} = {v:.4g}"
     return ""
 
@@ -395,12 +396,23 @@ def _mae(e: np.ndarray) -> float:
 JUDGE_SOC_MIN = 0.1      # held-out samples at or below this SOC are not judged
 
 
+MIN_JUDGED = 50          # fewer held-out samples above JUDGE_SOC_MIN: nothing to judge
+
+
+class NothingToJudge(ValueError):
+    """The held-out part never rises above the SOC where diagnose judges."""
+
+
 def _judged_samples(soc: np.ndarray, soc_min: float) -> tuple[np.ndarray, int]:
-    """Indices of the held-out samples judged (SOC above ``soc_min``; all of them when fewer
-    than 50 would be left) and how many were left out."""
+    """Indices of the held-out samples judged (SOC above ``soc_min``) and how many were left
+    out; :class:`NothingToJudge` when fewer than ``MIN_JUDGED`` are left (a record at the
+    end of discharge: its error measures where the cell ends, not a missing effect)."""
     keep = np.flatnonzero(soc > soc_min)
-    if keep.size < 50:
-        return np.arange(soc.size), 0
+    if keep.size < MIN_JUDGED:
+        raise NothingToJudge(
+            f"the held-out part is above {100 * soc_min:.0f} % SOC in only {keep.size} of "
+            f"{soc.size} samples (simulated from its start SOC): nothing diagnose can judge "
+            f"there; diagnose a record that is, or judge on one ([diagnose] cycle, judge)")
     return keep, int(soc.size - keep.size)
 
 
@@ -668,11 +680,14 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
 
 def diagnose_options(table, path=None) -> dict:
     """Check the optional ``[diagnose]`` table of a build config and turn it into keyword
-    arguments of :func:`diagnose` (plus ``"judge"``: the judge cycle's file name as
+    arguments of :func:`diagnose` (plus ``"cycle"`` and ``"judge"``: the file names as
     written, relative to the config, or None). Unknown keys or bad values raise
     InputError naming ``path``::
 
         [diagnose]
+        cycle = "dyn.csv"         # the record to diagnose on (default: data.cycle)
+        cycle_soc0 = 1.0          # its start SOC (default: data.soc0 for data.cycle, else
+                                  # from its first rested voltage)
         judge = "hwfet-a.mat"     # a second cycle to judge on (default: the last part of
                                   # data.cycle, see split)
         judge_soc0 = 1.0          # its start SOC (default: from its first rested voltage)
@@ -685,8 +700,8 @@ def diagnose_options(table, path=None) -> dict:
     table = {} if table is None else table
     if not isinstance(table, dict):
         raise InputError(path, "[diagnose] must be a table")
-    known = {"judge", "judge_soc0", "split", "effects", "max_effects", "min_rel_gain",
-             "confidence"}
+    known = {"cycle", "cycle_soc0", "judge", "judge_soc0", "split", "effects", "max_effects",
+             "min_rel_gain", "confidence"}
     unknown = sorted(set(table) - known)
     if unknown:
         raise InputError(path, f"unknown key(s) in [diagnose]: {', '.join(unknown)}; "
@@ -700,11 +715,14 @@ def diagnose_options(table, path=None) -> dict:
             raise InputError(path, f"diagnose.{key} must be {kind} in [{lo}, {hi}], got {v!r}")
         return int(v) if integer else float(v)
 
-    out: dict = {"judge": None}
-    if "judge" in table:
-        if not isinstance(table["judge"], str) or not table["judge"]:
-            raise InputError(path, "diagnose.judge must be a file name")
-        out["judge"] = table["judge"]
+    out: dict = {"judge": None, "cycle": None}
+    for key in ("cycle", "judge"):
+        if key in table:
+            if not isinstance(table[key], str) or not table[key]:
+                raise InputError(path, f"diagnose.{key} must be a file name")
+            out[key] = table[key]
+    if "cycle_soc0" in table:
+        out["soc0"] = number("cycle_soc0", 0.0, 1.0)
     if "judge_soc0" in table:
         out["judge_soc0"] = number("judge_soc0", 0.0, 1.0)
     if "split" in table:

@@ -40,7 +40,9 @@ Noise (:class:`NoiseModel`, from the ``[estimator]`` settings):
   times the capacity, the branch's resistance at the first sample's SOC guess and
   temperature, as process noise of the first step) and R carries the error's correlation
   from the first sample on, so one sample never sets the SOC; the SOC sigma stays as wide
-  as the voltage cannot yet tell the SOC from the polarisation.
+  as the voltage cannot yet tell the SOC from the polarisation. A hysteresis state starts
+  at 0 with the variance of a uniform [-1, 1] (1/3): which way the cell last ran is as
+  unknown as its polarisation (a rested start takes the effect's ``initial_state``).
   ``model_error`` and ``error_correlation_s`` are measured on validation cycles by
   :mod:`.residual`.
 - Options for a start anywhere (docs/estimator.md): ``error_memory_s`` T > 0 scales the
@@ -122,6 +124,9 @@ class NoiseModel:
         return var * (self.error_correlation_s / dt)
 
 
+HYSTERESIS_START_VAR = 1.0 / 3.0   # a start anywhere: h uniform over [-1, 1]
+
+
 def initial_covariance(step: StepModel, noise: NoiseModel) -> np.ndarray:
     n = step.n
     P = np.zeros((n, n))
@@ -129,17 +134,20 @@ def initial_covariance(step: StepModel, noise: NoiseModel) -> np.ndarray:
     for s in range(1, n):
         P[s][s] = noise.u0_sigma_v ** 2
     if step.i_h >= 0:
-        P[step.i_h][step.i_h] = noise.hysteresis_sigma ** 2
+        P[step.i_h][step.i_h] = (HYSTERESIS_START_VAR if noise.start_current_a > 0.0
+                                 else noise.hysteresis_sigma ** 2)
     if step.i_b >= 0:
         P[step.i_b][step.i_b] = noise.offset_sigma_a ** 2
     return P
 
 
-def initial_state(step: StepModel, soc0: float) -> list[float]:
+def initial_state(step: StepModel, soc0: float, noise: NoiseModel) -> list[float]:
+    """The start: the SOC guess, the RC voltages 0, a hysteresis state at the effect's
+    ``initial_state`` (rested start) or at 0 (a start anywhere: direction unknown)."""
     x = [0.0] * step.n
     x[0] = soc0
     if step.i_h >= 0:
-        x[step.i_h] = step.hyst.initial_state
+        x[step.i_h] = 0.0 if noise.start_current_a > 0.0 else step.hyst.initial_state
     return x
 
 
@@ -194,7 +202,7 @@ class Filter:
     def __init__(self, model: EcmModel, cfg: EstimatorConfig, soc0: float):
         self.step_model = StepModel(model, cfg.offset_state, cfg.resistance_slopes)
         self.noise = NoiseModel.from_config(cfg, model.capacity_ah)
-        self.x = initial_state(self.step_model, soc0)
+        self.x = initial_state(self.step_model, soc0, self.noise)
         self.P = initial_covariance(self.step_model, self.noise)
         self.charging = False
         self.first = True
