@@ -7,6 +7,11 @@ a 1 % gain. The model is the example's (built first):
     nice .venv/bin/python bench/estimate_any_start_lfp.py [--model a123-out/model.json]
         [--set NAME=VALUE ...] [--rested]
 
+With the hysteresis state: the model `ecmgen diagnose` adds it to (on the dynamic test),
+
+    nice .venv/bin/ecmgen diagnose examples/a123-dynamic/config.toml --out a123-diag
+    nice .venv/bin/python bench/estimate_any_start_lfp.py --model a123-diag/model.json
+
 The reference SOC counts the measured current from 1.0 at the test's start (it starts
 full); per cut: RMSE after 600 s, max |error| after 3600 s, when the error stays within
 3 % (``conv3``), the share of samples within 3 sigma and the NEES. NB: the example's
