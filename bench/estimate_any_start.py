@@ -46,8 +46,7 @@ LOAD_A, REST_A = 0.5, 0.05
 MIN_LEFT_S = 2000.0                    # a cut needs this much record (within 2 % after 1800 s)
 # the [estimator] settings for a start anywhere, chosen on CHOOSE (docs/estimator.md); --rested
 # runs the defaults (a record taken to start rested) instead
-ANY_START = dict(start_polarization_c=0.5, resistance_slopes=False, model_error=0.12,
-                 polarization_error=1.0, polarization_soc_sigma=0.01)
+from ecmgen.config import START_ANYWHERE as ANY_START  # noqa: E402  (the chosen settings)
 
 
 def cycle_path(folder: str, name: str) -> Path:

@@ -354,6 +354,21 @@ def test_cli_estimate_window_starts_mid_record(cycle_files):
     assert 0.0 <= cal["within_1_sigma"] <= cal["within_2_sigma"] <= cal["within_3_sigma"] <= 1
     rows = out.read_text().splitlines()[1:]
     assert float(rows[0].split(",")[0]) == 300.0 and float(rows[-1].split(",")[0]) == 1100.0
+    # a mid-record cut is a start anywhere (nothing says the cell rested there)
+    from ecmgen.config import START_ANYWHERE
+
+    assert doc["start"] == "anywhere"
+    assert {k: doc["settings"][k] for k in START_ANYWHERE} == START_ANYWHERE
+    for args, start, pol in ((("--start", "rested"), "rested", 0.0),
+                             (("--window-s", "0", "1100"), "rested", 0.0),
+                             (("--window-s", "0", "1100", "--start", "anywhere"), "anywhere",
+                              0.5)):
+        res = _cli("estimate", cycle_files / "model.json", cycle_files / "cycle.csv",
+                   "--soc0", "0.9", "--json", *(args if "--window-s" in args else
+                                                  ("--window-s", "300", "1100") + args))
+        assert res.returncode == 0, res.stderr
+        doc = json.loads(res.stdout)
+        assert doc["start"] == start and doc["settings"]["start_polarization_c"] == pol
     _, err = _cli_fails("estimate", cycle_files / "model.json", cycle_files / "cycle.csv",
                         "--soc0", "0.9", "--window-s", "5000", "6000")
     assert "cycle.csv" in err and "outside the record" in err
@@ -382,6 +397,12 @@ def test_cli_estimate_config_settings_from_the_other_cycles(cycle_files):
                "--config", cfg, "--soc0", "0.9", "--json")
     got = json.loads(res.stdout)["settings"]
     assert (got["model_error"], got["error_correlation_s"]) == (0.3, 50.0)
+    # a mid-record window (a start anywhere) keeps what the config sets or its cycles measured
+    res = _cli("estimate", cycle_files / "model.json", cycle_files / "cycle.csv",
+               "--config", cfg, "--soc0", "0.9", "--json", "--window-s", "300", "1100")
+    got = json.loads(res.stdout)["settings"]
+    assert (got["model_error"], got["polarization_error"]) == (0.3, 0.7)
+    assert got["start_polarization_c"] == 0.5 and got["resistance_slopes"] is False
     cfg.write_text(cfg.read_text() + "kalman = 1\n")
     _, err = _cli_fails("estimate", cycle_files / "model.json", cycle_files / "cycle.csv",
                         "--config", cfg)

@@ -9,6 +9,7 @@ import signal
 import sys
 import threading
 import warnings
+from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
@@ -265,10 +266,12 @@ def cmd_estimate(args) -> int:
     _check_numbers(args)
     model = load_model(args.model)
     settings = EstimatorConfig()
+    set_keys: set = set()               # the [estimator] keys the config sets
     if args.config:
         from .pipeline import read_series
 
         cfg = load_config(args.config)
+        set_keys = set(cfg.raw.get("estimator") or {})
         if out is not None:
             check_output_file(out, _given(cfg))
         if args.window_s is not None:   # the option wins over data.cycle_window_s
@@ -277,7 +280,11 @@ def cmd_estimate(args) -> int:
             cfg = replace(cfg, cycle_window_s=None)
         settings = cfg.estimator
         series = read_series(cfg, Path(args.cycle), "cycle")
-        settings = _settings_from_validation(cfg, model, settings, Path(args.cycle))
+        measured = _settings_from_validation(cfg, model, settings, Path(args.cycle))
+        # a model error measured on the cell's own cycles wins over a start's defaults too
+        set_keys |= {f.name for f in fields(settings)
+                     if getattr(measured, f.name) != getattr(settings, f.name)}
+        settings = measured
     else:
         series = read_timeseries(args.cycle, capacity_ah=model.capacity_ah)
     if args.filter:
@@ -292,8 +299,14 @@ def cmd_estimate(args) -> int:
             series = replace(series, temperature_c=np.full(series.time_s.size,
                                                            args.temperature_c))
         soc0 = initial_soc(model, series)
+    start = args.start
     if args.window_s is not None:
+        first_t = float(series.time_s[0])
         series, soc0 = _window_start(model, series, soc0, args.window_s)
+        if start is None and float(series.time_s[0]) > first_t:
+            start = "anywhere"          # a mid-record cut: nothing says the cell rested
+    settings = _start_settings(settings, start, set_keys)
+    start = "anywhere" if settings.start_polarization_c > 0.0 else "rested"
     guess = soc0 if args.soc0_guess is None else args.soc0_guess
     run = estimate_record(model, series, guess, soc0, settings,
                           current_offset_a=args.current_offset_a,
@@ -306,7 +319,7 @@ def cmd_estimate(args) -> int:
                                        current_offset_a=args.current_offset_a,
                                        current_gain=args.current_gain,
                                        window_s=args.window_s,
-                                       filter=settings.filter,
+                                       filter=settings.filter, start=start,
                                        settings=asdict(settings))))
     else:
         conv = "never" if f.converge_s is None else f"{f.converge_s:.0f} s"
@@ -314,8 +327,27 @@ def cmd_estimate(args) -> int:
               f"max {f.soc_max_abs * 100:.2f} % ({f.soc_max_abs_after_600s * 100:.2f} % "
               f"after 600 s), within 2 % from {conv}; coulomb counting RMSE "
               f"{cc.soc_rmse * 100:.2f} %, max {cc.soc_max_abs * 100:.2f} % "
-              f"(soc0 {soc0:.4f}, guess {guess:.4f})")
+              f"(soc0 {soc0:.4f}, guess {guess:.4f}, start {start})")
     return 0
+
+
+def _start_settings(settings, start: str | None, set_keys: set):
+    """The filter's settings for ``start``: "anywhere" takes the start-anywhere settings
+    (config.START_ANYWHERE) where the config's [estimator] does not set a key (and a start
+    polarisation of 0 becomes theirs); "rested" a start polarisation of 0; None: as they
+    are."""
+    from dataclasses import replace
+
+    from .config import START_ANYWHERE
+
+    if start == "rested":
+        return replace(settings, start_polarization_c=0.0)
+    if start == "anywhere":
+        new = {k: v for k, v in START_ANYWHERE.items() if k not in set_keys}
+        if settings.start_polarization_c <= 0.0:
+            new["start_polarization_c"] = START_ANYWHERE["start_polarization_c"]
+        return replace(settings, **new)
+    return settings
 
 
 def _window_start(model, series, soc0: float, window_s):
@@ -579,6 +611,11 @@ def parser() -> argparse.ArgumentParser:
                    help="start the filter at T0 (the file's own time) and run it to T1; "
                         "--soc0 stays the SOC at the file's start, --soc0-guess is the "
                         "guess at T0")
+    e.add_argument("--start", choices=["rested", "anywhere"],
+                   help="how the record starts: rested (its first voltage read as the OCV) "
+                        "or anywhere (under load or mid-relaxation: the start-anywhere "
+                        "settings where [estimator] sets none); default: the config's, "
+                        "anywhere when --window-s cuts the record")
     e.add_argument("--out", help="write time_s,soc,soc_sigma,voltage_pred_v,soc_ref here")
     e.add_argument("--json", action="store_true")
     e.add_argument("--quiet", action="store_true", help="(no progress is shown anyway)")

@@ -114,6 +114,12 @@ def c_prefix_problem(prefix) -> str | None:
 
 
 ESTIMATOR_FILTERS = ("ekf", "ukf")
+# The settings of a start anywhere (under load, mid-relaxation), chosen on the Panasonic 25
+# and 0 degC cycles cut to start at SOC 0.3-0.7 (bench/estimate_any_start.py,
+# docs/estimator.md): `ecmgen estimate --start anywhere`, the default of a mid-record window
+START_ANYWHERE = dict(start_polarization_c=0.5, resistance_slopes=False, model_error=0.12,
+                      polarization_error=1.0, polarization_soc_sigma=0.01)
+
 C_ESTIMATORS = ("none", "ekf")      # [c] estimator: the filter generated into the float C
 
 
