@@ -70,6 +70,7 @@ def test_a_typo_is_refused_in_every_section_with_the_nearest_name(folder, capsys
     (HEAD + "[c]\nnumeric = \"double\"\n", "c.numeric must be one of"),
     (HEAD + "[dcir]\nmin_rest_s = \"30 s\"\n", "dcir.min_rest_s must be a number"),
     (HEAD + "[estimator]\ncurrent_gain_error = 2.0\n", "estimator.current_gain_error"),
+    (HEAD + "[estimator]\nstart = \"loaded\"\n", "estimator.start must be one of"),
     (HEAD + "[diagnose]\nsplit = 0.95\n", "diagnose.split must lie in"),
     (HEAD + "[data.columns]\ntime = 0\n", "data.columns.time must be a column name"),
     (HEAD + "[fit]\nseed = -1\n", "fit.seed must lie in"),
@@ -79,9 +80,24 @@ def test_values_are_checked_against_their_row(folder, text, words):
         load(folder, text)
 
 
+def test_estimator_start_anywhere_sets_the_start_anywhere_settings(folder):
+    """[estimator] start = "anywhere": the chosen start-anywhere settings (the C filter built
+    from the config too), each under a key the table sets."""
+    from ecmgen.config import START_ANYWHERE
+
+    cfg = load(folder, HEAD + "[estimator]\nstart = \"anywhere\"\nmodel_error = 0.2\n")
+    got = {k: getattr(cfg.estimator, k) for k in START_ANYWHERE}
+    assert got == dict(START_ANYWHERE, model_error=0.2)
+    assert load(folder, HEAD).estimator.start_polarization_c == 0.0
+    with pytest.raises(InputError, match="needs start_polarization_c above 0"):
+        load(folder, HEAD + "[estimator]\nstart = \"anywhere\"\nstart_polarization_c = 0\n")
+
+
 def test_the_loader_lists_and_defaults_are_the_schema_rows():
     est = BY_NAME["estimator"]
-    assert [k.name for k in est.keys] == [f.name for f in fields(EstimatorConfig)]
+    # "start" is the one key that is not a field: it sets the start-anywhere fields
+    assert [k.name for k in est.keys if k.name != "start"] == [f.name for f in
+                                                              fields(EstimatorConfig)]
     for f in fields(EstimatorConfig):
         shown = est.key(f.name).default
         if isinstance(f.default, bool):

@@ -303,7 +303,8 @@ def cmd_estimate(args) -> int:
     if args.window_s is not None:
         first_t = float(series.time_s[0])
         series, soc0 = _window_start(model, series, soc0, args.window_s)
-        if start is None and float(series.time_s[0]) > first_t:
+        if (start is None and float(series.time_s[0]) > first_t
+                and not set_keys & {"start", "start_polarization_c"}):
             start = "anywhere"          # a mid-record cut: nothing says the cell rested
     settings = _start_settings(settings, start, set_keys)
     start = "anywhere" if settings.start_polarization_c > 0.0 else "rested"

@@ -128,9 +128,20 @@ def estimator_config(table: dict, path: Path | None) -> EstimatorConfig:
     if not isinstance(table, dict):
         raise InputError(path, "[estimator] must be a table")
     known = {f.name: f for f in fields(EstimatorConfig)}
-    unknown = sorted(set(table) - set(known))
+    unknown = sorted(set(table) - set(known) - {"start"})
     if unknown:
-        raise InputError(path, f"estimator: unknown key(s) {unknown}; known: {sorted(known)}")
+        raise InputError(path, f"estimator: unknown key(s) {unknown}; "
+                               f"known: {sorted(set(known) | {'start'})}")
+    table = dict(table)
+    start = table.pop("start", "rested")
+    if start not in ("rested", "anywhere"):
+        raise InputError(path, f"estimator.start must be \"rested\" or \"anywhere\", "
+                               f"got {start!r}")
+    if start == "anywhere":      # the start-anywhere settings under the keys set here
+        table = {**START_ANYWHERE, **table}
+        if not table["start_polarization_c"]:
+            raise InputError(path, "estimator.start = \"anywhere\" needs "
+                                   "start_polarization_c above 0")
     kw: dict[str, Any] = {}
     for key, value in table.items():
         kind = known[key].type

@@ -193,6 +193,9 @@ SECTIONS: tuple[Section, ...] = (
     Section("estimator", "the SOC filter (ecmgen estimate, [c] estimator); the sensor "
             "figures are one sigma", (
         Key("filter", CHOICE, "the filter", choices=("ekf", "ukf"), default='"ekf"'),
+        Key("start", CHOICE, "how a record starts: rested (its first voltage the OCV) or "
+            "anywhere (the start-anywhere settings under the keys set here)",
+            choices=("rested", "anywhere"), default='"rested"'),
         Key("offset_state", BOOL, "the current sensor's offset as a state", default="false"),
         Key("soc0_sigma", NUMBER, "how uncertain the start SOC is told to be", unit="SOC",
             range=(1e-9, 1.0), default="0.3"),
