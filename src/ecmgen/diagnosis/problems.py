@@ -51,7 +51,8 @@ def _specs(name: str, model: EcmModel, ctx: dict) -> dict[str, _Spec]:
     if name == fx.Hysteresis.name:
         return {"m_v": _Spec(0.0, 0.3, False, limit_hi=True),
                 "decay_ah": _Spec(0.002 * q, 0.5 * q, True),
-                "m0_v": _Spec(0.0, 0.1, False, limit_hi=True), "ocv_table_state": _Spec(-1.0, 1.0, False),
+                "m0_v": _Spec(0.0, 0.1, False, limit_hi=True),
+                "ocv_table_state": _Spec(-1.0, 1.0, False),
                 "initial_state": _Spec(-1.0, 1.0, False)}
     if name == fx.CurrentDependentResistance.name:
         return {"scale_at_zero": _Spec(0.2, 5.0, True), "i0_a": _Spec(0.02 * q, 50.0 * q, True)}

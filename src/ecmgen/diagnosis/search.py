@@ -394,8 +394,6 @@ def _mae(e: np.ndarray) -> float:
 
 
 JUDGE_SOC_MIN = 0.1      # held-out samples at or below this SOC are not judged
-
-
 MIN_JUDGED = 50          # fewer held-out samples above JUDGE_SOC_MIN: nothing to judge
 
 
