@@ -279,3 +279,13 @@ def test_a_record_of_another_cell_is_said_to_be_one(folder, capsys):
     doc = json.loads(capsys.readouterr().out)
     assert doc["mae_v"] > 0.15
     assert any("another cell" in w for w in doc["warnings"]), doc["warnings"]
+
+
+def test_diagnose_cycle_naming_a_missing_file_is_one_line(folder, capsys):
+    """[diagnose] cycle (the record to diagnose on) must exist, like judge."""
+    cfg = folder / "d.toml"
+    cfg.write_text('[cell]\ncapacity_ah = 2.9\n[data]\npulses = "pulses.csv"\n'
+                   'ocv = "ocv.csv"\n[diagnose]\ncycle = "nope.csv"\n')
+    assert main(["diagnose", str(cfg), "--out", str(folder / "out"), "-q"]) == 2
+    one_line_error(capsys, "d.toml", "diagnose.cycle names a missing file: nope.csv")
+    assert not (folder / "out").exists()
