@@ -115,5 +115,5 @@ def test_a_cycle_below_10_percent_soc_is_refused_with_its_name(tmp_path, capsys)
     assert main(["diagnose", str(tmp_path / "config.toml"), "--out", str(tmp_path / "out"),
                  "-q", "--no-plots"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and str(s2) in err[0] and "above 10 % SOC in only 0" in err[0]
+    assert len(err) == 1 and s2.name in err[0] and "above 10 % SOC in only 0" in err[0]
     assert not (tmp_path / "out").exists()
