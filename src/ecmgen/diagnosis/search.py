@@ -439,7 +439,8 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
     judge_soc_min    held-out samples where the base model's SOC is at or below this are
                      not judged (the end-of-discharge knee of the OCV: there the error
                      measures where the cell ends, not the effect; the validation's MAE
-                     above 10 % SOC leaves them out for the same reason)
+                     above 10 % SOC leaves them out for the same reason);
+                     :class:`NothingToJudge` when fewer than ``MIN_JUDGED`` are above
     max_fit_samples  longer fit parts are block-averaged to this many samples for the
                      parameter fits (judging is always at full resolution)
     max_nfev         Gauss-Newton iterations per fit
