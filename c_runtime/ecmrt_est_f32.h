@@ -497,7 +497,7 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     }
     /* the first sample: the RC voltages are unknown (a record may start under load or
      * mid-relaxation), sigma r_j start_a with the resistances at the start */
-    if (*first) {
+    if (*first == 1u) {             /* (2: a rested start, as start_a = 0) */
         e = rg * nz->start_a;
         q[1] = q[1] + e * e;
         e = p.rs * nz->start_a;
@@ -572,8 +572,8 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     }
     e = nz->model_error * e;
     r = nz->vn2 + e * e;
-    /* a record taken to start rested (start_a = 0): its first sample counts fully */
-    if (!(*first && nz->start_a == 0.0f) && dt < nz->corr_s) {
+    /* a record taken to start rested (start_a = 0, or first 2): its first sample counts fully */
+    if (!(*first == 2u || (*first != 0u && nz->start_a == 0.0f)) && dt < nz->corr_s) {
         r = dt > 0.0f ? r * (nz->corr_s / dt) : 0.0f;
     }
     *first = 0u;

@@ -107,6 +107,25 @@ def test_a_start_anywhere_leaves_the_hysteresis_direction_unknown(settings):
     assert e.p[ih * n + ih] == np.float32(want_p) and f.P[ih][ih] == pytest.approx(want_p)
 
 
+def test_a_rested_init_is_the_build_started_rested():
+    """<prefix>_est_init_rested on a filter built to start anywhere is, bit for bit, the filter
+    built with start_polarization_c = 0 and its own init (every effect, the offset state):
+    one build serves a power-on after a rest and a reset mid-drive."""
+    m = _effects_model("all-effects")
+    anywhere = EstimatorConfig(offset_state=True, **ANYWHERE_FLAT)
+    rested = EstimatorConfig(offset_state=True, **dict(ANYWHERE_FLAT, start_polarization_c=0.0))
+    cm_any, cm_rest = _compiled(m, "any", anywhere), _compiled(m, "rest", rested)
+    t, i, temp = drive_profile(600, seed=3)
+    v = simulate(m, t, i, 0.7, temp).voltage_v
+    dt = cref.dt_from_time(t)
+    got = run_estimator_c(cm_any, i + 0.05, dt, v, 0.5, temp, rested=True)
+    assert bits_equal(got, run_estimator_c(cm_rest, i + 0.05, dt, v, 0.5, temp))
+    assert not bits_equal(got, run_estimator_c(cm_any, i + 0.05, dt, v, 0.5, temp))
+    # a filter built rested: its rested init is its init
+    assert bits_equal(run_estimator_c(cm_rest, i, dt, v, 0.5, temp, rested=True),
+                      run_estimator_c(cm_rest, i, dt, v, 0.5, temp))
+
+
 def _grids(m):
     return np.concatenate([m.ocv.soc, m.charge.soc, m.discharge.soc])
 

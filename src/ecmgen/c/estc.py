@@ -163,6 +163,7 @@ def cdef(spec: CSpec, est: EstSpec) -> str:
         + ("float offset_a; " if est.offset else "") + ("float eta_v; " if est.memory else "")
         + f"uint8_t first; }} {et};",
         f"void {nm['est_init']}({et} *e, float soc0);",
+        f"void {nm['est_init_rested']}({et} *e, float soc0);",
         f"float {nm['est_step']}({et} *e, float i, float temperature, float dt, float v);",
         est_trace_signature(spec) + ";",
         "size_t ecmh_est_size(void);",

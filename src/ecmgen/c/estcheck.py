@@ -14,10 +14,11 @@ from . import cref
 from .estref import EstRef, simulate_estimator_f32
 
 
-def run_estimator_c(cm, current_a, dt_s, voltage_v, soc0: float, temperature_c=None) -> EstRef:
-    """``<prefix>_est_init(soc0)`` and ``<prefix>_est_step`` over the record, in C (``cm`` a
-    CModel compiled with an estimator): the predicted voltage, state and covariance per
-    sample."""
+def run_estimator_c(cm, current_a, dt_s, voltage_v, soc0: float, temperature_c=None,
+                    rested: bool = False) -> EstRef:
+    """``<prefix>_est_init(soc0)`` (``rested``: ``<prefix>_est_init_rested``) and
+    ``<prefix>_est_step`` over the record, in C (``cm`` a CModel compiled with an
+    estimator): the predicted voltage, state and covariance per sample."""
     est = cm.estimator
     if est is None:
         raise ValueError("this CModel has no estimator")
@@ -32,7 +33,7 @@ def run_estimator_c(cm, current_a, dt_s, voltage_v, soc0: float, temperature_c=N
         raise ValueError("current, dt and voltage differ in length")
     nm = c_names(cm.spec.prefix, "float")
     e = cm.ffi.new(f"{nm['est_t']} *")
-    getattr(cm.lib, nm["est_init"])(e, float(f32(soc0)))
+    getattr(cm.lib, nm["est_init_rested" if rested else "est_init"])(e, float(f32(soc0)))
     vp = np.empty(n, dtype=f32)
     x = np.empty((n, est.n), dtype=f32)
     pm = np.empty((n, est.n, est.n), dtype=f32)

@@ -44,5 +44,6 @@ def c_names(prefix: str, numeric: str) -> dict[str, str]:
         "est_header": f"{prefix}_est_f32.h", "est_source": f"{prefix}_est_f32.c",
         "est_t": f"{prefix}_est_f32_t",
         "est_init": f"{prefix}_est_init_f32", "est_step": f"{prefix}_est_step_f32",
+        "est_init_rested": f"{prefix}_est_init_rested_f32",
         "EM": f"{P}_EST_F32",
     }
