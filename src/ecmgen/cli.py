@@ -9,7 +9,6 @@ import signal
 import sys
 import threading
 import warnings
-from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
@@ -253,7 +252,7 @@ def cmd_validate(args) -> int:
 def cmd_estimate(args) -> int:
     from dataclasses import asdict
 
-    from .config import EstimatorConfig, load_config
+    from .config import EstimatorConfig, load_config, start_settings
     from .data.measure import read_timeseries
     from .estimate.run import estimate_csv_text, estimate_json, estimate_record
     from .files import write_atomic
@@ -280,11 +279,9 @@ def cmd_estimate(args) -> int:
             cfg = replace(cfg, cycle_window_s=None)
         settings = cfg.estimator
         series = read_series(cfg, Path(args.cycle), "cycle")
-        measured = _settings_from_validation(cfg, model, settings, Path(args.cycle))
-        # a model error measured on the cell's own cycles wins over a start's defaults too
-        set_keys |= {f.name for f in fields(settings)
-                     if getattr(measured, f.name) != getattr(settings, f.name)}
-        settings = measured
+        settings, measured = _settings_from_validation(cfg, model, settings,
+                                                       Path(args.cycle))
+        set_keys |= measured    # measured on the cell's own cycles: wins over a start's too
     else:
         series = read_timeseries(args.cycle, capacity_ah=model.capacity_ah)
     if args.filter:
@@ -306,7 +303,7 @@ def cmd_estimate(args) -> int:
         if (start is None and float(series.time_s[0]) > first_t
                 and not set_keys & {"start", "start_polarization_c"}):
             start = "anywhere"          # a mid-record cut: nothing says the cell rested
-    settings = _start_settings(settings, start, set_keys)
+    settings = start_settings(settings, start, set_keys)
     start = "anywhere" if settings.start_polarization_c > 0.0 else "rested"
     guess = soc0 if args.soc0_guess is None else args.soc0_guess
     run = estimate_record(model, series, guess, soc0, settings,
@@ -332,25 +329,6 @@ def cmd_estimate(args) -> int:
     return 0
 
 
-def _start_settings(settings, start: str | None, set_keys: set):
-    """The filter's settings for ``start``: "anywhere" takes the start-anywhere settings
-    (config.START_ANYWHERE) where the config's [estimator] does not set a key (and a start
-    polarisation of 0 becomes theirs); "rested" a start polarisation of 0; None: as they
-    are."""
-    from dataclasses import replace
-
-    from .config import START_ANYWHERE
-
-    if start == "rested":
-        return replace(settings, start_polarization_c=0.0)
-    if start == "anywhere":
-        new = {k: v for k, v in START_ANYWHERE.items() if k not in set_keys}
-        if settings.start_polarization_c <= 0.0:
-            new["start_polarization_c"] = START_ANYWHERE["start_polarization_c"]
-        return replace(settings, **new)
-    return settings
-
-
 def _window_start(model, series, soc0: float, window_s):
     """The record cut to ``window_s`` and its true SOC at the window's first sample (the
     measured current counted from ``soc0`` at the record's start): a mid-record start,
@@ -366,7 +344,8 @@ def _window_start(model, series, soc0: float, window_s):
 def _settings_from_validation(cfg, model, settings, cycle: Path):
     """[estimator] model_error / error_correlation_s not set in the config: measured on the
     config's validation cycles (data.cycle, data.extra_cycles), leaving out the cycle being
-    estimated, so that its own residual never tunes its filter."""
+    estimated, so that its own residual never tunes its filter. Returns (settings, the keys
+    measured)."""
     from dataclasses import replace
 
     from .estimate.residual import settings_from_cycles
@@ -374,15 +353,16 @@ def _settings_from_validation(cfg, model, settings, cycle: Path):
 
     given = cfg.raw.get("estimator", {})
     if "model_error" in given and "error_correlation_s" in given:
-        return settings
+        return settings, set()
     paths = ([(cfg.cycle, "cycle")] if cfg.cycle else []) + \
         [(p, "extra_cycles") for p in cfg.extra_cycles]
     others = [read_series(cfg, p, role) for p, role in paths
               if p.resolve() != cycle.resolve()]
     figures = settings_from_cycles(model, others, cfg.soc0, settings.voltage_noise_v)
     if figures is None:
-        return settings
-    return replace(settings, **{k: v for k, v in figures.as_dict().items() if k not in given})
+        return settings, set()
+    measured = {k: v for k, v in figures.as_dict().items() if k not in given}
+    return replace(settings, **measured), set(measured)
 
 
 def cmd_verify(args) -> int:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 import re
 import tomllib
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -120,6 +120,24 @@ ESTIMATOR_FILTERS = ("ekf", "ukf")
 START_ANYWHERE = dict(start_polarization_c=0.5, resistance_slopes=False, model_error=0.12,
                       polarization_error=1.0, polarization_soc_sigma=0.01)
 
+ESTIMATOR_STARTS = ("rested", "anywhere")
+
+
+def start_settings(settings: EstimatorConfig, start: str | None,
+                   set_keys=frozenset()) -> EstimatorConfig:
+    """``settings`` for ``start``: "anywhere" takes START_ANYWHERE under every key not in
+    ``set_keys`` (those a config sets or a measurement gave), and a start polarisation of 0
+    becomes theirs; "rested" a start polarisation of 0; None: as they are."""
+    if start == "rested":
+        return replace(settings, start_polarization_c=0.0)
+    if start == "anywhere":
+        new = {k: v for k, v in START_ANYWHERE.items() if k not in set_keys}
+        if settings.start_polarization_c <= 0.0:
+            new["start_polarization_c"] = START_ANYWHERE["start_polarization_c"]
+        return replace(settings, **new)
+    return settings
+
+
 C_ESTIMATORS = ("none", "ekf")      # [c] estimator: the filter generated into the float C
 
 
@@ -134,14 +152,12 @@ def estimator_config(table: dict, path: Path | None) -> EstimatorConfig:
                                f"known: {sorted(set(known) | {'start'})}")
     table = dict(table)
     start = table.pop("start", "rested")
-    if start not in ("rested", "anywhere"):
+    if start not in ESTIMATOR_STARTS:
         raise InputError(path, f"estimator.start must be \"rested\" or \"anywhere\", "
                                f"got {start!r}")
-    if start == "anywhere":      # the start-anywhere settings under the keys set here
-        table = {**START_ANYWHERE, **table}
-        if not table["start_polarization_c"]:
-            raise InputError(path, "estimator.start = \"anywhere\" needs "
-                                   "start_polarization_c above 0")
+    if start == "anywhere" and table.get("start_polarization_c", 1.0) == 0:
+        raise InputError(path, "estimator.start = \"anywhere\" needs "
+                               "start_polarization_c above 0")
     kw: dict[str, Any] = {}
     for key, value in table.items():
         kind = known[key].type
@@ -154,8 +170,9 @@ def estimator_config(table: dict, path: Path | None) -> EstimatorConfig:
         elif isinstance(value, bool) or not isinstance(value, (int, float)):
             raise InputError(path, f"estimator.{key} must be a number, got {value!r}")
         kw[key] = float(value) if kind.startswith("float") else value
-    try:
-        return EstimatorConfig(**kw)
+    try:        # the start-anywhere settings under the keys set here
+        return start_settings(EstimatorConfig(**kw), start if start == "anywhere" else None,
+                              set(kw))
     except ValueError as exc:
         raise InputError(path, f"estimator: {exc}") from None
 

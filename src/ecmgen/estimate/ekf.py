@@ -98,6 +98,11 @@ class NoiseModel:
                           error_memory_s=cfg.error_memory_s,
                           polarization_soc_sigma=cfg.polarization_soc_sigma)
 
+    @property
+    def anywhere(self) -> bool:
+        """A record that may start anywhere (under load, mid-relaxation), not rested."""
+        return self.start_current_a > 0.0
+
     def error_overpotential(self, v_pred: float, ocv: float, dt: float, held: float
                             ) -> float:
         """The overpotential the model error scales with: |v_pred - ocv|, or with
@@ -117,7 +122,7 @@ class NoiseModel:
         taken to start rested)."""
         eta = self.model_error * eta
         var = self.voltage_noise_v * self.voltage_noise_v + eta * eta
-        if (first and self.start_current_a == 0.0) or dt >= self.error_correlation_s:
+        if (first and not self.anywhere) or dt >= self.error_correlation_s:
             return var
         if dt <= 0.0:
             return 0.0
@@ -134,7 +139,7 @@ def initial_covariance(step: StepModel, noise: NoiseModel) -> np.ndarray:
     for s in range(1, n):
         P[s][s] = noise.u0_sigma_v ** 2
     if step.i_h >= 0:
-        P[step.i_h][step.i_h] = (HYSTERESIS_START_VAR if noise.start_current_a > 0.0
+        P[step.i_h][step.i_h] = (HYSTERESIS_START_VAR if noise.anywhere
                                  else noise.hysteresis_sigma ** 2)
     if step.i_b >= 0:
         P[step.i_b][step.i_b] = noise.offset_sigma_a ** 2
@@ -147,7 +152,7 @@ def initial_state(step: StepModel, soc0: float, noise: NoiseModel) -> list[float
     x = [0.0] * step.n
     x[0] = soc0
     if step.i_h >= 0:
-        x[step.i_h] = 0.0 if noise.start_current_a > 0.0 else step.hyst.initial_state
+        x[step.i_h] = 0.0 if noise.anywhere else step.hyst.initial_state
     return x
 
 
