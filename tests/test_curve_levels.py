@@ -87,3 +87,26 @@ def test_rows_beyond_the_pulses_soc_do_not_count(pulse_test, monkeypatch):
                    for k in ("r0_ohm", "r_fast_ohm", "r_slow_ohm"))
     # measured: 7 % (the 36 s within the margin) against 162 % with every row counting
     assert moved(b) < 0.1 and moved(c) > 10 * moved(b)
+
+
+def test_the_log_penalty_is_the_second_difference_of_ln_r_near_its_references():
+    from ecmgen.fit.curve_levels import log_penalty
+
+    nodes = np.array([0.05, 0.1, 0.2, 0.35, 0.5, 0.7, 0.9])
+    dd = second_difference(nodes)
+    ref = 0.002 * np.exp(np.array([2.1, 1.4, 0.3, 0.2, 0.0, 0.1, 0.15]))
+    ww, wb, bb = log_penalty(dd, ref)
+    s = float(np.mean(ref))
+
+    def quadratic(r):
+        return float(r @ ww @ r - 2.0 * wb @ r + bb)
+
+    def exact(r):
+        return float(np.sum((s * (dd @ np.log(r))) ** 2))
+
+    assert quadratic(ref) == pytest.approx(exact(ref), rel=1e-12)
+    step = np.random.default_rng(0).normal(size=ref.size)
+    # first-order accurate: the mismatch falls with the square of the step
+    e1, e2 = (abs(quadratic(ref * np.exp(h * step)) - exact(ref * np.exp(h * step)))
+              for h in (1e-2, 1e-3))
+    assert e2 < 2e-2 * e1

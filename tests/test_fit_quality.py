@@ -33,3 +33,15 @@ def test_model_quality_counts_non_positive_values_and_fails(synthetic_model):
     words = quality_words("curve", q)
     assert "1 table value(s) <= 0" in words and words.startswith("model 'curve' fails")
     assert q.as_dict()["roughness_limit"] == ROUGHNESS_LIMIT
+
+
+def test_roughness_counts_the_fitted_span_only():
+    """A table rising towards empty (ln r quadratic in SOC) and held at its end value
+    below the lowest level: the bend where the hold starts is the hold's, not the fit's."""
+    soc = np.linspace(0.0, 1.0, 21)
+    rising = 0.01 * np.exp(40.0 * np.maximum(0.5 - soc, 0.0) ** 2)
+    rising[:3] = rising[3]                                 # held below SOC 0.15
+    whole, at = roughness(soc, rising)
+    assert at == pytest.approx(0.15) and whole == pytest.approx(0.65)
+    inside, _ = roughness(soc, rising, soc >= 0.15 - 1e-9)
+    assert inside == pytest.approx(0.1)                    # 40 x 0.05^2, the fit's own bend

@@ -98,7 +98,7 @@ from ..data.ocv import OcvTable
 from ..data.steps import merge_soc_steps
 from ..errors import InputError
 from .curve_levels import (choose_penalty, data_tau_ranges, level_nodes, level_windows,
-                           tied_slow_pairs)
+                           log_penalty, log_references, second_difference, tied_slow_pairs)
 from .curve_record import Record, W_SPAN_S, hats, pulse_record, rc_response, side_by_side
 from .lsq import log_grid, nelder_mead, solve_bounded
 
@@ -239,7 +239,9 @@ class _Problem:
         self.yw = rec.y[self.rows] * self.w
         self.yy = float(self.yw @ self.yw)
         self.r0w = np.asfortranarray((self.r0_full.T[:, self.rows] * self.w).T)
-        self.dtd = [d.T @ d for d in (second_difference(b) for b in self.bases)]
+        self.dd = [second_difference(b) for b in self.bases]
+        self.dtd = [d.T @ d for d in self.dd]
+        self.log_ref: dict = {}          # column start -> values the penalty on ln r is about
         self.penalty = PENALTY
         self.cv_sse = float("inf")      # held-out error leaving one level out (the fit's)
         # the SOC level (index) each row belongs to, -1 between levels (leave-one-out)
@@ -291,18 +293,28 @@ class _Problem:
                   if self.sizes[d] >= 3]
         return dict(start=start, free=np.concatenate(free), smooth=smooth)
 
-    def regularised(self, gram: np.ndarray, lay: dict, penalty: float | None = None
-                    ) -> np.ndarray:
-        """gram + the second-difference penalty (relative to each run's column scale) + a
-        tiny ridge (columns no row sees, e.g. with a short relax_s, would be singular)."""
+    def regularised(self, gram: np.ndarray, g: np.ndarray, lay: dict,
+                    penalty: float | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+        """(gram, g) + the second-difference penalty (relative to each run's column scale)
+        + a tiny ridge (columns no row sees, e.g. with a short relax_s, would be singular).
+        A run with references in ``log_ref`` has its penalty on ln r instead, linearised
+        about them (:func:`log_penalty`); the third term is then its constant part."""
         lam = self.penalty if penalty is None else penalty
-        m = gram.copy()
+        m, q, k = gram.copy(), g.copy(), 0.0
         scale = np.sqrt(np.maximum(np.diag(gram), 0.0))
         for a, n, d in lay["smooth"]:
             sl = slice(a, a + n)
-            m[sl, sl] += lam * float(np.mean(scale[sl])) ** 2 * self.dtd[d]
+            c = lam * float(np.mean(scale[sl])) ** 2
+            ref = self.log_ref.get(a)
+            if ref is None:
+                m[sl, sl] += c * self.dtd[d]
+            else:
+                pm, pq, pk = log_penalty(self.dd[d], ref)
+                m[sl, sl] += c * pm
+                q[sl] += c * pq
+                k += c * pk
         m[np.diag_indices_from(m)] += 1e-12 * float(np.mean(np.diag(gram))) + 1e-300
-        return m
+        return m, q, k
 
     def solve(self, gram: np.ndarray, g: np.ndarray, lay: dict, hold_r0: bool = False
               ) -> tuple[np.ndarray, float]:
@@ -310,7 +322,7 @@ class _Problem:
         free; returns the solution and the objective (weighted SSE + penalty). With
         ``hold_r0`` the held r0 nodes and their sources are then fixed at the sources'
         values and the rest solved again."""
-        m = self.regularised(gram, lay)
+        m, g, k = self.regularised(gram, g, lay)
         x = solve_bounded(m, g, lay["free"])
         if hold_r0 and self.r0_held.size:
             fixed = np.zeros(x.size, bool)
@@ -319,7 +331,7 @@ class _Problem:
             ix = np.ix_(~fixed, ~fixed)
             x[~fixed] = solve_bounded(m[ix], g[~fixed] - m[np.ix_(~fixed, fixed)] @ x[fixed],
                                       lay["free"][~fixed])
-        return x, self.yy - 2.0 * float(g @ x) + float(x @ m @ x)
+        return x, self.yy + k - 2.0 * float(g @ x) + float(x @ m @ x)
 
 
 def _after_charge(i: np.ndarray) -> np.ndarray:
@@ -327,22 +339,6 @@ def _after_charge(i: np.ndarray) -> np.ndarray:
     k = np.where(i != 0.0, np.arange(i.size), -1)
     np.maximum.accumulate(k, out=k)
     return np.where(k >= 0, i[np.maximum(k, 0)] > 0, False)
-
-
-def second_difference(nodes: np.ndarray) -> np.ndarray:
-    """Second divided differences on (possibly uneven) nodes, scaled by the mean spacing
-    squared: [1, -2, 1] on an even grid; no rows for fewer than three nodes."""
-    n = nodes.size
-    if n < 3:
-        return np.zeros((0, n))
-    h = np.diff(nodes)
-    hbar = float(np.mean(h))
-    d = np.zeros((n - 2, n))
-    for k in range(1, n - 1):
-        h1, h2 = h[k - 1], h[k]
-        c = 2.0 / (h1 + h2) * hbar ** 2
-        d[k - 1, k - 1:k + 2] = (c / h1, -c * (1.0 / h1 + 1.0 / h2), c / h2)
-    return d
 
 
 # ---------------------------------------------------------------- the time constants
@@ -510,7 +506,7 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
     # the fitted voltage at every kept sample (plots, per-node errors)
     full = side_by_side([prob.r0_full] + [prob.block(k, taus[k], full=True) for k in kinds])
     fitted = rec.y - full @ x                            # residual, measured minus fitted
-    fits = _direction_fits(prob, x, kinds, nodes, complete, spans, fitted, rms, notes)
+    fits = _direction_fits(prob, x, kinds, nodes, spans, fitted, rms, notes)
     if len(directions) == 1:
         other = "charge" if directions[0] == "discharge" else "discharge"
         fits[other] = fits[directions[0]]
@@ -574,8 +570,8 @@ def _fit_problem(rec: Record, complete, directions, capacity_ah: float, i0_a, sp
     return prob, got[:3] + (f0[3] + f1[3],) + got[4:], notes
 
 
-def _direction_fits(prob: _Problem, x: np.ndarray, kinds, nodes: np.ndarray, complete,
-                    spans: dict, fitted: np.ndarray, rms: float, notes: list) -> dict:
+def _direction_fits(prob: _Problem, x: np.ndarray, kinds, nodes: np.ndarray, spans: dict,
+                    fitted: np.ndarray, rms: float, notes: list) -> dict:
     """Each fitted direction's tables on the output SOC ``nodes`` (interpolated between its
     levels, flat beyond), with notes on what was held."""
     rec = prob.rec
@@ -589,14 +585,12 @@ def _direction_fits(prob: _Problem, x: np.ndarray, kinds, nodes: np.ndarray, com
         s0, ns = prob.offsets[n_s], prob.sizes[n_s]
         rs = np.interp(nodes, prob.bases[n_s], x[at["slow"] + s0:at["slow"] + s0 + ns])
         rd = float(x[at["diff"] + n_s]) if "diff" in at else None
-        low = min(p.soc for p in complete if p.direction == d)
-        high = max(p.soc for p in complete if p.direction == d)
-        ident = _identified(nodes, low, high)
+        ident = _identified(nodes, basis[0], basis[-1])
         if not ident.all():
             held = nodes[~ident]
             notes.append(f"curve: {d} r0/r_fast/r_slow held flat at SOC "
                          f"{', '.join(f'{s:g}' for s in held)} (outside the SOC levels "
-                         f"with a complete pulse, {low:.3f} .. {high:.3f})")
+                         f"with a complete pulse, {basis[0]:.3f} .. {basis[-1]:.3f})")
         held = basis[prob.r0_held[(prob.r0_held >= a0) & (prob.r0_held < a0 + nb)] - a0]
         if held.size:
             lo, hi, _, _, need = spans[d]
@@ -701,7 +695,28 @@ def _fit_time_constants(prob: _Problem, ranges: dict, progress=None):
         notes.append(f"curve: tau_{k} {taus[k]:.3g} s is on its search bound ({lo:.3g} .. "
                      f"{hi:.3g} s): {'shorter' if taus[k] <= lo * 1.01 else 'longer'} than "
                      "the test resolves; kept fixed there")
+    x, cost = _smooth_in_log(prob, list(ranges), taus, (x, cost))
     return taus, x, cost, n_eval, notes, ranges
+
+
+def _smooth_in_log(prob: _Problem, kinds, taus: dict, fit: tuple):
+    """``fit`` (x, objective) as it is, or the resistances again with the penalty on ln r
+    where that predicts the levels left out better (one Gauss-Newton step about ``fit``,
+    the weight chosen again leaving one level out). Resistances that span a decade over
+    SOC rise exponentially towards empty and in the cold: a penalty on r flattens the
+    steep end and bends the table at its knee. The choice between the OCV correction's
+    node sets stays with the penalty on r, so that it does not depend on r0's hold."""
+    z = side_by_side([prob.r0w] + [prob.block(k, taus[k]) for k in kinds])
+    lay = prob.layout(kinds)
+    linear = prob.penalty
+    before = choose_penalty(prob, z, lay, (linear,))[1].get(linear, float("inf"))
+    prob.log_ref = log_references(fit[0], lay["smooth"])
+    lam, errors = choose_penalty(prob, z, lay)
+    if not errors or errors[lam] >= before:
+        prob.log_ref, prob.penalty = {}, linear
+        return fit
+    prob.penalty = lam
+    return _solve_at(prob, kinds, taus, z)
 
 
 def _r0_spans(complete, directions) -> dict:
@@ -745,12 +760,9 @@ def _r0_holds(bases, offsets, directions, spans) -> tuple[np.ndarray, np.ndarray
 
 
 def _identified(nodes, low, high):
-    """Nodes the levels with a complete pulse pin down: from the node below the lowest
-    level (its pulses discharge below the level's SOC) to the node at or above the
-    highest."""
-    lo = nodes[max(int(np.searchsorted(nodes, low - 1e-9, side="left")) - 1, 0)]
-    hi = nodes[min(int(np.searchsorted(nodes, high - 1e-9, side="left")), nodes.size - 1)]
-    return (nodes >= lo) & (nodes <= hi)
+    """Nodes the levels with a complete pulse pin down: those within SPAN_MARGIN of the
+    levels' (mid-pulse) SOC range. Beyond it a table holds its end level's value."""
+    return (nodes >= low - SPAN_MARGIN) & (nodes <= high + SPAN_MARGIN)
 
 
 def _node_error(rec, prob, resid, nodes, mask, default):

@@ -15,6 +15,10 @@ from .points import SOC_LEVEL_GAP
 # 1e3: on the Leaf's 1 mV-resolution tests the held-out optimum lies at 30-100
 PENALTIES = tuple(10.0 ** np.arange(-6.0, 3.01, 0.5))
 CV_TIE = 0.01      # held-out errors this close (relative) are one: the smoother is kept
+# below this share of its run's largest value a resistance's penalty is on r, not ln r (ln r
+# of a weakly pinned node slides towards 0 without bound: the Leaf's charge r_fast went to
+# 0.02 mOhm at 0.01; 0.1 and 0.2 give the same tables on the three shared cells)
+LOG_FLOOR = 0.1
 
 
 def _clusters(socs: np.ndarray) -> list[np.ndarray]:
@@ -93,7 +97,7 @@ def data_tau_ranges(ranges: dict, sampling_s: float, relaxation_s: float,
     return out, notes
 
 
-def choose_penalty(prob, z: np.ndarray, lay: dict) -> tuple[float, dict]:
+def choose_penalty(prob, z: np.ndarray, lay: dict, penalties=PENALTIES) -> tuple[float, dict]:
     """The smoothing weight by leaving one SOC level out: for each candidate weight and
     level, fit on the other rows and measure the left-out level's rows after refitting only
     the free nuisance columns there (the OCV correction, restart states). Returns the weight
@@ -110,10 +114,10 @@ def choose_penalty(prob, z: np.ndarray, lay: dict) -> tuple[float, dict]:
         zk, yk = z[r], prob.yw[r]
         folds.append((zk, yk, gram - zk.T @ zk, g - zk.T @ yk))
     errors = {}
-    for lam in PENALTIES:
+    for lam in penalties:
         e = 0.0
         for zk, yk, gk, qk in folds:
-            x = solve_bounded(prob.regularised(gk, lay, lam), qk, free)
+            x = solve_bounded(*prob.regularised(gk, qk, lay, lam)[:2], free)
             res = yk - zk @ x
             f = zk[:, free]
             if f.size:
@@ -144,3 +148,44 @@ def tied_slow_pairs(complete: list[Pulse], t: np.ndarray) -> tuple[dict, list[st
     tied = {d: o for d, o in zip(dirs, dirs[::-1]) if not ok[d] and ok[o]}
     return tied, [f"curve: the {d} pulses run into another current (no rest after them): "
                   f"the {d} slow pair is the {s} one's" for d, s in tied.items()]
+
+
+def log_references(x: np.ndarray, smooth) -> dict:
+    """Per smoothed run (start, size, direction) with a positive value: the references the
+    penalty on ln r is linearised about (the run's values, floored at LOG_FLOOR of its
+    largest)."""
+    out = {}
+    for a, n, _ in smooth:
+        r = np.asarray(x[a:a + n], dtype=np.float64)
+        top = float(np.max(r))
+        if top > 0:
+            out[a] = np.maximum(r, LOG_FLOOR * top)
+    return out
+
+
+def log_penalty(dd: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """The second-difference penalty on ln r about ``ref`` as a quadratic in r: with
+    ln r ~ ln ref + r / ref - 1 (and D 1 = 0), |D ln r|^2 ~ |W r - b|^2 for
+    W = D diag(1 / ref), b = -D ln ref, both scaled by the run's mean reference so that
+    the weight compares with the penalty on r. Returns (W^T W, W^T b, b^T b): the terms
+    added to the normal equations' matrix and right-hand side, and the constant."""
+    s = float(np.mean(ref))
+    w = dd * (s / ref)[None, :]
+    b = -s * (dd @ np.log(ref))
+    return w.T @ w, w.T @ b, float(b @ b)
+
+
+def second_difference(nodes: np.ndarray) -> np.ndarray:
+    """Second divided differences on (possibly uneven) nodes, scaled by the mean spacing
+    squared: [1, -2, 1] on an even grid; no rows for fewer than three nodes."""
+    n = nodes.size
+    if n < 3:
+        return np.zeros((0, n))
+    h = np.diff(nodes)
+    hbar = float(np.mean(h))
+    d = np.zeros((n - 2, n))
+    for k in range(1, n - 1):
+        h1, h2 = h[k - 1], h[k]
+        c = 2.0 / (h1 + h2) * hbar ** 2
+        d[k - 1, k - 1:k + 2] = (c / h1, -c * (1.0 / h1 + 1.0 / h2), c / h2)
+    return d

@@ -63,15 +63,23 @@ class ModelQuality:
                 "tables": [t.as_dict() for t in self.tables]}
 
 
-def roughness(soc: np.ndarray, values: np.ndarray) -> tuple[float, float]:
+def roughness(soc: np.ndarray, values: np.ndarray, fitted: np.ndarray | None = None
+              ) -> tuple[float, float]:
     """(largest |ln p_k - interpolated neighbours|, the SOC where it is) over interior nodes
-    with three positive neighbours; (0, NaN) when there are none."""
+    with three positive neighbours; (0, NaN) when there are none. With ``fitted`` (bool per
+    node) only the nodes from its first True to its last count: beyond them a table holds
+    its end value, and a second difference across that end measures the hold, not the
+    fit."""
     soc = np.asarray(soc, dtype=np.float64)
     v = np.asarray(values, dtype=np.float64)
     if soc.size < 3:
         return 0.0, float("nan")
     with np.errstate(divide="ignore", invalid="ignore"):
         lv = np.where(v > 0, np.log(np.where(v > 0, v, 1.0)), np.nan)
+    if fitted is not None and np.any(fitted):
+        on = np.flatnonzero(fitted)
+        lv[:on[0]] = np.nan
+        lv[on[-1] + 1:] = np.nan
     x0, x1, x2 = soc[:-2], soc[1:-1], soc[2:]
     w = (x1 - x0) / (x2 - x0)
     dev = np.abs(lv[1:-1] - ((1.0 - w) * lv[:-2] + w * lv[2:]))
@@ -92,10 +100,12 @@ def table_quality(model) -> list[TableQuality]:
             continue
         seen.append(tab)
         temps = np.atleast_1d(np.asarray(tab.temperature_c, dtype=np.float64))
+        fitted = np.asarray(tab.converged, dtype=bool)
         for name in RC_TABLES:
             a = np.asarray(getattr(tab, name))
             for r in range(a.shape[0]):
-                rough, at = roughness(tab.soc, a[r])
+                rough, at = roughness(tab.soc, a[r], fitted[r] if fitted.shape == a.shape
+                                      else None)
                 bad = tuple(float(s) for s in tab.soc[np.isfinite(a[r]) & (a[r] <= 0)])
                 t = float(temps[r]) if temps.size == a.shape[0] else float("nan")
                 out.append(TableQuality(d, name, t, rough, at, bad))

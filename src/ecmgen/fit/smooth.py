@@ -9,7 +9,7 @@ least squares, with the parameters as logarithms (so every value stays > 0)::
     min  sum_levels sum_points ((R_fit - R_meas) / scale_level)^2
          + lam * sum_params |D2 ln p|^2 + (R0 < 0 barrier)
 
-where D2 is the second difference over the levels' SOC (:func:`ecmgen.fit.curve.
+where D2 is the second difference over the levels' SOC (:func:`ecmgen.fit.curve_levels.
 second_difference`). lam is chosen by leaving one level out: each interior level in turn is
 dropped from the data, its parameters then follow from the smoothness alone, and its
 measured R(t) is compared with the curve they give; the largest lam within CV_TIE of the
@@ -23,8 +23,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import least_squares
 
-from .curve import second_difference
-from .curve_levels import CV_TIE
+from .curve_levels import CV_TIE, second_difference
 from .points import Bounds, PointFit, _phi, _prepare, _r0, _result, default_bounds
 
 # candidate smoothing weights (relative squared units: a residual of 1 is one data scale)
