@@ -72,3 +72,25 @@ def test_smoothing_is_deterministic():
     a, _ = smooth_point_fit(T_S, r, soc, direction, raw)
     b, _ = smooth_point_fit(T_S, r, soc, direction, raw)
     assert np.array_equal(a.r_slow_ohm, b.r_slow_ohm)
+
+
+def test_two_nearly_equal_time_constants_keep_their_names_over_soc():
+    """One RC in truth (tau 4.5 s): the refit's two branches cross along SOC, and named
+    level by level the resistance went from one table to the other and back (a synthetic
+    cell's r_fast alternated 0.007 <-> 28 mOhm). Named by the majority, each table keeps
+    its branch; where the two cross they become one time constant."""
+    from ecmgen.fit.smooth import _named
+
+    tf = np.array([4.50, 4.52, 4.49, 4.40, 4.36, 4.30])
+    ts = np.array([4.60, 4.47, 4.55, 4.45, 4.33, 4.40])
+    rf = np.full(6, 0.028)
+    rs = np.full(6, 0.0001)
+    nf, ns, nrf, nrs = _named(tf, ts, rf, rs)
+    assert np.array_equal(nrf, rf) and np.array_equal(nrs, rs)
+    assert np.all(nf < ns)
+    cross = tf >= ts
+    assert np.allclose(nf[cross], np.sqrt(tf * ts)[cross])
+    assert np.array_equal(nf[~cross], tf[~cross])
+    # the majority the other way round: every level swapped
+    sf, ss, srf, srs = _named(ts, tf, rs, rf)
+    assert np.array_equal(srf, rf) and np.all(sf < ss)

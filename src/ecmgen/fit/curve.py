@@ -35,7 +35,8 @@ the column scale); its weight is chosen by leaving one SOC level out (the rows f
 before its first pulse to the end of its relaxation), fitting the others and measuring the
 left-out rows after refitting only the nuisance offsets there, over a log grid of weights
 (:func:`ecmgen.fit.curve_levels.choose_penalty`); the resistances are then solved again at
-that weight, at the time constants the search found (:func:`_fit_time_constants`).
+that weight, at the time constants the search found (:func:`_fit_time_constants`), and
+with the penalty on ln r instead where that predicts the left-out levels better.
 
 Time constants the test can show: tau_fast not shorter than the sampling in the pulses (and
 reaching the longest pulse where that is longer than its range), the slow and diffusion
@@ -585,7 +586,9 @@ def _direction_fits(prob: _Problem, x: np.ndarray, kinds, nodes: np.ndarray, spa
         s0, ns = prob.offsets[n_s], prob.sizes[n_s]
         rs = np.interp(nodes, prob.bases[n_s], x[at["slow"] + s0:at["slow"] + s0 + ns])
         rd = float(x[at["diff"] + n_s]) if "diff" in at else None
-        ident = _identified(nodes, basis[0], basis[-1])
+        # the nodes the levels pin down (within SPAN_MARGIN of their mid-pulse SOC range);
+        # beyond it the table holds its end level's value
+        ident = (nodes >= basis[0] - SPAN_MARGIN) & (nodes <= basis[-1] + SPAN_MARGIN)
         if not ident.all():
             held = nodes[~ident]
             notes.append(f"curve: {d} r0/r_fast/r_slow held flat at SOC "
@@ -757,12 +760,6 @@ def _r0_holds(bases, offsets, directions, spans) -> tuple[np.ndarray, np.ndarray
                 held.append(off + k)
                 source.append(off + (k_lo if k < k_lo else k_hi))
     return np.array(held, dtype=int), np.array(source, dtype=int)
-
-
-def _identified(nodes, low, high):
-    """Nodes the levels with a complete pulse pin down: those within SPAN_MARGIN of the
-    levels' (mid-pulse) SOC range. Beyond it a table holds its end level's value."""
-    return (nodes >= low - SPAN_MARGIN) & (nodes <= high + SPAN_MARGIN)
 
 
 def _node_error(rec, prob, resid, nodes, mask, default):

@@ -4,7 +4,11 @@
   p^_k the linear interpolation of the neighbours' logarithms at node k (on a uniform grid
   ln p_k - (ln p_k-1 + ln p_k+1) / 2). A smooth table over SOC stays below about 0.3; a
   table that alternates between neighbouring nodes, or drops to zero, does not. Tables and
-  rows with a non-positive value are counted apart (their logarithm does not exist).
+  rows with a non-positive value are counted apart (their logarithm does not exist). Only
+  the nodes from the first to the last the fit marks converged count (for the whole-test
+  fit, the nodes its levels pin down): beyond them a table holds its end value, and near
+  empty, where resistances rise by a factor of 2-3 per 0.05 of SOC, the bend where that
+  hold starts reads up to 0.6 whatever the fit (the Panasonic demo).
 * non-positive: resistances and time constants <= 0 (a zero resistance is no measurement of
   one: a pulse at that SOC saw a voltage step).
 * on bound: a time constant on its search bound (from the fit's flags) was not resolved.

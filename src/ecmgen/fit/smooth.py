@@ -24,7 +24,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .curve_levels import CV_TIE, second_difference
-from .points import Bounds, PointFit, _phi, _prepare, _r0, _result, default_bounds
+from .points import _LOG_GAP, Bounds, PointFit, _phi, _prepare, _r0, _result, default_bounds
 
 # candidate smoothing weights (relative squared units: a residual of 1 is one data scale)
 SMOOTHING = tuple(10.0 ** np.arange(-4.0, 2.01, 1.0))
@@ -120,6 +120,20 @@ def _start(fit: PointFit, ix: np.ndarray, b: Bounds) -> np.ndarray:
     return np.log(np.column_stack([tf, ts, rf, rs])).ravel()
 
 
+def _named(tf, ts, rf, rs):
+    """The two branches are interchangeable in the curve: the one faster at most levels is
+    named fast at every level (named level by level, two nearly equal time constants that
+    cross would hand the resistance from one table to the other and back). Where the two
+    still cross, they act as one branch: both take their geometric mean there (kept
+    apart by the fit's smallest ratio)."""
+    if np.median(np.log(tf) - np.log(ts)) > 0:
+        tf, ts, rf, rs = ts, tf, rs, rf
+    cross = tf >= ts
+    mean = np.sqrt(tf * ts)
+    gap = np.exp(0.5 * _LOG_GAP)
+    return np.where(cross, mean / gap, tf), np.where(cross, mean * gap, ts), rf, rs
+
+
 def _choose(prob: _Direction, x_full: dict) -> float:
     """The smoothing weight by leaving one interior level out."""
     if prob.n < 4:
@@ -159,10 +173,7 @@ def smooth_point_fit(t_s, r_ohm, soc, direction, fit: PointFit,
         x_full = {lam: prob.solve(x0, lam, ones) for lam in SMOOTHING}
         lam = _choose(prob, x_full)
         tf, ts, rf, rs = prob.parts(x_full[lam])
-        # the two branches are interchangeable in the curve: name the faster one fast
-        swap = tf > ts
-        tf, ts = np.where(swap, ts, tf), np.where(swap, tf, ts)
-        rf, rs = np.where(swap, rs, rf), np.where(swap, rf, rs)
+        tf, ts, rf, rs = _named(tf, ts, rf, rs)
         for key, v in zip(("tau_fast_s", "tau_slow_s", "r_fast_ohm", "r_slow_ohm"),
                           (tf, ts, rf, rs)):
             out[key][ix] = v
