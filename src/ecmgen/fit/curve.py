@@ -28,7 +28,9 @@ hysteresis offset is absorbed there instead of in r_slow and tau_slow, as if eac
 referenced to the rest before it. The offsets sit at the levels or, where that predicts a
 left-out level better (a SOC move through a curved stretch of an OCV interpolated between
 the rests), also half-way between them. Rows count only over the SOC the pulses reached
-(``SPAN_MARGIN`` beyond): past it the tables are held flat and the OCV extrapolated.
+(``SPAN_MARGIN`` beyond): past it the OCV is extrapolated. The tables are free at the
+levels and hold the end level's value beyond them; a node within ``SPAN_MARGIN`` of the
+levels' mid-pulse SOC range is identified (``converged`` in the tables).
 
 Smooth by measurement: a second-difference penalty over each direction's levels (relative to
 the column scale); its weight is chosen by leaving one SOC level out (the rows from the rest
@@ -109,7 +111,9 @@ PENALTY = 1e-3             # second-difference penalty, relative to each block's
 TIE = 1e-2                 # local minima within this (relative objective) are equally good
 SLOW_START = 0.02          # grid start favouring slow dynamics: objective tilt per ln(tau)
 NM_EVALS = 60              # exact evaluations per local refinement
-SPAN_MARGIN = 0.01         # rows this far (SOC) beyond the pulses' own SOC still count
+# rows this far (SOC) beyond the pulses' own SOC still count; nodes this far beyond the
+# levels' mid-pulse SOC are identified
+SPAN_MARGIN = 0.01
 R0_MIN_RATES = 3           # a level pins r0 when its complete pulses span this many C-rates
 BOTH_WAYS_SHARE = 0.1      # a dynamic test's blocks are levels of a direction that moves this
                            # share of their charge (a drive profile's regen)
