@@ -6,6 +6,7 @@ processes; no warning escapes; per-temperature reporting."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 import re
 import subprocess
 import sys
@@ -173,3 +174,73 @@ def test_diagnose_on_a_model_over_temperature(project, tmp_path):
     base = json.loads((out / "model-base.json").read_text())
     assert len(base["rc"]["discharge"]["temperature_c"]) > 1
     assert base["method"] == "curve"
+
+
+def _one_test_config(folder, tmp_path, extra: str = "", pulses: str = "pulses5.csv") -> Path:
+    cfg = tmp_path / "one.toml"
+    cfg.write_text(f'[cell]\ncapacity_ah = 2.9\n[data]\npulses = "{folder / pulses}"\n'
+                   f'pulses_soc0 = 1.0\nocv = "{folder / "ocv.csv"}"\n'
+                   f'cycle = "{folder / "warming.csv"}"\nsoc0 = 0.8\n'
+                   '[fit]\nrelax_s = 900\nmethods = ["curve"]\n[c]\nnumeric = ["float"]\n'
+                   + extra)
+    return cfg
+
+
+def test_a_one_test_model_follows_the_cell_temperature_with_activation_k(project, tmp_path):
+    """One pulse test (5 degC) validated on a cycle warming from -10 to 24 degC: without
+    [model] activation_k the resistances stay the test's and the build says so; with the
+    truth's Ea/R the model becomes one over temperature (rows derived about the pulses' own
+    median cell temperature) that follows the cell, and its C stays bit-exact."""
+    from ecmgen.pipeline import build
+
+    folder, _, _ = project
+    plain = build(load_config(_one_test_config(folder, tmp_path)), tmp_path / "plain",
+                  plots=False, c_code=False)
+    note = [n for n in plain.notes if "warming.csv: the cell runs at" in n]
+    assert len(note) == 1 and "its pulse test's at 5.0 degC" in note[0], plain.notes
+    cfg = load_config(_one_test_config(folder, tmp_path, "[model]\nactivation_k = 2500\n"))
+    assert cfg.activation_k == 2500.0
+    followed = build(cfg, tmp_path / "arr", plots=False, c_code=True)
+    model = json.loads((tmp_path / "arr" / "model.json").read_text())
+    assert model["rc"]["discharge"]["temperature_c"] == list(np.arange(-30.0, 46.0, 5.0))
+    assert model["effects"] == []
+    r0 = np.array(model["rc"]["discharge"]["r0_ohm"])
+    ratio = np.median(r0[0] / r0[7])                     # -30 vs 5 degC: the Arrhenius factor
+    assert abs(ratio / np.exp(2500.0 * (1 / 243.15 - 1 / 278.15)) - 1.0) < 1e-6, ratio
+    assert any("derived from one pulse test at 5.0 degC" in n for n in model["notes"])
+    assert not [n for n in followed.notes if "the cell runs at" in n]
+    mae = {k: r.validations["curve"]["warming.csv"].overall.mae_v
+           for k, r in (("plain", plain), ("followed", followed))}
+    # measured: 72.6 mV with the test's resistances throughout, 1.9 mV following the cell
+    assert mae["followed"] < 0.003 and mae["plain"] > 10.0 * mae["followed"], mae
+    assert followed.c_report["float"]["bit_exact_vs_reference"] is True, followed.c_report
+
+
+@pytest.mark.parametrize("extra, words", [
+    ("[model]\nactivation_k = -1\n", "model.activation_k must lie in 0..50000 K"),
+    ("[model]\nactivation_k = 2500\n", "needs the pulse test's cell temperature"),
+])
+def test_bad_activation_k_is_one_line(project, tmp_path, capsys, extra, words):
+    from ecmgen.cli import main
+
+    folder, _, _ = project
+    plain = tmp_path / "no_temperature.csv"
+    with_t = np.genfromtxt(folder / "pulses5.csv", delimiter=",", names=True)
+    write_timeseries_csv(TimeSeries(with_t["time_s"], with_t["current_a"],
+                                    with_t["voltage_v"]), plain)
+    cfg = _one_test_config(folder, tmp_path, extra, pulses=str(plain))
+    assert main(["build", str(cfg), "--out", str(tmp_path / "out"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and words in err, err
+    assert not (tmp_path / "out").exists()
+
+
+def test_activation_k_is_refused_over_temperature(project, tmp_path, capsys):
+    from ecmgen.cli import main
+
+    folder, cfg_path, _ = project
+    cfg = folder / "arr.toml"
+    cfg.write_text(cfg_path.read_text() + "[model]\nactivation_k = 2500\n")
+    assert main(["build", str(cfg), "--out", str(tmp_path / "out"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "model.activation_k is for a model from one pulse test" in err, err

@@ -22,6 +22,7 @@ from .config_schema import COLUMN_ROLES, METHODS, SchemaError, check_config
 from .config_schema import TEMPERATURE_C as TEMPERATURE_RANGE_C
 from .errors import InputError, reading
 
+ACTIVATION_K_MAX = 50000.0      # [model] activation_k's bound (the effect's own)
 SURFACE_SOC_GAIN_MAX = 10.0     # [model] surface_soc_gain's upper bound (0.5 measured)
 
 # [data.columns.<role>] maps the CSV columns of one file of the config (it extends the
@@ -214,6 +215,7 @@ class BuildConfig:
     temperature_step_c: float = 5.0    # [model]: 0 = the measured breakpoints as they are
     warm_row_c: float | None = 45.0    # [model]: derived warm row (None: none)
     surface_soc_gain: float = 0.0      # [model]: lam of the surface SOC (0: off)
+    activation_k: float = 0.0          # [model]: Ea/R of a one-test model's resistances (0: off)
     max_mae_mv: float = 50.0           # [report]: the validation verdict's threshold
     estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
     raw: dict = field(default_factory=dict, repr=False)
@@ -574,6 +576,13 @@ def _load_config(path: Path) -> BuildConfig:
     if not 0.0 <= gain <= SURFACE_SOC_GAIN_MAX:
         raise InputError(path, f"model.surface_soc_gain must lie in 0..{SURFACE_SOC_GAIN_MAX:g} "
                                f"(0: off), got {gain:g}")
+    activation = _number(model_t, "activation_k", path, "model", 0.0)
+    if not 0.0 <= activation <= ACTIVATION_K_MAX:
+        raise InputError(path, f"model.activation_k must lie in 0..{ACTIVATION_K_MAX:g} K "
+                               f"(0: off), got {activation:g}")
+    if activation and len(pulse_tests) > 1:
+        raise InputError(path, "model.activation_k is for a model from one pulse test: over "
+                               "temperature the tables follow the tests")
 
     known = [pulses, ocv, _file(base, data, "cycle", path), *extra_paths,
              *(p for t in pulse_tests for p in (t.file, t.steps, t.ocv))]
@@ -598,7 +607,7 @@ def _load_config(path: Path) -> BuildConfig:
         c_ocv_soc_step=int(c.get("ocv_soc_step", 1)), c_rc_soc_step=int(c.get("rc_soc_step", 1)),
         curve_branches=branches,
         temperature_step_c=step, warm_row_c=None if warm is False else warm,
-        surface_soc_gain=gain,
+        surface_soc_gain=gain, activation_k=activation,
         max_mae_mv=_number(raw.get("report", {}), "max_mae_mv", path, "report", 50.0,
                            positive=True),
         estimator=estimator_config(raw.get("estimator", {}), path),

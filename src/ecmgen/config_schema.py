@@ -171,6 +171,9 @@ SECTIONS: tuple[Section, ...] = (
             "(false: none)", unit="degC", range=TEMPERATURE_C, default="45"),
         Key("surface_soc_gain", NUMBER, "the RC tables read at the surface SOC (models "
             "with the diffusion pair; 0: off)", range=(0.0, 10.0), default="0"),
+        Key("activation_k", NUMBER, "Ea/R: a model from one pulse test scales its "
+            "resistances by exp(Ea/R (1/T - 1/T_test)) at the cell temperature T (0: off)",
+            unit="K", range=(0.0, 50000.0), default="0"),
     )),
     Section("report", "the verdicts of report.md", (
         Key("max_mae_mv", NUMBER, "the validation passes when model.json's MAE on every "

@@ -411,7 +411,8 @@ def fit_all(cfg: BuildConfig, progress: Progress = _quiet, *, workers: Workers |
     if not cfg.over_temperature:
         inputs = prepare(cfg, progress)
         models, raw = fit_models(cfg, inputs, progress)
-        return with_surface_soc(cfg, models), raw, inputs, []
+        models = with_activation(cfg, with_surface_soc(cfg, models), pulses_temperature_c(inputs))
+        return models, raw, inputs, []
     from .model.temperature import assemble_over_temperature
 
     tests = fit_pulse_tests(cfg, progress, workers, plots)
@@ -427,7 +428,27 @@ def fit_all(cfg: BuildConfig, progress: Progress = _quiet, *, workers: Workers |
         except ValueError as exc:
             raise InputError(cfg.path, str(exc)) from None
     warm = tests[int(np.nanargmax(temps))] if np.isfinite(temps).any() else tests[0]
-    return with_surface_soc(cfg, models), warm.raw, warm.inputs, tests
+    models = with_activation(cfg, with_surface_soc(cfg, models), temps[0])
+    return models, warm.raw, warm.inputs, tests
+
+
+def with_activation(cfg: BuildConfig, models: dict[str, EcmModel],
+                    test_c: float | None) -> dict[str, EcmModel]:
+    """[model] activation_k: each model from one pulse test becomes a model over temperature
+    whose resistances follow the cell temperature by Arrhenius about the test's
+    (model.temperature.derive_over_temperature)."""
+    if not cfg.activation_k:
+        return models
+    if test_c is None or not np.isfinite(test_c):
+        raise InputError(cfg.pulses or cfg.path, "model.activation_k needs the pulse test's "
+                         "cell temperature: a temperature column in it, or data.temperature_c")
+    from .model.temperature import derive_over_temperature
+
+    label = Path(cfg.pulses or cfg.pulse_tests[0].file).name
+    return {m: derive_over_temperature(model, test_c, cfg.activation_k,
+                                       step_c=cfg.temperature_step_c, warm_c=cfg.warm_row_c,
+                                       label=label)
+            for m, model in models.items()}
 
 
 def with_surface_soc(cfg: BuildConfig, models: dict[str, EcmModel]) -> dict[str, EcmModel]:
@@ -652,8 +673,10 @@ def _row_spans(result: BuildResult, method: str) -> list | None:
 
 def _usage(result: BuildResult) -> None:
     """Fit flags, and the SOC each validation ran through against the measured spans."""
-    from .model.spans import usage, usage_notes
+    from .model.spans import temperature_note, usage, usage_notes
 
+    test_c = (result.tests[0].temperature_c if len(result.tests) == 1 else
+              None if result.tests else pulses_temperature_c(result.inputs))
     report = result.inputs.ocv_report
     ocv_span = None
     if report is not None and report.curves:
@@ -667,6 +690,8 @@ def _usage(result: BuildResult) -> None:
             if m == result.best:
                 result.notes.extend(_named(w, v.source, name) for w in v.warnings)
                 result.notes.extend(usage_notes(result.models[m], name, use, ocv_span))
+                note = temperature_note(result.models[m], name, v, test_c)
+                result.notes.extend([note] if note else [])
 
 
 def _write_c(cfg: BuildConfig, result: BuildResult, staging: Path, progress: Progress):

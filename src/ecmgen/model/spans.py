@@ -99,3 +99,24 @@ def usage_notes(model, name: str, use: dict, ocv_span=None) -> list[str]:
     return [f"{model.method} on {name} (SOC {lo:.2f}..{hi:.2f}) uses " + "; ".join(parts)
             + " beyond the measured span at its temperature, where it is held flat "
               "(warning)"]
+
+
+# a cell warming this far from its one test's temperature is noted: the Panasonic cell's
+# DC-IR falls by 10-20 % over 5 K at 0-25 degC (Ea/R 2300-3200 K between its tests); the
+# Leaf's by 1 % (130-420 K between 25 and 40 degC): no one Ea/R stands for every cell
+TEMPERATURE_NOTE_K = 5.0
+
+
+def temperature_note(model, name: str, validation, test_c: float | None) -> str | None:
+    """A warning when ``validation`` ran the cell more than TEMPERATURE_NOTE_K from the
+    one temperature ``test_c`` its model was measured at, while the model's resistances
+    do not follow the temperature (one row, no temperature_dependence effect)."""
+    span = validation.temperature_range_c
+    if (span is None or test_c is None or not np.isfinite(test_c) or model.needs_temperature
+            or any(e.name == "temperature_dependence" for e in model.effects)):
+        return None
+    if max(abs(span[0] - test_c), abs(span[1] - test_c)) <= TEMPERATURE_NOTE_K:
+        return None
+    return (f"{name}: the cell runs at {span[0]:.1f}..{span[1]:.1f} degC, the model's "
+            f"resistances stay its pulse test's at {test_c:.1f} degC ([model] activation_k, "
+            "the cell's Ea/R, makes them follow; or pulse tests at more temperatures) (warning)")

@@ -24,6 +24,8 @@ SOC) and whose OCV has one row per pulse test:
 - everything is clamped beyond the table ends (the model does that).
 
 The notes of the result name the measured breakpoints, the derived row and the grid.
+:func:`derive_over_temperature` makes a model over temperature from ONE test and a given
+Ea/R ([model] activation_k), through the same assembly.
 Pure numpy on the given arrays: the same inputs give the same bytes in model.json.
 """
 
@@ -311,3 +313,37 @@ def assemble_over_temperature(models: Sequence[EcmModel], temperatures_c, *,
     inputs = tuple(r for m in models for r in m.inputs)
     return replace(base, ocv=ocv, charge=tables["charge"], discharge=tables["discharge"],
                    inputs=inputs, notes=tuple(notes))
+
+
+DERIVED_COLD_C = -30.0       # the cold row of a model derived from one test (clamped below)
+
+
+def derive_over_temperature(model: EcmModel, test_c: float, activation_k: float, *,
+                            step_c: float = 5.0, warm_c: float | None = 45.0,
+                            label: str = "the pulse test") -> EcmModel:
+    """A model over temperature from the one-temperature ``model`` of a pulse test at
+    ``test_c``: a derived row at DERIVED_COLD_C (or a step below the test) with every
+    resistance, r_diff too, x exp(activation_k (1/T - 1/T_test)), joined to it by
+    :func:`assemble_over_temperature` (which also derives the warm row with that Ea/R);
+    time constants, i0 and the OCV stay the test's."""
+    cold_c = min(DERIVED_COLD_C, test_c - max(step_c, 5.0))
+    f = float(np.exp(activation_k * (inverse_kelvin(cold_c) - inverse_kelvin(test_c))))
+
+    def scaled(t: RcTable) -> RcTable:
+        kw = {k: np.asarray(getattr(t, k)) * f for k in RESISTANCES}
+        if t.r_diff_ohm is not None:
+            kw["r_diff_ohm"] = np.asarray(t.r_diff_ohm) * f
+        return replace(t, **kw)
+
+    cold = replace(model, charge=scaled(model.charge), discharge=scaled(model.discharge),
+                   notes=(), inputs=())
+    out = assemble_over_temperature([cold, replace(model, notes=())], [cold_c, test_c],
+                                    step_c=step_c, warm_c=warm_c, labels=["derived", label])
+    grid = [n for n in out.notes if n.startswith("tables over temperature")]
+    rows = f"{_fmt_t(cold_c)}" + (f" and {warm_c:g}" if warm_c is not None and warm_c > test_c
+                                  else "")
+    mine = (f"tables over temperature derived from one pulse test at {_fmt_t(test_c)} degC "
+            f"({label}): rows at {rows} degC (not measured) with every resistance, r_diff "
+            f"too, x exp({activation_k:g} K (1/T - 1/T_test)) ([model] activation_k); "
+            "time constants, i0 and OCV of the test")
+    return replace(out, notes=(*model.notes, *grid, mine))
