@@ -59,9 +59,7 @@ class EstimatorConfig:
     # 0: a record starts from a rested cell (its first sample counts fully). Above 0 it may
     # start anywhere (under load, mid-relaxation): the RC voltages start unknown, sigma r_j
     # times this current in C, and no sample counts fully. For a start anywhere 0.5, with
-    # resistance_slopes false, model_error 0.12, polarization_error 1.0 and
-    # polarization_soc_sigma 0.01, chosen on the 25 and 0 degC cycles cut to start anywhere
-    # (bench/estimate_any_start.py, docs/estimator.md)
+    # the other START_ANYWHERE settings below
     start_polarization_c: float = 0.0
     # 0: the model error scales with the sample's overpotential; T > 0: with the largest
     # since, decayed by exp(-dt / T) (the error outlasts a current step)
@@ -118,8 +116,9 @@ ESTIMATOR_FILTERS = ("ekf", "ukf")
 # The settings of a start anywhere (under load, mid-relaxation), chosen on the Panasonic 25
 # and 0 degC cycles cut to start at SOC 0.3-0.7 (bench/estimate_any_start.py,
 # docs/estimator.md): `ecmgen estimate --start anywhere`, the default of a mid-record window
-START_ANYWHERE = dict(start_polarization_c=0.5, resistance_slopes=False, model_error=0.12,
-                      polarization_error=1.0, polarization_soc_sigma=0.01)
+START_ANYWHERE = dict(start_polarization_c=0.5, resistance_slopes=False, model_error=0.06,
+                      error_correlation_s=1600.0, polarization_error=0.5,
+                      polarization_soc_sigma=0.01)
 
 ESTIMATOR_STARTS = ("rested", "anywhere")
 
