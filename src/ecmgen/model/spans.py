@@ -102,8 +102,8 @@ def usage_notes(model, name: str, use: dict, ocv_span=None) -> list[str]:
 
 
 # a cell warming this far from its one test's temperature is noted: the Panasonic cell's
-# DC-IR falls by 10-20 % over 5 K at 0-25 degC (Ea/R 2300-3200 K between its tests); the
-# Leaf's by 1 % (130-420 K between 25 and 40 degC): no one Ea/R stands for every cell
+# DC-IR falls by 12-25 % over 5 K at 0-25 degC (Ea/R 2100-3300 K between its tests), the
+# Leaf's by 1-2 % (130-420 K between 25 and 40 degC): no one Ea/R stands for every cell
 TEMPERATURE_NOTE_K = 5.0
 
 
