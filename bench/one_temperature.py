@@ -59,13 +59,14 @@ def dcir_and_temperature(name: str):
 
 def activation_k(tests: dict, leave_out: str) -> tuple[float, list[str]]:
     """Ea/R (K) from the pairs of tests other than ``leave_out`` (module docstring)."""
-    kelvin = 273.15
+    from ecmgen.model.temperature import activation_slope_k
+
     slopes, words = [], []
     for a, b in itertools.combinations([n for n in tests if n != leave_out], 2):
         (ra, ta), (rb, tb) = tests[a], tests[b]
         keys = [k for k in ra if k in rb]
-        x = 1.0 / (ta + kelvin) - 1.0 / (tb + kelvin)
-        ea = float(np.median([np.log(ra[k] / rb[k]) / x for k in keys]))
+        ea = activation_slope_k(ta, tb, np.array([ra[k] for k in keys]),
+                                np.array([rb[k] for k in keys]))
         slopes.append(ea)
         words.append(f"{a}/{b} {ea:.0f} K")
     return float(np.median(slopes)), words

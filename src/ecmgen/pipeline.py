@@ -294,6 +294,13 @@ def pulses_temperature_c(inputs: Inputs) -> float | None:
     return float(np.median(series.temperature_c[ix]))
 
 
+def one_test_c(tests, inputs: Inputs | None) -> float | None:
+    """The temperature of a build's one pulse test (None: several tests, or unknown)."""
+    if tests:
+        return tests[0].temperature_c if len(tests) == 1 else None
+    return pulses_temperature_c(inputs) if inputs is not None else None
+
+
 def fit_pulse_test(cfg: BuildConfig, k: int, plots: bool = False,
                    progress: Progress = _quiet) -> TestFit:
     """Read, extract and fit pulse test ``k`` of the config, every method of the config
@@ -411,7 +418,7 @@ def fit_all(cfg: BuildConfig, progress: Progress = _quiet, *, workers: Workers |
     if not cfg.over_temperature:
         inputs = prepare(cfg, progress)
         models, raw = fit_models(cfg, inputs, progress)
-        models = with_activation(cfg, with_surface_soc(cfg, models), pulses_temperature_c(inputs))
+        models = with_activation(cfg, with_surface_soc(cfg, models), one_test_c([], inputs))
         return models, raw, inputs, []
     from .model.temperature import assemble_over_temperature
 
@@ -428,7 +435,7 @@ def fit_all(cfg: BuildConfig, progress: Progress = _quiet, *, workers: Workers |
         except ValueError as exc:
             raise InputError(cfg.path, str(exc)) from None
     warm = tests[int(np.nanargmax(temps))] if np.isfinite(temps).any() else tests[0]
-    models = with_activation(cfg, with_surface_soc(cfg, models), temps[0])
+    models = with_activation(cfg, with_surface_soc(cfg, models), one_test_c(tests, None))
     return models, warm.raw, warm.inputs, tests
 
 
@@ -675,8 +682,7 @@ def _usage(result: BuildResult) -> None:
     """Fit flags, and the SOC each validation ran through against the measured spans."""
     from .model.spans import temperature_note, usage, usage_notes
 
-    test_c = (result.tests[0].temperature_c if len(result.tests) == 1 else
-              None if result.tests else pulses_temperature_c(result.inputs))
+    test_c = one_test_c(result.tests, result.inputs)
     report = result.inputs.ocv_report
     ocv_span = None
     if report is not None and report.curves:
