@@ -191,7 +191,8 @@ def test_a_one_test_model_follows_the_cell_temperature_with_activation_k(project
     [model] activation_k the resistances stay the test's and the build says so; with the
     truth's Ea/R the model becomes one over temperature (rows derived about the pulses' own
     median cell temperature) that follows the cell, and its C stays bit-exact."""
-    from ecmgen.pipeline import build
+    from ecmgen.pipeline import build, one_test_c
+    from ecmgen.plots import derived_rows
 
     folder, _, _ = project
     plain = build(load_config(_one_test_config(folder, tmp_path)), tmp_path / "plain",
@@ -208,6 +209,10 @@ def test_a_one_test_model_follows_the_cell_temperature_with_activation_k(project
     ratio = np.median(r0[0] / r0[7])                     # -30 vs 5 degC: the Arrhenius factor
     assert abs(ratio / np.exp(2500.0 * (1 / 243.15 - 1 / 278.15)) - 1.0) < 1e-6, ratio
     assert any("derived from one pulse test at 5.0 degC" in n for n in model["notes"])
+    # the parameters plot: the test's row solid, the two derived rows dashed
+    test_c = one_test_c(followed.tests, followed.inputs)
+    assert abs(test_c - 5.0) < 0.5, test_c
+    assert derived_rows(followed.models["curve"], [test_c]) == (-30.0, 45.0)
     assert not [n for n in followed.notes if "the cell runs at" in n]
     mae = {k: r.validations["curve"]["warming.csv"].overall.mae_v
            for k, r in (("plain", plain), ("followed", followed))}

@@ -4,9 +4,8 @@ It strings the stages together: :mod:`ecmgen.data` (files, DC-IR table, OCV),
 :mod:`ecmgen.fit` (GA, LM, whole-curve), :mod:`ecmgen.model` (model.json, validation),
 :mod:`ecmgen.c` (the C of the best model), :mod:`ecmgen.plots` / :mod:`ecmgen.report`;
 ``run_diagnose`` does the same for :mod:`ecmgen.diagnosis`. Each function is callable
-from a notebook; the CLI only parses arguments and prints.
-Outputs are staged in a temporary folder and moved into place only when everything
-succeeded, so a failure leaves no half-written output.
+from a notebook; the CLI only parses arguments and prints. Outputs are staged in a
+temporary folder and moved into place only when all succeeded: no half-written output.
 """
 
 from __future__ import annotations
@@ -597,7 +596,8 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
         if plots:
             from .plots import parameters_png
 
-            measured = sorted(t.temperature_c for t in tests) if tests else None
+            measured = sorted(t.temperature_c for t in tests) if tests else \
+                ([one_test_c(tests, inputs)] if cfg.activation_k else None)
             param_tasks = {m: pool.submit(parameters_png, model, measured)
                            for m, model in models.items()}
         validated = validate_all(cfg, models, progress, workers=pool,

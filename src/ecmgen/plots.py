@@ -236,7 +236,9 @@ def plot_parameters(model, path, temperatures_c=None, derived_c=(), title: str =
     _legend_beside(fig, axes[0], len(keys) + 1, flagged)
     what = (f"{model.method} model: discharge parameters over SOC at "
             + (", ".join(degrees(t) for t in temps) if model.needs_temperature
-               else "one temperature"))
+               else "one temperature")
+            + (f", derived (dashed) at {', '.join(degrees(t) for t in derived_c)}"
+               if derived_c else ""))
     fig.suptitle(title or what + "\n(filled: nodes the fit measured, open: held, "
                  "red x: <= 0, red ring: flagged by the table checks)", fontsize=10)
     _panel_layout(fig)
@@ -379,16 +381,25 @@ def ocv_png(inputs, progress=None, at: str = "") -> bytes:
     return _png(plot_ocv, inputs, at=at)
 
 
+def derived_rows(model, measured_c) -> tuple[float, ...]:
+    """The temperature rows of ``model`` that were derived, not measured: beyond the
+    measured temperatures ``measured_c``, one at each end (the grid between the rows is
+    resampled, not derived); () when the notes derive none."""
+    if not measured_c or not any("derived warm row" in n or "derived from one pulse test" in n
+                                 for n in model.notes):
+        return ()
+    rows = np.asarray(model.discharge.temperature_c, dtype=float)
+    return tuple(float(x) for x in (*rows[rows < min(measured_c) - 0.5][:1],
+                                    *rows[rows > max(measured_c) + 0.5][-1:]))
+
+
 def parameters_png(model, measured_c=None, progress=None) -> bytes:
     """parameters-<method>.png: the parameters over SOC at each measured temperature (the
-    pulse tests'; default the table rows) and, dashed, the derived warm row if any; the
+    pulse tests'; default the table rows) and, dashed, the derived rows if any; the
     discharge values the table checks flag (roughest node of a rough row) ringed."""
     from .fit.quality import ROUGHNESS_LIMIT, model_quality
 
-    derived: tuple = ()
-    if measured_c and len(measured_c) > 1 and any("derived warm row" in n for n in model.notes):
-        rows = model.discharge.temperature_c
-        derived = tuple(float(x) for x in rows[rows > max(measured_c) + 0.5][-1:])
+    derived = derived_rows(model, measured_c)
     flagged = tuple((t.name, t.temperature_c, t.roughest_soc, f"rough > {ROUGHNESS_LIMIT:g}")
                     for t in model_quality(model, ()).tables
                     if t.direction == "discharge" and t.roughness > ROUGHNESS_LIMIT)
