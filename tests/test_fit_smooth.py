@@ -40,11 +40,14 @@ def test_jacobian_matches_finite_differences():
     x += np.random.default_rng(1).normal(0.0, 0.1, x.size)
     w = np.ones(soc.size)
     w[4] = 0.0
-    jac = prob.jacobian(x, 0.3, w)
-    eps = 1e-7
-    num = np.column_stack([(prob.residual(x + eps * e, 0.3, w) - prob.residual(x - eps * e, 0.3, w))
-                           / (2 * eps) for e in np.eye(x.size)])
-    assert np.max(np.abs(jac - num)) < 1e-6 * max(1.0, np.max(np.abs(jac)))
+    for tied in (False, True):
+        prob.tied = tied
+        jac = prob.jacobian(x, 0.3, w)
+        eps = 1e-7
+        num = np.column_stack([(prob.residual(x + eps * e, 0.3, w)
+                                - prob.residual(x - eps * e, 0.3, w)) / (2 * eps)
+                               for e in np.eye(x.size)])
+        assert np.max(np.abs(jac - num)) < 1e-6 * max(1.0, np.max(np.abs(jac)))
 
 
 def test_smoothing_recovers_smooth_tables_from_noisy_levels():
@@ -64,6 +67,31 @@ def test_smoothing_recovers_smooth_tables_from_noisy_levels():
     total = fit.r_fast_ohm + fit.r_slow_ohm * (1 - np.exp(-10.0 / fit.tau_slow_s))
     want = rf + rs * (1 - np.exp(-10.0 / ts))
     assert np.allclose(total, want, rtol=0.1)
+
+
+def test_time_constants_no_level_can_place_follow_soc_on_a_line():
+    """A 1 s logger: R(1 s) is R0's own sample, so each level has three points after R(t_0)
+    for four parameters. The time constants then lie on a straight line (in ln) over SOC,
+    the resistances still follow the levels, and the curve R(t) is kept."""
+    soc, direction, r = _rows(4e-5, seed=5)
+    r[:, 1] = np.nan
+    raw = fit_lm(T_S, r)
+    fit, notes = smooth_point_fit(T_S, r, soc, direction, raw)
+    assert "time constants on a straight line over SOC (3 DC-IR points" in notes[0], notes
+    for tau in (fit.tau_fast_s, fit.tau_slow_s):
+        assert np.max(np.abs(np.diff(np.log(tau), 2))) < 0.02, tau
+    r0, rf, tf, rs, ts = _truth(soc)
+    # without R(1 s) the split of R(0.1 s) between r0 and the fast branch is the fit's
+    assert np.allclose(fit.r0_ohm, r0, rtol=0.06)
+    for t in (3.0, 6.0, 10.0):            # the measured R(t) kept
+        got = fit.r0_ohm + fit.r_fast_ohm * (1 - np.exp(-t / fit.tau_fast_s)) + \
+            fit.r_slow_ohm * (1 - np.exp(-t / fit.tau_slow_s))
+        want = r0 + rf * (1 - np.exp(-t / tf)) + rs * (1 - np.exp(-t / ts))
+        assert np.allclose(got, want, rtol=0.01), (t, got / want)
+    # five points per level: each level keeps its own time constants (no line)
+    soc5, direction5, r5 = _rows(4e-5, seed=5)
+    _, notes5 = smooth_point_fit(T_S, r5, soc5, direction5, fit_lm(T_S, r5))
+    assert "straight line" not in notes5[0], notes5
 
 
 def test_smoothing_is_deterministic():

@@ -13,9 +13,12 @@ where D2 is the second difference over the levels' SOC (:func:`ecmgen.fit.curve_
 second_difference`). lam is chosen by leaving one level out: each interior level in turn is
 dropped from the data, its parameters then follow from the smoothness alone, and its
 measured R(t) is compared with the curve they give; the largest lam within CV_TIE of the
-smallest held-out error is kept. The refit starts from the method's own per-level result;
-where the joint problem has one optimum (the demo, the Leaf) GA and LM end at the same
-tables. R0 stays R(t_0) minus what the two branches add by t_0, as in the paper.
+smallest held-out error is kept. Where a level has fewer DC-IR points after R(t_0) than
+its four parameters (a 1 s logger), the time constants are not the level's to place: their
+second difference is held near 0 (TIED), a straight line in ln tau over SOC. The refit
+starts from the method's own per-level result; where the joint problem has one optimum
+(the demo, the Leaf) GA and LM end at the same tables. R0 stays R(t_0) minus what the two
+branches add by t_0, as in the paper.
 """
 
 from __future__ import annotations
@@ -29,6 +32,9 @@ from .points import _LOG_GAP, Bounds, PointFit, _phi, _prepare, _r0, _result, de
 # candidate smoothing weights (relative squared units: a residual of 1 is one data scale)
 SMOOTHING = tuple(10.0 ** np.arange(-4.0, 2.01, 1.0))
 _BARRIER = 1e3            # weight of R0 < 0 against a data scale
+# smoothing weight of time constants that no level determines on its own: a second
+# difference of 0.01 in ln tau costs as much as one data scale (a straight line over SOC)
+TIED = 1e4
 
 
 class _Direction:
@@ -43,6 +49,11 @@ class _Direction:
         self.mask = data.mask[ix].astype(float)
         self.scale = data.scale[ix]
         self.d2 = second_difference(soc)
+        # points after R(t_0) per level: with fewer than the four parameters (a 1 s logger
+        # gives R(t) at 3, 6 and 10 s only) a level cannot place its time constants, which
+        # then follow SOC on a straight line (in ln) instead of the points' noise
+        self.points = int(np.median(self.mask.sum(axis=1)))
+        self.tied = self.points < 4
         lo = np.array([b.tau_fast_s[0], b.tau_slow_s[0],
                        max(b.r_fast_ohm[1], 1e-30) * 1e-6, max(b.r_slow_ohm[1], 1e-30) * 1e-6])
         hi = np.array([b.tau_fast_s[1], b.tau_slow_s[1], b.r_fast_ohm[1], b.r_slow_ohm[1]])
@@ -65,7 +76,7 @@ class _Direction:
         tf, ts, rf, rs = self.parts(x)
         r0 = _r0(self.ra, self.t0, tf, ts, rf, rs)
         barrier = _BARRIER * np.minimum(r0, 0.0) / self.scale
-        smooth = (np.sqrt(lam) * (self.d2 @ x.reshape(self.n, 4))).ravel()
+        smooth = (np.sqrt(self.weights(lam)) * (self.d2 @ x.reshape(self.n, 4))).ravel()
         return np.concatenate([data, barrier, smooth])
 
     def jacobian(self, x, lam: float, weight: np.ndarray):
@@ -92,11 +103,15 @@ class _Direction:
                     self.t0[k] / tau[k]
                 jac[row, 4 * k + 2 + q] = active[k] * r[k] * np.expm1(-self.t0[k] / tau[k])
         base = n * n_t + n
-        root = np.sqrt(lam)
+        root = np.sqrt(self.weights(lam))
         for j in range(self.d2.shape[0]):
             for q in range(4):
-                jac[base + 4 * j + q, q::4] = root * self.d2[j]
+                jac[base + 4 * j + q, q::4] = root[q] * self.d2[j]
         return jac
+
+    def weights(self, lam: float) -> np.ndarray:
+        """The smoothing weight of each parameter (tau_fast, tau_slow, r_fast, r_slow)."""
+        return np.array([TIED if self.tied else lam] * 2 + [lam] * 2)
 
     def solve(self, x0, lam: float, weight: np.ndarray):
         x0 = np.clip(x0, self.lo + 1e-9, self.hi - 1e-9)
@@ -178,7 +193,10 @@ def smooth_point_fit(t_s, r_ohm, soc, direction, fit: PointFit,
                           (tf, ts, rf, rs)):
             out[key][ix] = v
         notes.append(f"{fit.method}: {d} tables refitted over the {prob.n} SOC levels together, "
-                     f"smoothing weight {lam:g} (leave one level out)")
+                     f"smoothing weight {lam:g} (leave one level out)"
+                     + (f"; time constants on a straight line over SOC ({prob.points} DC-IR "
+                        "points after R(t_0) per level for four parameters)" if prob.tied
+                        else ""))
     result = _result(data, out["tau_fast_s"], out["tau_slow_s"], out["r_fast_ohm"],
                      out["r_slow_ohm"], np.asarray(fit.converged), fit.iterations, fit.method)
     return result, notes
