@@ -3,6 +3,8 @@ long rest before the drive, a line across a logging gap; every title says where.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from ecmgen.plotting import _plt, break_gaps, degrees, temperature_colours
@@ -45,3 +47,23 @@ def test_a_long_rest_before_the_drive_is_not_drawn(tmp_path):
     assert lo >= 10.0 and hi <= 15.0
     png = validation_png({"lm": val, "curve": val}, "cycle.csv", best="curve")
     assert png.startswith(b"\x89PNG")
+
+
+def test_derived_rows_are_the_ones_the_notes_derive():
+    """Dashed in the parameters plot: the warm row of a model over temperature, and the
+    cold row too only for a model derived from one pulse test; a grid row just beyond
+    the coldest test is resampled, not derived."""
+    from dataclasses import replace
+
+    from ecmgen.model.model import load_model
+    from ecmgen.plots import derived_rows
+
+    model = load_model(Path(__file__).parent / "data" / "panasonic-temperature-model.json")
+    measured = [-19.4, -9.9, 0.6, 25.7]          # the -20 degC grid row is 0.6 K below
+    assert derived_rows(model, measured) == ()
+    warm = replace(model, notes=("derived warm row at 45 degC (not measured): ...",))
+    assert derived_rows(warm, measured) == (45.0,)
+    one = replace(model, notes=("tables over temperature derived from one pulse test at "
+                                "5.0 degC ...",))
+    assert derived_rows(one, [5.0]) == (-20.0, 45.0)
+    assert derived_rows(one, None) == ()

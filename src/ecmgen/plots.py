@@ -382,15 +382,18 @@ def ocv_png(inputs, progress=None, at: str = "") -> bytes:
 
 
 def derived_rows(model, measured_c) -> tuple[float, ...]:
-    """The temperature rows of ``model`` that were derived, not measured: beyond the
-    measured temperatures ``measured_c``, one at each end (the grid between the rows is
-    resampled, not derived); () when the notes derive none."""
-    if not measured_c or not any("derived warm row" in n or "derived from one pulse test" in n
-                                 for n in model.notes):
+    """The temperature rows of ``model`` that were derived, not measured, as its notes
+    say: the warm row above the measured temperatures ``measured_c`` and, for a model
+    from one pulse test, the cold row below (the grid between rows is resampled, not
+    derived)."""
+    if not measured_c:
         return ()
+    one = any("derived from one pulse test" in n for n in model.notes)
+    warm = one or any("derived warm row" in n for n in model.notes)
     rows = np.asarray(model.discharge.temperature_c, dtype=float)
-    return tuple(float(x) for x in (*rows[rows < min(measured_c) - 0.5][:1],
-                                    *rows[rows > max(measured_c) + 0.5][-1:]))
+    cold = rows[rows < min(measured_c) - 0.5][:1] if one else ()
+    hot = rows[rows > max(measured_c) + 0.5][-1:] if warm else ()
+    return tuple(float(x) for x in (*cold, *hot))
 
 
 def parameters_png(model, measured_c=None, progress=None) -> bytes:
