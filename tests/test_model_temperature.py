@@ -271,3 +271,24 @@ def test_branches_bad_values_refused():
     del raw["rc"]["discharge"]["tau_diff_s"]
     with pytest.raises(InputError, match="go together"):
         model_from_json_dict(raw, "m.json")
+
+
+def test_neighbour_time_constants_interpolate_ln_tau_in_inverse_kelvin():
+    from types import SimpleNamespace
+
+    from ecmgen.model.temperature import neighbour_time_constants
+
+    def fit(fast, slow, diff=None):
+        return SimpleNamespace(tau_fast_s=fast, tau_slow_s=slow, tau_diff_s=diff)
+
+    temps = [25.0, -20.0, 0.0]          # not sorted: the order of the config
+    fits = [fit(1.0, 30.0, 300.0), fit(0.5, 20.0, 700.0), fit(9.0, 99.0, 999.0)]
+    got = neighbour_time_constants(temps, fits)
+    assert got[0] is None and got[1] is None
+    w = (1 / 273.15 - 1 / 298.15) / (1 / 253.15 - 1 / 298.15)
+    for k, a, b in (("fast", 1.0, 0.5), ("slow", 30.0, 20.0), ("diff", 300.0, 700.0)):
+        assert got[2][k] == pytest.approx(a ** (1 - w) * b ** w, rel=1e-12)
+    # a neighbour without the diffusion pair, a missing curve fit, two tests only: none
+    assert neighbour_time_constants(temps, [fit(1.0, 30.0), fits[1], fits[2]])[2] is None
+    assert neighbour_time_constants(temps, [None, fits[1], fits[2]])[2] is None
+    assert neighbour_time_constants(temps[:2], fits[:2]) == [None, None]

@@ -1,7 +1,8 @@
 """Writing and hashing files: the lowest layer, shared by every stage that writes.
 
 :func:`write_atomic` writes via a temporary file and a rename, so a failure never
-leaves half a file; :func:`file_sha256` names an input file in a model's provenance.
+leaves half a file; :func:`file_sha256` names an input file in a model's provenance;
+:func:`short_names` and :func:`temperature_label` name the files a build reads and writes.
 """
 
 from __future__ import annotations
@@ -64,3 +65,21 @@ def file_sha256(path: str | Path) -> str:
             h.update(chunk)
     return h.hexdigest()
 
+
+def short_names(paths) -> list[str]:
+    """Names for files of the config: the file name, or as many of its last path parts as
+    it takes to tell files of the same name apart (e.g. 0degC/us06.mat)."""
+    paths = [Path(p) for p in paths]
+    depth = 1
+    while True:
+        labels = ["/".join(p.parts[-depth:]) for p in paths]
+        if len(set(labels)) == len(labels) or depth > max(len(p.parts) for p in paths):
+            return labels
+        depth += 1
+
+
+def temperature_label(t: float) -> str:
+    """25.8 -> "25.8degC", -9.9 -> "n9.9degC" (the shared data's folder style)."""
+    if not math.isfinite(t):
+        return "unknownT"
+    return f"{'n' if t < 0 else ''}{abs(t):.1f}degC"

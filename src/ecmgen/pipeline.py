@@ -26,7 +26,7 @@ from .data import ocv as ocv_mod
 from .data.ocv import OcvTable
 from .console import detail_of
 from .errors import InputError
-from .files import file_sha256
+from .files import file_sha256, short_names, temperature_label
 from .model.model import RC_FIELDS, EcmModel, InputRecord, RcTable
 from .model.tables import copied_directions, level_tables
 from .model.simulate import Validation, validate
@@ -157,9 +157,11 @@ def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
                   q_axis)
 
 
-def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
-               ) -> tuple[dict[str, EcmModel], dict]:
-    """Fit every method of the config; returns the models and the raw fits (for plots)."""
+def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet,
+               neighbour_taus: dict | None = None) -> tuple[dict[str, EcmModel], dict]:
+    """Fit every method of the config; returns the models and the raw fits (for plots).
+    ``neighbour_taus``: the curve method's time constants from the tests on either side
+    in temperature (:func:`ecmgen.fit.curve.fit_pulse_curves`)."""
     from .fit.checks import flag_notes, point_fit_flags
     from .fit.ga import fit_ga
     from .fit.lm import fit_lm
@@ -202,7 +204,7 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet
         raw["point_fits"] = fits
     if "curve" in cfg.methods:
         models["curve"], raw["curve_fit"], raw["flags"]["curve"] = curve_model(
-            cfg, inputs, common, progress)
+            cfg, inputs, common, progress, neighbour_taus=neighbour_taus)
     return models, raw
 
 
@@ -213,7 +215,8 @@ def _common(cfg: BuildConfig, inputs: Inputs) -> dict:
 
 
 def curve_model(cfg: BuildConfig, inputs: Inputs, common: dict, progress: Progress = _quiet,
-                current_factor=None, tau_ranges: dict | None = None):
+                current_factor=None, tau_ranges: dict | None = None,
+                neighbour_taus: dict | None = None):
     """The curve method's model of a prepared test: (model, its CurveFit, its flags).
     ``current_factor``: a current-dependent resistance the fit takes as given
     (:func:`ecmgen.fit.curve.fit_pulse_curves`; then no Butler-Volmer branch);
@@ -232,13 +235,14 @@ def curve_model(cfg: BuildConfig, inputs: Inputs, common: dict, progress: Progre
     relax = dcir_mod.relaxation_s(inputs.pulses_series,
                                   [p for p in inputs.pulses if not p.cut_short], cfg.relax_s)
     progress(f"whole-test fit of the pulse test ({len(inputs.pulses)} pulses, "
-             f"{_relax_words(relax, cfg.relax_s)}"
+             f"{dcir_mod.relaxation_words(relax, cfg.relax_s)}"
              f"{', SOC steps merged' if inputs.steps is not None else ''})")
     cf = fit_pulse_curves(inputs.pulses_series, list(inputs.pulses), inputs.ocv,
                           inputs.soc_capacity_ah or inputs.capacity_ah,
                           i0_a=bv.i0_a if bv else None, diffusion=branches, steps=inputs.steps,
                           relax_s=cfg.relax_s, direction_deadband_a=common["direction_deadband_a"],
                           blocks_both_ways=cfg.dynamic, current_factor=current_factor,
+                          neighbour_taus=neighbour_taus,
                           **{**(DYNAMIC_TAU_RANGES if cfg.dynamic else {}), **(tau_ranges or {})})
     flags = curve_fit_flags(cf, float(relax.max()) if relax.size else None)
     model = EcmModel(charge=RcTable(**cf.rc_columns("charge")),
@@ -263,13 +267,6 @@ class TestFit:
     seconds: float                 # wall time of its fits
     timings: dict[str, float] = field(default_factory=dict)   # seconds per step
     pngs: dict[str, bytes] = field(default_factory=dict)      # its plots, if asked for
-
-
-def temperature_label(t: float) -> str:
-    """25.8 -> "25.8degC", -9.9 -> "n9.9degC" (the shared data's folder style)."""
-    if not np.isfinite(t):
-        return "unknownT"
-    return f"{'n' if t < 0 else ''}{abs(t):.1f}degC"
 
 
 def pulse_test_config(cfg: BuildConfig, test: PulseTest) -> BuildConfig:
@@ -301,15 +298,16 @@ def one_test_c(tests, inputs: Inputs | None) -> float | None:
 
 
 def fit_pulse_test(cfg: BuildConfig, k: int, plots: bool = False,
-                   progress: Progress = _quiet) -> TestFit:
+                   neighbour_taus: dict | None = None, progress: Progress = _quiet) -> TestFit:
     """Read, extract and fit pulse test ``k`` of the config, every method of the config
-    (and draw its fit plots, as PNG bytes, with ``plots``)."""
+    (and draw its fit plots, as PNG bytes, with ``plots``); ``neighbour_taus``: see
+    :func:`fit_models`."""
     import time
 
     t0 = time.perf_counter()
     test = cfg.pulse_tests[k]
     try:
-        fit = _fit_pulse_test(cfg, test, progress, t0)
+        fit = _fit_pulse_test(cfg, test, progress, t0, neighbour_taus)
     except InputError as exc:
         if exc.path is None:    # say which test it was
             raise InputError(test.file, exc.message) from None
@@ -327,8 +325,8 @@ def fit_pulse_test(cfg: BuildConfig, k: int, plots: bool = False,
     return fit
 
 
-def _fit_pulse_test(cfg: BuildConfig, test: PulseTest, progress: Progress, t0: float
-                    ) -> TestFit:
+def _fit_pulse_test(cfg: BuildConfig, test: PulseTest, progress: Progress, t0: float,
+                    neighbour_taus: dict | None = None) -> TestFit:
     import time
 
     sub = pulse_test_config(cfg, test)
@@ -353,7 +351,7 @@ def _fit_pulse_test(cfg: BuildConfig, test: PulseTest, progress: Progress, t0: f
     models, raw = {}, {}
     for m in cfg.methods:   # one at a time, for the timings
         t1 = time.perf_counter()
-        got, got_raw = fit_models(replace(sub, methods=(m,)), inputs, progress)
+        got, got_raw = fit_models(replace(sub, methods=(m,)), inputs, progress, neighbour_taus)
         models.update(got)
         for key, value in got_raw.items():
             if isinstance(value, dict) and isinstance(raw.get(key), dict):
@@ -402,7 +400,33 @@ def fit_pulse_tests(cfg: BuildConfig, progress: Progress = _quiet,
     except BaseException:
         workers.cancel(tasks)
         raise
-    return out
+    return _with_neighbour_taus(cfg, out, workers, plots, detail)
+
+
+def _with_neighbour_taus(cfg: BuildConfig, fits: list[TestFit], workers: Workers,
+                         plots: bool, detail) -> list[TestFit]:
+    """The curve fits of the tests between two others in temperature again, offered the
+    time constants of those two (:func:`ecmgen.model.temperature.neighbour_time_constants`;
+    the fit keeps them where they predict a left-out level better than the test's own)."""
+    from .model.temperature import neighbour_time_constants
+
+    if "curve" not in cfg.methods:
+        return fits
+    offer = neighbour_time_constants([f.temperature_c for f in fits],
+                                     [f.raw.get("curve_fit") for f in fits])
+    curve_only = replace(cfg, methods=("curve",))
+    tasks = {k: workers.submit(fit_pulse_test, curve_only, k, plots, taus)
+             for k, taus in enumerate(offer) if taus is not None}
+    for k, task in tasks.items():
+        again = task.result(lambda msg: detail(f"[pulse test {k + 1}] {msg}"))
+        fit = fits[k]
+        fit.models["curve"] = again.models["curve"]
+        fit.raw["curve_fit"] = again.raw["curve_fit"]
+        fit.raw["flags"]["curve"] = again.raw["flags"]["curve"]
+        fit.pngs.update(again.pngs)
+        fit.timings["curve, neighbours' time constants"] = again.timings["curve"]
+        fit.seconds += again.seconds
+    return fits
 
 
 def fit_all(cfg: BuildConfig, progress: Progress = _quiet, *, workers: Workers | int = 2,
@@ -473,18 +497,6 @@ def with_surface_soc(cfg: BuildConfig, models: dict[str, EcmModel]) -> dict[str,
     return out
 
 
-def short_names(paths) -> list[str]:
-    """Names for files of the config: the file name, or as many of its last path parts as
-    it takes to tell files of the same name apart (e.g. 0degC/us06.mat)."""
-    paths = [Path(p) for p in paths]
-    depth = 1
-    while True:
-        labels = ["/".join(p.parts[-depth:]) for p in paths]
-        if len(set(labels)) == len(labels) or depth > max(len(p.parts) for p in paths):
-            return labels
-        depth += 1
-
-
 def validate_cycle(cfg: BuildConfig, path: Path, role: str, label: str,
                    models: dict[str, EcmModel], plot_best: str | None = None,
                    progress: Progress = _quiet) -> tuple[dict[str, Validation], bytes | None]:
@@ -517,16 +529,6 @@ def _cycles(cfg: BuildConfig) -> list[tuple[Path, str, str]]:
     paths = ([cfg.cycle] if cfg.cycle else []) + list(cfg.extra_cycles)
     roles = (["cycle"] if cfg.cycle else []) + ["extra_cycles"] * len(cfg.extra_cycles)
     return list(zip(paths, roles, short_names(paths))) if paths else []
-
-
-def _relax_words(relax: np.ndarray, relax_s: float) -> str:
-    """The relaxation the whole-curve fit actually uses, for the progress line."""
-    if relax.size == 0:
-        return "no relaxation"
-    lo, med, hi = float(relax.min()), float(np.median(relax)), float(relax.max())
-    return (f"{lo:.0f}..{hi:.0f} s of relaxation each (median {med:.0f} s; "
-            f"fit.relax_s = {relax_s:g} s)" if hi - lo > 1 else
-            f"{med:.0f} s of relaxation each (fit.relax_s = {relax_s:g} s)")
 
 
 def validate_all(cfg: BuildConfig, models: dict[str, EcmModel], progress: Progress = _quiet,
@@ -576,7 +578,7 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
         clock["t"] = now
 
     out_dir = Path(out_dir).resolve()
-    given = _given(cfg)
+    given = cfg.input_files()      # outputs must never replace one
     check_output_folder(out_dir, given)     # before the fit, not after it
     with _workers_for(cfg, workers) as pool:
         models, raw, inputs, tests = fit_all(cfg, progress, workers=pool, plots=plots)
@@ -725,7 +727,7 @@ def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _qu
                                    "to diagnose on)")
     soc0 = options.pop("soc0", cfg.soc0 if cycle_path == cfg.cycle else None)
     out_dir = Path(out_dir).resolve()
-    given = _given(cfg) | {p for p in (judge_path, cycle_path) if p is not None}
+    given = cfg.input_files() | {p for p in (judge_path, cycle_path) if p is not None}
     check_output_folder(out_dir, given)
     fit_cfg = cfg if cfg.methods == (cfg.best,) else _only_method(cfg, cfg.best)
     if "curve_branches" not in (cfg.raw.get("fit") or {}):
@@ -793,8 +795,3 @@ def _refit_with_current_dependence(cfg: BuildConfig, inputs: Inputs, base_fit, p
 
 def _only_method(cfg: BuildConfig, method: str) -> BuildConfig:
     return replace(cfg, methods=(method,))
-
-
-def _given(cfg: BuildConfig) -> set[Path]:
-    """Every file the config names (outputs must never replace one)."""
-    return cfg.input_files()

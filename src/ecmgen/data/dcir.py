@@ -299,6 +299,16 @@ def relaxation_s(series: TimeSeries, pulses, relax_s: float = np.inf) -> np.ndar
     return np.array(out)
 
 
+def relaxation_words(relax: np.ndarray, relax_s: float) -> str:
+    """The relaxation the whole-curve fit actually uses, for the progress line."""
+    if relax.size == 0:
+        return "no relaxation"
+    lo, med, hi = float(relax.min()), float(np.median(relax)), float(relax.max())
+    return (f"{lo:.0f}..{hi:.0f} s of relaxation each (median {med:.0f} s; "
+            f"fit.relax_s = {relax_s:g} s)" if hi - lo > 1 else
+            f"{med:.0f} s of relaxation each (fit.relax_s = {relax_s:g} s)")
+
+
 def extract_dcir(series: TimeSeries, pulses: list[Pulse],
                  times_s=DEFAULT_TIMES_S) -> DcirTable:
     """R(t) = (v(t) - v_rest) / (i(t) - i_rest) at each requested time into each pulse.

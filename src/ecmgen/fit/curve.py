@@ -100,8 +100,9 @@ from ..data.measure import TimeSeries
 from ..data.ocv import OcvTable
 from ..data.steps import merge_soc_steps
 from ..errors import InputError
-from .curve_levels import (choose_penalty, data_tau_ranges, level_nodes, level_windows,
-                           log_penalty, log_references, second_difference, tied_slow_pairs)
+from .curve_levels import (choose_penalty, data_tau_ranges, level_fit_windows, level_nodes,
+                           level_windows, log_penalty, log_references, r0_holds,
+                           second_difference, tied_slow_pairs)
 from .curve_record import Record, W_SPAN_S, hats, pulse_record, rc_response, side_by_side
 from .lsq import log_grid, nelder_mead, solve_bounded
 
@@ -211,7 +212,7 @@ class _Problem:
             ocv_cols = np.hstack([ocv_cols * after_charge[:, None],
                                   ocv_cols * ~after_charge[:, None]])
         self.n_ocv = int(ocv_cols.shape[1])
-        self.r0_held, self.r0_source = _r0_holds(self.bases, self.offsets, self.dirs,
+        self.r0_held, self.r0_source = r0_holds(self.bases, self.offsets, self.dirs,
                                                  r0_spans or {})
         hd = np.hstack([hats(rec.soc, b) * m[:, None]
                         for b, m in zip(self.bases, rec.dir_mask.values())])
@@ -439,7 +440,8 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
                      tau_diff_s: tuple[float, float] = (150.0, 3000.0),
                      soc_nodes: np.ndarray = SOC_NODES,
                      direction_deadband_a: float | None = None, progress=None,
-                     blocks_both_ways: bool = False, current_factor=None) -> CurveFit:
+                     blocks_both_ways: bool = False, current_factor=None,
+                     neighbour_taus: dict | None = None) -> CurveFit:
     """Fit one pulse test as a whole (module docstring): the curve method.
 
     series, pulses   the pulse test and its pulses (:func:`ecmgen.data.dcir.find_pulses`;
@@ -460,6 +462,10 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
     current_factor   f(i) -> resistance factor at current i (array in, array out) applied
                      to r0 and r_fast as a ``current_dependent_resistance`` effect of the
                      model does; the tables are then its values at zero current (not with i0_a)
+    neighbour_taus   time constants from the tests of the same cell at the temperatures on
+                     either side ({"fast": s, "slow": s, "diff": s}; one model over
+                     temperature): kept in place of the test's own where they predict a
+                     left-out level better (:func:`_neighbour_choice`)
     """
     if i0_a is not None and current_factor is not None:
         raise ValueError("give i0_a or current_factor, not both")
@@ -501,7 +507,8 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
     notes.extend(n)
     prob, got, n = _fit_problem(rec, complete, directions, capacity_ah, i0_a, spans, ranges,
                                 series, progress, may_split=not blocks_both_ways,
-                                current_factor=current_factor, tied=tied)
+                                current_factor=current_factor, tied=tied,
+                                neighbour_taus=neighbour_taus)
     notes.extend(n)
     taus, x, cost, n_eval, search_notes, ranges = got
     notes.extend(search_notes)
@@ -531,13 +538,13 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
                     float(taus["fast"]), float(taus["slow"]),
                     float(taus["diff"]) if diffusion else None, i0_a, rms,
                     int(prob.rows.size), tuple(notes),
-                    _windows(series, blocks, rec, fitted), dict(ranges),
+                    level_fit_windows(series, blocks, rec, fitted), dict(ranges),
                     float(rec.rest_used_s))
 
 
 def _fit_problem(rec: Record, complete, directions, capacity_ah: float, i0_a, spans: dict,
                  ranges: dict, series: TimeSeries, progress=None, may_split: bool = True,
-                 current_factor=None, tied=None):
+                 current_factor=None, tied=None, neighbour_taus=None):
     """The linear problem of the record and its fit (:func:`_fit_time_constants`), with the
     OCV offsets at the levels or also half-way between them (a SOC move passes where the
     OCV table is interpolated between the rests, and its curvature there must not go into
@@ -561,7 +568,8 @@ def _fit_problem(rec: Record, complete, directions, capacity_ah: float, i0_a, sp
         if prob.rows.size < 4 * (prob.jd + prob.n_ocv):
             raise InputError(series.source, f"only {prob.rows.size} samples to fit the curve "
                                             "method on")
-        fits.append((prob, _fit_time_constants(prob, ranges, progress if not fits else None)))
+        fits.append((prob, _fit_time_constants(prob, ranges, progress if not fits else None,
+                                                 neighbour_taus)))
     if len(fits) == 1:
         return fits[0][0], fits[0][1], []
     (p0, f0), (p1, f1) = fits
@@ -657,18 +665,49 @@ def _solve_at(prob: _Problem, kinds, taus: dict, z: np.ndarray | None = None):
     return prob.solve(z.T @ z, z.T @ prob.yw, prob.layout(kinds), hold_r0=True)
 
 
+def _neighbour_choice(prob: _Problem, ranges: dict, taus: dict, fit: tuple, other: dict,
+                      notes: list) -> tuple[dict, np.ndarray, float]:
+    """The test's own time constants (``taus``, ``fit``: its x and objective) or ``other``,
+    those of the tests on either side in temperature, whichever predicts a left-out level
+    better (:func:`choose_penalty`, each at its own weight). A test's objective is flat
+    between local minima (the -10 degC Panasonic test: tau_diff 283 s against 507 / 672 s at
+    0.6 / -19.9 degC): the held-out error says whether the test tells its own apart. The
+    search's time constants saw every level, the neighbours' none, so a tie keeps the own."""
+    kinds = list(ranges)
+    if set(other) != set(kinds) or not np.isfinite(prob.cv_sse):
+        return taus, fit[0], fit[1]
+    other = {k: float(np.clip(other[k], *ranges[k])) for k in kinds}
+    z = side_by_side([prob.r0w] + [prob.block(k, other[k]) for k in kinds])
+    lam, errors = choose_penalty(prob, z, prob.layout(kinds))
+    cv = errors.get(lam, float("inf")) if errors else float("inf")
+    words = ", ".join(f"tau_{k} {other[k]:.3g} s" for k in kinds)
+    ratio = f"{cv / prob.cv_sse:.3g} x" if prob.cv_sse > 0 else "no"
+    if not cv < prob.cv_sse:
+        notes.append(f"curve: the neighbouring tests' time constants ({words}) predict a "
+                     f"left-out level no better ({ratio} the error): the test's own kept")
+        return taus, fit[0], fit[1]
+    notes.append(f"curve: the neighbouring tests' time constants ({words}; ln tau linear in "
+                 f"1/T between them) predict a left-out level better ({ratio} the error of "
+                 "the test's own): kept")
+    prob.penalty, prob.cv_sse = lam, cv
+    x, cost = _solve_at(prob, kinds, other, z)
+    return other, x, cost
+
+
 def _on_bound(taus: dict, ranges: dict) -> list[str]:
     """The branches whose time constant ended within 1 % of a search bound."""
     return [k for k in ranges
             if taus[k] <= ranges[k][0] * 1.01 or taus[k] >= ranges[k][1] / 1.01]
 
 
-def _fit_time_constants(prob: _Problem, ranges: dict, progress=None):
+def _fit_time_constants(prob: _Problem, ranges: dict, progress=None, neighbour_taus=None):
     """The time-constant search (at the small default smoothing), then the smoothing weight
     chosen by leaving one level out and the resistances solved again with it at the same
     time constants, then what a time constant on its bound means: the diffusion pair on a
     bound is dropped and the rest refitted; a fast or slow one is kept fixed there, with a
-    note. Returns (taus, x, objective, evaluations, notes, ranges actually used).
+    note. Returns (taus, x, objective, evaluations, notes, ranges actually used). With
+    ``neighbour_taus``, those in place of the search's where they predict a left-out level
+    better (:func:`_neighbour_choice`), before the bounds are looked at.
 
     The search is not repeated at the chosen weight: a stronger penalty on the SOC shape
     lets the time constants make up for it, and the tests' time constants then wander
@@ -684,6 +723,8 @@ def _fit_time_constants(prob: _Problem, ranges: dict, progress=None):
     if lam != prob.penalty:
         prob.penalty = lam
         x, cost = _solve_at(prob, kinds, taus, z)
+    if neighbour_taus is not None:
+        taus, x, cost = _neighbour_choice(prob, ranges, taus, (x, cost), neighbour_taus, notes)
     on_bound = _on_bound(taus, ranges)
     if "diff" in on_bound:
         notes.append(f"curve: the diffusion pair's tau_diff {taus['diff']:.3g} s went to its "
@@ -747,53 +788,9 @@ def _r0_spans(complete, directions) -> dict:
     return out
 
 
-def _r0_holds(bases, offsets, directions, spans) -> tuple[np.ndarray, np.ndarray]:
-    """The r0 columns held and, for each, its source column: per direction, the level
-    nodes beyond the nodes nearest to the ends of the levels that pin r0 (the source: that
-    nearest node)."""
-    held, source = [], []
-    for basis, off, d in zip(bases, offsets, directions):
-        if d not in spans:
-            continue
-        lo, hi, low, high, _ = spans[d]
-        k_lo = int(np.argmin(np.abs(basis - lo))) if lo > low else 0
-        k_hi = int(np.argmin(np.abs(basis - hi))) if hi < high else basis.size - 1
-        k_hi = max(k_hi, k_lo)
-        for k in range(basis.size):
-            if k < k_lo or k > k_hi:
-                held.append(off + k)
-                source.append(off + (k_lo if k < k_lo else k_hi))
-    return np.array(held, dtype=int), np.array(source, dtype=int)
-
-
 def _node_error(rec, prob, resid, nodes, mask, default):
     h = hats(rec.soc[prob.rows], nodes) * mask[prob.rows][:, None]
     w2 = (prob.w ** 2)[:, None] * h
     tot = w2.sum(axis=0)
     e2 = (w2 * (resid[prob.rows] ** 2)[:, None]).sum(axis=0)
     return np.where(tot > 0, np.sqrt(e2 / np.maximum(tot, 1e-300)), default)
-
-
-def _windows(series, complete, rec, resid):
-    """Per SOC level: measured and fitted voltage from its first pulse to the next level."""
-    from .points import soc_levels
-
-    out = []
-    socs = np.array([p.soc for p in complete])
-    dirs = np.array([p.direction for p in complete])
-    groups = soc_levels(socs, dirs)
-    t = series.time_s
-    for g in groups:
-        ps = [complete[k] for k in g]
-        t0 = t[min(p.rest_index for p in ps)]
-        t1 = t[min(max(p.next_start for p in ps), t.size - 1)]
-        m = rec.row & (rec.t >= t0) & (rec.t <= t1)
-        if not m.any():
-            continue
-        meas = rec.v[m]
-        fit = meas - resid[m]
-        rms = float(np.sqrt(np.mean(resid[m] ** 2)))
-        edge = t[min(p.start for p in ps)]
-        out.append((float(np.mean(socs[g])), ps[0].direction, rms,
-                    [(rec.t[m] - edge, meas, fit)]))
-    return tuple(out)

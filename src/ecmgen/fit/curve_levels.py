@@ -9,7 +9,7 @@ import numpy as np
 
 from ..data.dcir import Pulse
 from .lsq import GRID_RATIO, solve_bounded
-from .points import SOC_LEVEL_GAP
+from .points import SOC_LEVEL_GAP, soc_levels
 
 # candidate weights of the second-difference penalty (relative to the column scale); up to
 # 1e3: on the Leaf's 1 mV-resolution tests the held-out optimum lies at 30-100
@@ -189,3 +189,45 @@ def second_difference(nodes: np.ndarray) -> np.ndarray:
         c = 2.0 / (h1 + h2) * hbar ** 2
         d[k - 1, k - 1:k + 2] = (c / h1, -c * (1.0 / h1 + 1.0 / h2), c / h2)
     return d
+
+
+def level_fit_windows(series, complete, rec, resid):
+    """Per SOC level: measured and fitted voltage from its first pulse to the next level."""
+    out = []
+    socs = np.array([p.soc for p in complete])
+    dirs = np.array([p.direction for p in complete])
+    groups = soc_levels(socs, dirs)
+    t = series.time_s
+    for g in groups:
+        ps = [complete[k] for k in g]
+        t0 = t[min(p.rest_index for p in ps)]
+        t1 = t[min(max(p.next_start for p in ps), t.size - 1)]
+        m = rec.row & (rec.t >= t0) & (rec.t <= t1)
+        if not m.any():
+            continue
+        meas = rec.v[m]
+        fit = meas - resid[m]
+        rms = float(np.sqrt(np.mean(resid[m] ** 2)))
+        edge = t[min(p.start for p in ps)]
+        out.append((float(np.mean(socs[g])), ps[0].direction, rms,
+                    [(rec.t[m] - edge, meas, fit)]))
+    return tuple(out)
+
+
+def r0_holds(bases, offsets, directions, spans) -> tuple[np.ndarray, np.ndarray]:
+    """The r0 columns held and, for each, its source column: per direction, the level
+    nodes beyond the nodes nearest to the ends of the levels that pin r0 (the source: that
+    nearest node)."""
+    held, source = [], []
+    for basis, off, d in zip(bases, offsets, directions):
+        if d not in spans:
+            continue
+        lo, hi, low, high, _ = spans[d]
+        k_lo = int(np.argmin(np.abs(basis - lo))) if lo > low else 0
+        k_hi = int(np.argmin(np.abs(basis - hi))) if hi < high else basis.size - 1
+        k_hi = max(k_hi, k_lo)
+        for k in range(basis.size):
+            if k < k_lo or k > k_hi:
+                held.append(off + k)
+                source.append(off + (k_lo if k < k_lo else k_hi))
+    return np.array(held, dtype=int), np.array(source, dtype=int)

@@ -25,7 +25,9 @@ SOC) and whose OCV has one row per pulse test:
 
 The notes of the result name the measured breakpoints, the derived row and the grid.
 :func:`derive_over_temperature` makes a model over temperature from ONE test and a given
-Ea/R ([model] activation_k), through the same assembly.
+Ea/R ([model] activation_k), through the same assembly. :func:`neighbour_time_constants`
+gives a test between two others their time constants, interpolated to its temperature: the
+curve fit takes them in place of its own where they predict a left-out level better.
 Pure numpy on the given arrays: the same inputs give the same bytes in model.json.
 """
 
@@ -69,6 +71,34 @@ def arrhenius_interp(temperatures_c: np.ndarray, rows: np.ndarray, at_c) -> np.n
         geometric = np.exp(np.log(np.where(positive, a, 1.0)) * (1.0 - w) +
                            np.log(np.where(positive, b, 1.0)) * w)
     return np.where(positive, geometric, linear)
+
+
+def neighbour_time_constants(temperatures_c, curve_fits) -> list[dict | None]:
+    """Per test, the time constants of the tests on either side of it in temperature, ln
+    tau linear in 1/T between them ({"fast": s, "slow": s[, "diff": s]}); None for the
+    coldest and the warmest test, and where a neighbour has no curve fit (``curve_fits``:
+    :class:`ecmgen.fit.curve.CurveFit` or None, in the order of ``temperatures_c``) or the
+    two have different branches (one dropped its diffusion pair)."""
+    temps = np.asarray(temperatures_c, dtype=np.float64)
+    out: list[dict | None] = [None] * temps.size
+    if temps.size < 3 or not np.all(np.isfinite(temps)):
+        return out
+    order = np.argsort(temps, kind="stable")
+
+    def taus(f):
+        t = {"fast": f.tau_fast_s, "slow": f.tau_slow_s, "diff": f.tau_diff_s}
+        return {k: float(v) for k, v in t.items() if v is not None}
+
+    for lo, k, hi in zip(order[:-2], order[1:-1], order[2:]):
+        a, b = curve_fits[lo], curve_fits[hi]
+        if a is None or b is None or set(taus(a)) != set(taus(b)) or \
+                not temps[lo] + MIN_SPACING_K <= temps[k] <= temps[hi] - MIN_SPACING_K:
+            continue
+        ta, tb = taus(a), taus(b)
+        x, x0, x1 = inverse_kelvin([temps[k], temps[lo], temps[hi]])
+        w = (x - x0) / (x1 - x0)
+        out[k] = {n: float(np.exp(np.log(ta[n]) * (1.0 - w) + np.log(tb[n]) * w)) for n in ta}
+    return out
 
 
 def activation_slope_k(t_warm_c: float, t_cold_c: float, warm: np.ndarray, cold: np.ndarray,
