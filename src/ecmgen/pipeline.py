@@ -405,9 +405,8 @@ def fit_pulse_tests(cfg: BuildConfig, progress: Progress = _quiet,
 
 def _with_neighbour_taus(cfg: BuildConfig, fits: list[TestFit], workers: Workers,
                          plots: bool, detail) -> list[TestFit]:
-    """The curve fits of the tests between two others in temperature again, offered the
-    time constants of those two (:func:`ecmgen.model.temperature.neighbour_time_constants`;
-    the fit keeps them where they predict a left-out level better than the test's own)."""
+    """The curve fits of the tests between two others in temperature again, offered their
+    time constants (:func:`ecmgen.model.temperature.neighbour_time_constants`)."""
     from .model.temperature import neighbour_time_constants
 
     if "curve" not in cfg.methods:
@@ -418,7 +417,13 @@ def _with_neighbour_taus(cfg: BuildConfig, fits: list[TestFit], workers: Workers
     tasks = {k: workers.submit(fit_pulse_test, curve_only, k, plots, taus)
              for k, taus in enumerate(offer) if taus is not None}
     for k, task in tasks.items():
-        again = task.result(lambda msg: detail(f"[pulse test {k + 1}] {msg}"))
+        label = f"pulse test {k + 1}"
+        try:
+            again = task.result(lambda msg: detail(f"[{label}] {msg}"))
+        except BaseException:
+            workers.cancel(list(tasks.values()))
+            raise
+        detail(f"[{label}] fitted again, offered its neighbours' time constants")
         fit = fits[k]
         fit.models["curve"] = again.models["curve"]
         fit.raw["curve_fit"] = again.raw["curve_fit"]
@@ -729,7 +734,7 @@ def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _qu
     out_dir = Path(out_dir).resolve()
     given = cfg.input_files() | {p for p in (judge_path, cycle_path) if p is not None}
     check_output_folder(out_dir, given)
-    fit_cfg = cfg if cfg.methods == (cfg.best,) else _only_method(cfg, cfg.best)
+    fit_cfg = replace(cfg, methods=(cfg.best,))
     if "curve_branches" not in (cfg.raw.get("fit") or {}):
         # the base of a diagnosis is the plain 2RC: the diffusion pair and the Butler-Volmer
         # branch are what extra_rc and current_dependent_resistance would name
@@ -791,7 +796,3 @@ def _refit_with_current_dependence(cfg: BuildConfig, inputs: Inputs, base_fit, p
     return model, effect, (f"current_dependent_resistance: the base tables refitted on the "
                            f"pulse test with it (i0 {i0_a:.3g} A; fit RMS "
                            f"{1e3 * base_fit.rms_error_v:.2f} -> {1e3 * cf.rms_error_v:.2f} mV)")
-
-
-def _only_method(cfg: BuildConfig, method: str) -> BuildConfig:
-    return replace(cfg, methods=(method,))

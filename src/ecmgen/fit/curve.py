@@ -676,11 +676,14 @@ def _neighbour_choice(prob: _Problem, ranges: dict, taus: dict, fit: tuple, othe
     kinds = list(ranges)
     if set(other) != set(kinds) or not np.isfinite(prob.cv_sse):
         return taus, fit[0], fit[1]
-    other = {k: float(np.clip(other[k], *ranges[k])) for k in kinds}
+    words = ", ".join(f"tau_{k} {other[k]:.3g} s" for k in kinds)
+    if any(not ranges[k][0] < other[k] < ranges[k][1] for k in kinds):
+        notes.append(f"curve: the neighbouring tests' time constants ({words}) lie beyond "
+                     "the ranges this test can show: the test's own kept")
+        return taus, fit[0], fit[1]
     z = side_by_side([prob.r0w] + [prob.block(k, other[k]) for k in kinds])
     lam, errors = choose_penalty(prob, z, prob.layout(kinds))
     cv = errors.get(lam, float("inf")) if errors else float("inf")
-    words = ", ".join(f"tau_{k} {other[k]:.3g} s" for k in kinds)
     ratio = f"{cv / prob.cv_sse:.3g} x" if prob.cv_sse > 0 else "no"
     if not cv < prob.cv_sse:
         notes.append(f"curve: the neighbouring tests' time constants ({words}) predict a "
