@@ -361,9 +361,9 @@ def test_a_current_dependent_resistance_is_found_on_the_pulse_test():
 
 def test_time_constants_offered_by_the_neighbours_are_kept_only_where_they_predict_better():
     """The neighbours' time constants replace the search's only when they predict a left-out
-    level better: the truth's (offered to a fit that found them) ties and the own are kept;
-    four to five times the truth's predict worse and are said so, as are time constants
-    beyond the test's search ranges."""
+    level better: the fit's own offered back tie, and the own are kept; four to five times
+    the truth's predict worse and are said so, as are time constants beyond the test's
+    search ranges."""
     truth = synthetic_nca_model(tau_fast_s=2.0, tau_slow_s=60.0)
     series, soc0 = make_pulse_test(truth, soc_levels=LEVELS, c_rates=(2.0, 6.0),
                                    noise_v=0.001, seed=3, log_moves=True)

@@ -1,7 +1,8 @@
 """The pulse levels of a pulse test as the whole-test fit sees them (:mod:`ecmgen.fit.curve`):
 the SOC nodes each direction's tables are free at, the levels rows belong to (for leaving one
-out), the time-constant ranges the record can show, and the choice of the smoothing weight by
-leaving one level out."""
+out), the time-constant ranges the record can show, the choice of the smoothing weight by
+leaving one level out, the r0 columns held beyond the levels that pin r0, and each level's
+measured and fitted voltage (the fit plots)."""
 
 from __future__ import annotations
 
