@@ -22,10 +22,6 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-# one BLAS thread per process: --jobs processes on as many cores (BLAS's own threads on top
-# made the run over 15 times slower on the 2-core machine)
-for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_name, "1")
 HERE = Path(__file__).resolve().parent
 DEFAULT_SUITE = HERE.parent.parent / "shared" / "diagnose-suite"
 
@@ -59,6 +55,14 @@ def run_case(folder: str) -> dict:
             "seconds": time.perf_counter() - t0}
 
 
+def one_blas_thread() -> None:
+    """One BLAS thread in the worker processes started after this (they inherit it): --jobs
+    processes on as many cores (BLAS's own threads on top made the run over 15 times slower
+    on the 2-core machine). Not at import: tests import run_case from here."""
+    for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(name, "1")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--suite", default=str(DEFAULT_SUITE))
@@ -70,6 +74,7 @@ def main(argv=None) -> int:
         print(f"no cells in {args.suite}", file=sys.stderr)
         return 2
     t0 = time.perf_counter()
+    one_blas_thread()
     with ProcessPoolExecutor(max_workers=args.jobs) as ex:
         rows = list(ex.map(run_case, cases))
     print(f"{'cell':5s} {'truth':29s} {'named':40s} {'MAE mV':>14s} {'noise':>6s} {'drop':>5s} "

@@ -50,6 +50,8 @@ def main(argv=None) -> int:
     effects = [None if e == "none" else e for e in args.effects.split(",")]
     jobs = [(e, args.first_seed + k) for e in effects for k in range(args.cells)]
     t0 = time.perf_counter()
+    from diagnose_suite import one_blas_thread  # bench/ is on sys.path
+    one_blas_thread()
     with ProcessPoolExecutor(max_workers=args.jobs) as ex:
         rows = list(ex.map(one, jobs))
     ok_all = True

@@ -50,6 +50,8 @@ def main(argv=None) -> int:
     if not folders:
         print(f"{args.suite}: no cell folders", file=sys.stderr)
         return 2
+    from diagnose_suite import one_blas_thread  # bench/ is on sys.path
+    one_blas_thread()
     with ProcessPoolExecutor(args.jobs) as pool:
         results = [r for rows in pool.map(run_case, folders) for r in rows]
     print(f"{'cell':5s} {'method':6s} {'rough':>6s} {'<=0':>4s} {'MAE mV':>7s}  on bound")
