@@ -15,18 +15,16 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_SUITE = HERE.parent.parent / "shared" / "diagnose-suite"
 
 
-def run_case(folder: str) -> dict:
+def run_case(folder: str, progress=None) -> dict:
     """Diagnose one cell folder; returns its score row (truth read only to score)."""
     from ecmgen.config import load_config
     from ecmgen.fit.quality import model_quality
@@ -55,14 +53,6 @@ def run_case(folder: str) -> dict:
             "seconds": time.perf_counter() - t0}
 
 
-def one_blas_thread() -> None:
-    """One BLAS thread in the worker processes started after this (they inherit it): --jobs
-    processes on as many cores (BLAS's own threads on top made the run over 15 times slower
-    on the 2-core machine). Not at import: tests import run_case from here."""
-    for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(name, "1")
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--suite", default=str(DEFAULT_SUITE))
@@ -74,9 +64,10 @@ def main(argv=None) -> int:
         print(f"no cells in {args.suite}", file=sys.stderr)
         return 2
     t0 = time.perf_counter()
-    one_blas_thread()
-    with ProcessPoolExecutor(max_workers=args.jobs) as ex:
-        rows = list(ex.map(run_case, cases))
+    from ecmgen.parallel import Workers     # its workers use one BLAS thread each
+
+    with Workers(args.jobs) as workers:
+        rows = workers.map(run_case, [(c,) for c in cases])
     print(f"{'cell':5s} {'truth':29s} {'named':40s} {'MAE mV':>14s} {'noise':>6s} {'drop':>5s} "
           f"{'rough':>6s} {'<=0':>4s} bound")
     for r in rows:

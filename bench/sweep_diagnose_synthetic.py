@@ -17,10 +17,9 @@ import argparse
 import json
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 
 
-def one(job):
+def one(job, progress=None):
     effect, seed = job
     from ecmgen.diagnosis.search import diagnose
     from ecmgen.diagnosis.synthcell import random_cell
@@ -50,10 +49,10 @@ def main(argv=None) -> int:
     effects = [None if e == "none" else e for e in args.effects.split(",")]
     jobs = [(e, args.first_seed + k) for e in effects for k in range(args.cells)]
     t0 = time.perf_counter()
-    from diagnose_suite import one_blas_thread  # bench/ is on sys.path
-    one_blas_thread()
-    with ProcessPoolExecutor(max_workers=args.jobs) as ex:
-        rows = list(ex.map(one, jobs))
+    from ecmgen.parallel import Workers     # its workers use one BLAS thread each
+
+    with Workers(args.jobs) as workers:
+        rows = workers.map(one, [(j,) for j in jobs])
     ok_all = True
     print(f"{'hidden effect':30s} {'named first':>12s} {'median drop':>12s} {'min drop':>9s} "
           f"{'diagnose s':>10s}")

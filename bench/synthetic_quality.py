@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
@@ -25,7 +24,7 @@ DEFAULT_SUITE = HERE.parent.parent / "shared" / "diagnose-suite"
 LIMIT = 0.35
 
 
-def run_case(folder: str) -> list[tuple]:
+def run_case(folder: str, progress=None) -> list[tuple]:
     from ecmgen.config import load_config
     from ecmgen.pipeline import build
 
@@ -50,10 +49,10 @@ def main(argv=None) -> int:
     if not folders:
         print(f"{args.suite}: no cell folders", file=sys.stderr)
         return 2
-    from diagnose_suite import one_blas_thread  # bench/ is on sys.path
-    one_blas_thread()
-    with ProcessPoolExecutor(args.jobs) as pool:
-        results = [r for rows in pool.map(run_case, folders) for r in rows]
+    from ecmgen.parallel import Workers     # its workers use one BLAS thread each
+
+    with Workers(args.jobs) as workers:
+        results = [r for rows in workers.map(run_case, [(f,) for f in folders]) for r in rows]
     print(f"{'cell':5s} {'method':6s} {'rough':>6s} {'<=0':>4s} {'MAE mV':>7s}  on bound")
     for cell, method, rough, nonpos, bound, mae in results:
         print(f"{cell:5s} {method:6s} {rough:6.2f} {nonpos:4d} {mae:7.2f}  {', '.join(bound) or '-'}")
