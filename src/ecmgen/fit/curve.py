@@ -102,7 +102,7 @@ from ..data.steps import merge_soc_steps
 from ..errors import InputError
 from .curve_levels import (choose_penalty, data_tau_ranges, level_fit_windows, level_nodes,
                            level_windows, log_penalty, log_references, r0_holds,
-                           second_difference, tied_slow_pairs)
+                           second_difference, taus_on_bound, tied_slow_pairs)
 from .curve_record import Record, W_SPAN_S, hats, pulse_record, rc_response, side_by_side
 from .lsq import log_grid, nelder_mead, solve_bounded
 
@@ -665,6 +665,14 @@ def _solve_at(prob: _Problem, kinds, taus: dict, z: np.ndarray | None = None):
     return prob.solve(z.T @ z, z.T @ prob.yw, prob.layout(kinds), hold_r0=True)
 
 
+def _held_out(prob: _Problem, kinds, taus: dict) -> tuple[np.ndarray, float, float]:
+    """At ``taus``: the weighted design columns, the smoothing weight chosen by leaving one
+    level out and the held-out error at it (inf with too few levels to leave one out)."""
+    z = side_by_side([prob.r0w] + [prob.block(k, taus[k]) for k in kinds])
+    lam, errors = choose_penalty(prob, z, prob.layout(kinds))
+    return z, lam, errors.get(lam, float("inf")) if errors else float("inf")
+
+
 def _neighbour_choice(prob: _Problem, ranges: dict, taus: dict, fit: tuple, other: dict,
                       notes: list) -> tuple[dict, np.ndarray, float]:
     """The test's own time constants (``taus``, ``fit``: its x and objective) or ``other``,
@@ -681,9 +689,7 @@ def _neighbour_choice(prob: _Problem, ranges: dict, taus: dict, fit: tuple, othe
         notes.append(f"curve: the neighbouring tests' time constants ({words}) lie beyond "
                      "the ranges this test can show: the test's own kept")
         return taus, fit[0], fit[1]
-    z = side_by_side([prob.r0w] + [prob.block(k, other[k]) for k in kinds])
-    lam, errors = choose_penalty(prob, z, prob.layout(kinds))
-    cv = errors.get(lam, float("inf")) if errors else float("inf")
+    z, lam, cv = _held_out(prob, kinds, other)
     ratio = f"{cv / prob.cv_sse:.3g} x" if prob.cv_sse > 0 else "no"
     if not cv < prob.cv_sse:
         notes.append(f"curve: the neighbouring tests' time constants ({words}) predict a "
@@ -695,12 +701,6 @@ def _neighbour_choice(prob: _Problem, ranges: dict, taus: dict, fit: tuple, othe
     prob.penalty, prob.cv_sse = lam, cv
     x, cost = _solve_at(prob, kinds, other, z)
     return other, x, cost
-
-
-def _on_bound(taus: dict, ranges: dict) -> list[str]:
-    """The branches whose time constant ended within 1 % of a search bound."""
-    return [k for k in ranges
-            if taus[k] <= ranges[k][0] * 1.01 or taus[k] >= ranges[k][1] / 1.01]
 
 
 def _fit_time_constants(prob: _Problem, ranges: dict, progress=None, neighbour_taus=None):
@@ -720,15 +720,13 @@ def _fit_time_constants(prob: _Problem, ranges: dict, progress=None, neighbour_t
     leave one temperature out 66.3 vs 56.9 mV)."""
     taus, x, cost, n_eval, notes = _search(prob, ranges, progress)
     kinds = list(ranges)
-    z = side_by_side([prob.r0w] + [prob.block(k, taus[k]) for k in kinds])
-    lam, errors = choose_penalty(prob, z, prob.layout(kinds))
-    prob.cv_sse = errors.get(lam, float("inf")) if errors else float("inf")
+    z, lam, prob.cv_sse = _held_out(prob, kinds, taus)
     if lam != prob.penalty:
         prob.penalty = lam
         x, cost = _solve_at(prob, kinds, taus, z)
     if neighbour_taus is not None:
         taus, x, cost = _neighbour_choice(prob, ranges, taus, (x, cost), neighbour_taus, notes)
-    on_bound = _on_bound(taus, ranges)
+    on_bound = taus_on_bound(taus, ranges)
     if "diff" in on_bound:
         notes.append(f"curve: the diffusion pair's tau_diff {taus['diff']:.3g} s went to its "
                      f"bound ({ranges['diff'][0]:.3g} .. {ranges['diff'][1]:.3g} s): the test "
@@ -740,7 +738,7 @@ def _fit_time_constants(prob: _Problem, ranges: dict, progress=None, neighbour_t
         x, cost = _solve_at(prob, list(ranges), taus)
         notes.extend(more)
         n_eval += n2
-        on_bound = _on_bound(taus, ranges)
+        on_bound = taus_on_bound(taus, ranges)
     for k in on_bound:
         lo, hi = ranges[k]
         notes.append(f"curve: tau_{k} {taus[k]:.3g} s is on its search bound ({lo:.3g} .. "

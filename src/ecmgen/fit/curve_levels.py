@@ -192,6 +192,12 @@ def second_difference(nodes: np.ndarray) -> np.ndarray:
     return d
 
 
+def taus_on_bound(taus: dict, ranges: dict) -> list[str]:
+    """The branches whose time constant ended within 1 % of a search bound."""
+    return [k for k in ranges
+            if taus[k] <= ranges[k][0] * 1.01 or taus[k] >= ranges[k][1] / 1.01]
+
+
 def level_fit_windows(series, complete, rec, resid):
     """Per SOC level: measured and fitted voltage from its first pulse to the next level."""
     out = []
