@@ -18,7 +18,9 @@
  *       column through the tables' SOC slopes at the new SOC; u_x and h have no SOC
  *       slope: a_x = 1 - c_x, a_h = 1 - c_h, the step's own coefficients), P = F P F^T + Q;
  *   at the first sample Q also carries the RC voltages' start variance (r_j start_a)^2;
- *   H = [dOCV/dsoc + dr0/dsoc g f i, 1, 1 (, 1) (, 1) (, m_v)], R from the model error (of
+ *   H = [dOCV/dsoc + dr0/dsoc g f i, 1, 1 (, 1) (, 1) (, m_v)] (with ECMRT_EST_SPREAD
+ *       dOCV/dsoc is the secant over soc +- ocv_k sqrt(P_soc) after the predict, clamped
+ *       to [0, 1], in every relinearisation too), R from the model error (of
  *       the overpotential, or of the one held in *eta when that is larger: mem_k > 0) and
  *       its correlation time (R = 0: the sample carries no information, e.g. dt = 0; but
  *       with start_a = 0 the first sample counts fully, the cell taken rested); with
@@ -65,6 +67,9 @@
 #if !defined(ECMRT_EST_SLOPES)
 #define ECMRT_EST_SLOPES 1        /* the Jacobians carry the RC tables' SOC slopes */
 #endif
+#if !defined(ECMRT_EST_SPREAD)
+#define ECMRT_EST_SPREAD 0        /* H's OCV slope: the tangent (1: the secant, ocv_k) */
+#endif
 
 /* soc, u_fast, u_slow (, u_diff) (, u_x) (, h) (, offset_a) */
 #define ECMRT_EST_N (3u + (unsigned)ECMRT_DIFF + (unsigned)ECMRT_FX_XRC + \
@@ -103,6 +108,9 @@ typedef struct {
     float start_a;            /* the RC voltages' start sigma is r_j times this current, A */
     float mem_k;              /* 1 / error_memory_s (0: the model error has no memory), 1/s */
     float pol_s2;             /* polarization_soc_sigma^2 (0: the RC noise is not scaled) */
+#if ECMRT_EST_SPREAD
+    float ocv_k;              /* ocv_slope_spread: H's OCV slope is the secant over soc +- k sigma */
+#endif
 #if ECMRT_FX_HYST
     float p0_h;               /* hysteresis_sigma^2: h's initial variance and its noise scale */
 #endif
@@ -209,6 +217,37 @@ static inline float ecmrt_est_f32_abs(float x)
     return x < 0.0f ? -x : x;
 }
 
+#if ECMRT_EST_SPREAD
+/* the OCV slope H takes (ecmgen.estimate.ekf.spread_slope): the tangent p->docv, or with
+ * k = ocv_slope_spread > 0 the secant over soc +- k sqrt(p_soc), clamped to [0, 1], by the
+ * accessor's own OCV (p: the accessor's values at soc, its u_diff for the surface SOC) */
+#define ECMRT_EST_SPREAD_MIN 1e-6f    /* a narrower secant (in SOC) is the tangent */
+#define ECMRT_EST_P_SOC_MIN 1e-12f    /* ... and so is one of a smaller SOC variance */
+static inline float ecmrt_est_f32_ocv_slope(const ecmrt_f32_model_t *m, const ECMRT_STATE *s,
+                                            unsigned dir, float soc, float p_soc, float k,
+                                            const ecmrt_est_f32_par_t *p)
+{
+    ecmrt_est_f32_par_t q;
+    float d, lo, hi, v_lo;
+    if (!(k > 0.0f && p_soc > ECMRT_EST_P_SOC_MIN)) {
+        return p->docv;
+    }
+    d = k * ecmrt_f32_sqrt(p_soc);
+    lo = soc - d;
+    hi = soc + d;
+    lo = lo < 0.0f ? 0.0f : lo;
+    hi = hi > 1.0f ? 1.0f : hi;
+    if (!(hi - lo > ECMRT_EST_SPREAD_MIN)) {
+        return p->docv;
+    }
+    q = *p;
+    ecmrt_est_f32_params(m, s, dir, lo, &q, 0);
+    v_lo = q.ocv;
+    ecmrt_est_f32_params(m, s, dir, hi, &q, 0);
+    return (q.ocv - v_lo) / (hi - lo);
+}
+#endif
+
 /* The covariance update in Joseph form: M = P - K c^T, d = M h, P = M - d K^T + R K K^T,
  * symmetrised; written to P, and 1 returned, only when it and the updated state xu are
  * finite (M, then the new P before symmetrising, in fp) */
@@ -272,7 +311,7 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     ecmrt_est_f32_vec_t a, f, q, h, x0, xu, xn, c, k;
     float fp[ECMRT_EST_N * ECMRT_EST_N];
     const float ai = i < 0.0f ? -i : i;
-    float r, e, kk, b, one_a, da, rg, vi, ps;
+    float r, e, kk, b, one_a, da, rg, vi, ps, dv;
     float gf = 1.0f;
     ecmrt_est_f32_par_t p;
     unsigned u, v;
@@ -543,11 +582,17 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
             P[ECMRT_EST_N * v + u] = r;
         }
     }
-    /* 3. the measurement: h = dv/dx, R */
-#if ECMRT_SURFACE
-    h[0] = p.docv + (p.dr0 * p.ds) * i;               /* r0 at the surface SOC */
+    /* 3. the measurement: h = dv/dx, R (the OCV's slope over the SOC's spread: the
+     * predicted P, here and in every relinearisation) */
+#if ECMRT_EST_SPREAD
+    dv = ecmrt_est_f32_ocv_slope(m, s, dir, x0[0], P[0], nz->ocv_k, &p);
 #else
-    h[0] = p.docv + p.dr0 * i;
+    dv = p.docv;
+#endif
+#if ECMRT_SURFACE
+    h[0] = dv + (p.dr0 * p.ds) * i;                   /* r0 at the surface SOC */
+#else
+    h[0] = dv + p.dr0 * i;
 #endif
     for (u = 1u; u < ECMRT_EST_N; u++) {
         h[u] = 1.0f;
@@ -615,10 +660,15 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
 #elif ECMRT_FX_XRC
             vi = vi + xu[ECMRT_EST_IX];
 #endif
-#if ECMRT_SURFACE
-            h[0] = p.docv + (p.dr0 * p.ds) * i;
+#if ECMRT_EST_SPREAD
+            dv = ecmrt_est_f32_ocv_slope(m, s, dir, xu[0], P[0], nz->ocv_k, &p);
 #else
-            h[0] = p.docv + p.dr0 * i;
+            dv = p.docv;
+#endif
+#if ECMRT_SURFACE
+            h[0] = dv + (p.dr0 * p.ds) * i;
+#else
+            h[0] = dv + p.dr0 * i;
 #endif
             e = vm - vi;
             for (u = 0u; u < ECMRT_EST_N; u++) {

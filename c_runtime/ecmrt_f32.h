@@ -333,8 +333,9 @@ static inline float ecmrt_f32_arrhenius(const ecmrt_f32_model_t *m, float temp)
 }
 #endif
 
-#if ECMRT_FX_CDR || ECMRT_BV
-/* sqrt(w) for 1 <= w < 2^100: bit-trick start, four Newton steps (deterministic, <= 1 ulp) */
+/* sqrt(w) for 1 <= w < 2^100 (the Butler-Volmer and current-dependent factors) and for the
+ * estimator's SOC sigma (1e-12 < w <= 1): bit-trick start (within 4 % at any exponent),
+ * four Newton steps (deterministic, <= 1 ulp) */
 static inline float ecmrt_f32_sqrt(float w)
 {
     union {
@@ -352,6 +353,7 @@ static inline float ecmrt_f32_sqrt(float w)
     return r;
 }
 
+#if ECMRT_FX_CDR || ECMRT_BV
 /* log(1 + y) for 0 <= y < 2^100: 1 + y = 2^n m, m in [sqrt(1/2), sqrt(2)) (n = 0 and
  * m - 1 = y exactly below sqrt(2) - 1), log = n ln2 + 2 atanh(f / (2 + f)), f = m - 1,
  * atanh by its series to t^13 (|t| < 0.172: error < 1e-9 relative). */

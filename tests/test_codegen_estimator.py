@@ -314,6 +314,18 @@ def test_the_soc_read_from_the_ocv_alone(model, built):
     assert abs(ref.soc_sigma[-1] - sloped.soc_sigma[-1]) > 1e-4
 
 
+def test_the_ocv_slope_over_the_socs_spread(model, built):
+    """ocv_slope_spread = 1: H's OCV slope is the secant over soc +- sigma_soc; C == float32
+    reference, bit for bit, and follows the float64 filter; started 0.2 off, the secant
+    moves the SOC and its sigma otherwise than the tangent does."""
+    cfg = EstimatorConfig(start_polarization_c=0.5, resistance_slopes=False,
+                          ocv_slope_spread=1.0)
+    _, ref, again = _c_against_references(model, built, ("0degC", "us06"),
+                                          slice(5000, 8000), cfg)
+    tangent = again(replace(cfg, ocv_slope_spread=0.0))
+    assert abs(ref.soc_sigma[-1] - tangent.soc_sigma[-1]) > 1e-4
+
+
 def _c_against_references(model, built, cycle, sl, cfg):
     """The C filter with ``cfg`` on a slice of a shared cycle (SCENARIO's sensor errors,
     start 0.6): bit-exact to its float32 reference and within 0.1 % SOC of the float64

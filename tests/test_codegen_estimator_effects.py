@@ -46,7 +46,7 @@ def _effects_model(case: str):
 
 # the start-anywhere settings with the SOC read from the OCV alone and a held model error
 ANYWHERE_FLAT = dict(start_polarization_c=0.5, resistance_slopes=False, error_memory_s=60.0,
-                     polarization_soc_sigma=0.02)
+                     polarization_soc_sigma=0.02, ocv_slope_spread=1.0)
 
 
 @pytest.mark.parametrize("case, offset, settings",

@@ -46,9 +46,10 @@ def _surface_model():
 
 
 # started anywhere, the SOC read from the OCV alone, a held model error, the RC noise
-# scaled by the SOC's sigma: every setting that changes the C filter's arithmetic
+# scaled by the SOC's sigma, the OCV's secant: every setting that changes the C filter's
+# arithmetic
 ANYWHERE = dict(start_polarization_c=0.5, resistance_slopes=False, error_memory_s=60.0,
-                polarization_soc_sigma=0.02)
+                polarization_soc_sigma=0.02, ocv_slope_spread=1.0)
 
 
 @functools.lru_cache(maxsize=None)

@@ -52,7 +52,8 @@ def test_bit_identical_with_gaps_and_missing_voltages(case):
     offset = case.endswith("offset")
     cm = _compiled(m, "sf", EstimatorConfig(
         offset_state=offset, **(dict(start_polarization_c=0.5, resistance_slopes=False,
-                                     error_memory_s=60.0, polarization_soc_sigma=0.02)
+                                     error_memory_s=60.0, polarization_soc_sigma=0.02,
+                                     ocv_slope_spread=1.0)
                                 if flat else {})))
     assert cm.spec.surface is not None
     t, i_raw, temp = drive_profile(1500, seed=1)

@@ -65,6 +65,32 @@ def test_plett_a123_names_hysteresis_from_its_dynamic_test(tmp_path):
     assert r.effects[:1] == ("hysteresis",), r.to_json_dict()["verdict"]
     assert r.mae_after_v < 0.5 * r.mae_before_v
     assert r.model.effects[0].m_v > 0.005              # mV-scale LFP hysteresis
+    _a123_started_on_the_plateau(r.model, cfg)
+
+
+def _a123_started_on_the_plateau(model, cfg):
+    """The SOC filter on that model, started anywhere on the dynamic test where it passes
+    SOC 0.6 under load, told 0.4 and 0.8 (C/100 offset, 1 % gain): within 3 % of the truth
+    from 3 600 s to 7 200 s, and within its own 3 sigma throughout."""
+    from ecmgen.config import START_ANYWHERE, EstimatorConfig
+    from ecmgen.data.measure import ColumnMap
+    from ecmgen.estimate.run import coulomb_count, estimate_record
+
+    s = read_timeseries(cfg.pulses, ColumnMap(**cfg.columns["pulses"]),
+                        capacity_ah=model.capacity_ah)
+    ref = coulomb_count(model, s.time_s, s.current_a, 1.0)
+    loaded = np.abs(s.current_a) >= 0.5
+    k0 = int(np.flatnonzero((ref <= 0.6) & loaded & np.r_[False, loaded[:-1]])[0])
+    k1 = int(np.searchsorted(s.time_s, s.time_s[k0] + 7200.0))
+    piece = s.slice(k0, k1)
+    for guess in (ref[k0] - 0.2, ref[k0] + 0.2):
+        run = estimate_record(model, piece, float(guess), float(ref[k0]),
+                              EstimatorConfig(**START_ANYWHERE),
+                              current_offset_a=model.capacity_ah / 100.0, current_gain=1.01)
+        e = run.estimate.soc - run.soc_ref
+        late = run.estimate.time_s - run.estimate.time_s[0] >= 3600.0
+        assert np.max(np.abs(e[late])) < 0.03, guess
+        assert np.all(np.abs(e) <= 3.0 * run.estimate.soc_sigma + 1e-9), guess
 
 
 def _panasonic_base():

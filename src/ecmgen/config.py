@@ -70,6 +70,10 @@ class EstimatorConfig:
     # 0: off; s > 0: the RC-state process noise times s^2 / (s^2 + P_soc), so that a slow
     # voltage offset is taken as SOC error while the SOC is far less certain than s
     polarization_soc_sigma: float = 0.0
+    # 0: the EKF linearises the OCV at its SOC estimate (the tangent); k > 0: over the SOC
+    # it still holds possible, the secant over soc +- k sigma_soc (a tangent on a flat
+    # stretch makes a filter far from the truth confident there before it gets there)
+    ocv_slope_spread: float = 0.0
 
     def __post_init__(self):
         if self.filter not in ESTIMATOR_FILTERS:
@@ -117,7 +121,7 @@ ESTIMATOR_FILTERS = ("ekf", "ukf")
 # docs/estimator.md): `ecmgen estimate --start anywhere`, the default of a mid-record window
 START_ANYWHERE = dict(start_polarization_c=0.5, resistance_slopes=False, model_error=0.06,
                       error_correlation_s=1600.0, polarization_error=0.5,
-                      polarization_soc_sigma=0.01)
+                      polarization_soc_sigma=0.01, ocv_slope_spread=1.0)
 
 ESTIMATOR_STARTS = ("rested", "anywhere")
 

@@ -232,6 +232,9 @@ SECTIONS: tuple[Section, ...] = (
         Key("polarization_soc_sigma", NUMBER, "0: off; above: the RC-state process noise "
             "scaled by s^2 / (s^2 + SOC variance), s this SOC sigma", unit="SOC",
             range=(0.0, 1.0), default="0"),
+        Key("ocv_slope_spread", NUMBER, "0: the EKF takes the OCV's slope at its SOC; "
+            "k above: the secant over the SOC +- k of its sigma", unit="sigma",
+            range=(0.0, 10.0), default="0"),
     )),
     Section("diagnose", "ecmgen diagnose: missing effects found on data.cycle", (
         Key("cycle", FILE, "the record to diagnose on", default="data.cycle"),

@@ -162,7 +162,7 @@ F_X_MIN = F32("1.0e-12")
 
 
 def sqrt_f32(w) -> np.ndarray:
-    """ecmrt_f32_sqrt: bit-trick start and four Newton steps, for 1 <= w."""
+    """ecmrt_f32_sqrt: bit-trick start and four Newton steps, for 1 <= w and 1e-12 < w <= 1."""
     w = np.asarray(w, dtype=F32)
     r = ((w.view(np.uint32) >> np.uint32(1)) + F_SQRT_MAGIC).astype(np.uint32).view(F32)
     half = F32(0.5)

@@ -12,7 +12,9 @@ measurement), its noise settings (:class:`ecmgen.config.EstimatorConfig`) baked
 in as float32 constants. A model's diagnose effects are taken: the hysteresis state and the
 extra RC pair are states of the filter (the layout of :mod:`ecmgen.estimate.process`), the
 parameter effects scale the resistances in its Jacobians; ``offset_state`` adds the current
-sensor's offset as the last state (held in ``<prefix>_est_t.offset_a``).
+sensor's offset as the last state (held in ``<prefix>_est_t.offset_a``); ``ocv_slope_spread``
+above 0 compiles the OCV's secant over the SOC's spread into H (``ECMRT_EST_SPREAD``; two more
+OCV lookups and a square root per update and per relinearisation).
 
 Float32 only, by decision: the covariance spans 0.09 (the start SOC's variance) down to
 ~1e-9 (a settled SOC's, and the cross terms) and the Joseph update subtracts nearly equal
@@ -51,6 +53,8 @@ NOISE_FIELDS = (("p0_soc", "initial SOC variance, soc0_sigma^2"),
 # with a hysteresis effect (ECMRT_FX_HYST) only; with the offset state (ECMRT_EST_OFFSET) only
 HYST_FIELDS = (("p0_h", "hysteresis_sigma^2: h's initial variance and noise scale"),)
 OFFSET_FIELDS = (("p0_b", "offset_a^2: the offset state's initial variance, A^2"),)
+# with ocv_slope_spread > 0 (ECMRT_EST_SPREAD) only
+SPREAD_FIELDS = (("ocv_k", "ocv_slope_spread: H's OCV slope is the secant over soc +- k sigma"),)
 # where <prefix>_est_t holds each filter state (ecmgen.estimate.process.state_layout names)
 STATE_FIELDS = {"soc": "m.soc", "u_fast_v": "m.u_fast", "u_slow_v": "m.u_slow",
                 "u_diff_v": "m.u_diff", "u_extra_v": "m.u_x", "h": "m.h", "offset_a": "offset_a"}
@@ -80,6 +84,11 @@ class EstSpec:
         return self.settings.error_memory_s > 0
 
     @property
+    def spread(self) -> bool:
+        """H's OCV slope is the secant over the SOC's spread (ECMRT_EST_SPREAD)."""
+        return self.settings.ocv_slope_spread > 0
+
+    @property
     def fields(self) -> tuple[str, ...]:
         """Where <prefix>_est_t holds each filter state, in order (``m.soc``, ...)."""
         return tuple(STATE_FIELDS[k] for k in self.names)
@@ -87,7 +96,8 @@ class EstSpec:
     @property
     def noise_fields(self) -> tuple[tuple[str, str], ...]:
         """ecmrt_est_f32_noise_t's fields, in order: (name, comment)."""
-        return (NOISE_FIELDS + (HYST_FIELDS if "h" in self.names else ())
+        return (NOISE_FIELDS + (SPREAD_FIELDS if self.spread else ())
+                + (HYST_FIELDS if "h" in self.names else ())
                 + (OFFSET_FIELDS if self.offset else ()))
 
 
@@ -111,7 +121,7 @@ def prepare_estimator(model, spec: CSpec, cfg: EstimatorConfig | None = None,
             "model_error": nm.model_error, "corr_s": nm.error_correlation_s,
             "start_a": nm.start_current_a,
             "mem_k": 1.0 / nm.error_memory_s if nm.error_memory_s > 0 else 0.0,
-            "pol_s2": nm.polarization_soc_sigma ** 2,
+            "pol_s2": nm.polarization_soc_sigma ** 2, "ocv_k": nm.ocv_slope_spread,
             "p0_h": nm.hysteresis_sigma ** 2, "p0_b": nm.offset_sigma_a ** 2}
     # the states of ecmgen.estimate.process.state_layout, in its order
     names = (("soc", "u_fast_v", "u_slow_v") + (("u_diff_v",) if spec.diff else ())
@@ -137,7 +147,7 @@ def render_estimator(env, ctx: dict, est: EstSpec, c_float) -> dict[str, str]:
     h_start = (c_float(np.float32(HYSTERESIS_START_VAR))
                if "h" in est.names and est.noise["start_a"] != 0.0 else None)
     ectx = dict(ctx, n=est.n, names=est.names, offset=est.offset, h_start=h_start,
-                slopes=est.settings.resistance_slopes, memory=est.memory,
+                slopes=est.settings.resistance_slopes, spread=est.spread, memory=est.memory,
                 noise=[(k, c_float(est.noise[k]), c) for k, c in est.noise_fields])
     files = ctx["files"]
     return {files["est_header"]: env.get_template("est.h.j2").render(ectx),

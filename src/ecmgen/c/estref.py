@@ -279,6 +279,7 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
     vm_all = np.asarray(voltage_v, dtype=np.float64).astype(F32)
     n, N = inp["i"].size, est.n
     nz = {k: F32(v) for k, v in est.noise.items()}
+    spread_k = nz.get("ocv_k", ZERO)             # ECMRT_EST_SPREAD 0: the tangent
     diff, bv = spec.diff, spec.has_bv
     surf = spec.surface is not None              # ECMRT_SURFACE (with the diffusion pair)
     # est_init: the model's init (SOC saturated to [-2, 2], NaN 0), then [0, 1]
@@ -494,7 +495,9 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
                 if r == c:
                     val = val + q[r]
                 P[r][c] = P[c][r] = val
-        h = [pa["ocv"][1] + (dr0a * sds if surf else dr0a) * i] + [ONE] * (N - 1)
+        up = u_prev[3] if surf else None
+        dv = _ocv_slope(tab, d, soc, P[0][0], spread_k, kt, wt, up, pa["ocv"][1])
+        h = [dv + (dr0a * sds if surf else dr0a) * i] + [ONE] * (N - 1)
         if hyst:
             h[ih] = h_m
         if off:
@@ -556,7 +559,8 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
                     vi = vi + vx
                 elif xrc:
                     vi = vi + xu[ix]
-                h[0] = pi["ocv"][1] + (dr0i * sds if surf else dr0i) * i
+                dv = _ocv_slope(tab, d, xu[0], P[0][0], spread_k, kt, wt, up, pi["ocv"][1])
+                h[0] = dv + (dr0i * sds if surf else dr0i) * i
                 e = vm - vi
                 for j in range(N):
                     e = e - h[j] * (x0[j] - xu[j])
@@ -588,6 +592,30 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
         x_out[t, 1:] = u[1:]
         p_out[t] = P
     return EstRef(v_out, x_out, p_out, f_out, h_out)
+
+
+SPREAD_MIN, P_SOC_MIN = F32(1e-6), F32(1e-12)   # ECMRT_EST_SPREAD_MIN, ECMRT_EST_P_SOC_MIN
+
+
+def _ocv_slope(tab, d, soc, p_soc, k, kt, wt, up, docv):
+    """ecmrt_est_f32_ocv_slope: the tangent ``docv``, or (k > 0) the secant of the
+    accessor's OCV over soc +- k sqrt(p_soc), clamped to [0, 1] (``up``: the u_diff the
+    surface SOC reads, None without it)."""
+    if not (k > ZERO and p_soc > P_SOC_MIN):
+        return docv
+    dd = k * _s(cref.sqrt_f32(p_soc))
+    lo, hi = soc - dd, soc + dd
+    lo = ZERO if lo < ZERO else lo
+    hi = ONE if hi > ONE else hi
+    if not hi - lo > SPREAD_MIN:
+        return docv
+
+    def ocv(x):
+        socr = None if up is None else tab.surface(x, up, kt, wt)[0]
+        return tab.values(d, x, kt, wt, ("r0",), False, socr)["ocv"][0]
+
+    v_lo = ocv(lo)
+    return (ocv(hi) - v_lo) / (hi - lo)
 
 
 def _gain(P, h, R, x0, e):

@@ -45,6 +45,9 @@ Noise (:class:`NoiseModel`, from the ``[estimator]`` settings):
   unknown as its polarisation (a rested start takes the effect's ``initial_state``).
   ``model_error`` and ``error_correlation_s`` are measured on validation cycles by
   :mod:`.residual`.
+- The OCV's slope in H: the tangent at the SOC estimate, or with ``ocv_slope_spread`` k > 0
+  the secant over soc +- k sqrt(P_soc) (P after the predict; clamped to [0, 1]), in the
+  first update and in every relinearisation (:func:`spread_slope`).
 - Options for a start anywhere (docs/estimator.md): ``error_memory_s`` T > 0 scales the
   model error with the largest overpotential since, decayed by exp(-dt / T), instead of
   the sample's own; ``polarization_soc_sigma`` s > 0 scales the RC states' Q by
@@ -87,6 +90,7 @@ class NoiseModel:
     hysteresis_sigma: float = 0.1
     error_memory_s: float = 0.0    # the model error's overpotential decays over this
     polarization_soc_sigma: float = 0.0   # RC noise scaled by s^2 / (s^2 + P_soc); 0: off
+    ocv_slope_spread: float = 0.0  # H's OCV slope: the secant over soc +- k sigma; 0: tangent
 
     @staticmethod
     def from_config(cfg: EstimatorConfig, capacity_ah: float) -> "NoiseModel":
@@ -96,7 +100,8 @@ class NoiseModel:
                           cfg.polarization_error, cfg.voltage_noise_v, cfg.model_error,
                           cfg.error_correlation_s, cfg.start_polarization_c * capacity_ah,
                           error_memory_s=cfg.error_memory_s,
-                          polarization_soc_sigma=cfg.polarization_soc_sigma)
+                          polarization_soc_sigma=cfg.polarization_soc_sigma,
+                          ocv_slope_spread=cfg.ocv_slope_spread)
 
     @property
     def anywhere(self) -> bool:
@@ -235,6 +240,8 @@ class Ekf(Filter):
         P[np.diag_indices(n)] += process_noise(sm, self.noise, aux, dt, self.first,
                                                self.P[0][0])
         v_pred, H, ocv = sm.measure(x, aux, tw, tw_ocv, tfac)
+        p_soc = float(P[0][0])
+        H[0] += spread_slope(sm, self.noise, x[0], p_soc, tw_ocv)
         R = self.variance(v_pred, ocv, dt)
         if R > 0.0:
             x0 = np.array(x)
@@ -248,6 +255,7 @@ class Ekf(Filter):
                     xu = np.array(xu)
                     break
                 v_i, H_i, _ = sm.measure(xu, aux, tw, tw_ocv, tfac)
+                H_i[0] += spread_slope(sm, self.noise, xu[0], p_soc, tw_ocv)
                 H = np.array(H_i)
                 xu = np.array(xu)
                 x_next, K = gain_update(x0, P, H, R, v_meas - v_i - H @ (x0 - xu))
@@ -259,6 +267,28 @@ class Ekf(Filter):
             P = joseph_covariance(P, H, R, K)
         self.x, self.P = clamp_state(sm, x), P
         return v_pred
+
+
+SPREAD_MIN = 1e-6     # a secant narrower than this (in SOC) is taken as the tangent
+P_SOC_MIN = 1e-12    # ... and so is one of an SOC variance at or below this
+
+
+def spread_slope(step: StepModel, noise: NoiseModel, soc: float, p_soc: float, tw_ocv
+                 ) -> float:
+    """What to add to H's SOC entry so that its OCV slope is the secant over soc +- k
+    sigma_soc (clamped to [0, 1]; k = ``ocv_slope_spread``) instead of the tangent at soc:
+    0.0 with k = 0. The update then weighs the voltage by how much the OCV moves over the
+    SOC the filter still holds possible; the tangent, on a flat stretch, makes a filter
+    that is far from the truth confident before it gets there."""
+    k = noise.ocv_slope_spread
+    if not (k > 0.0 and p_soc > P_SOC_MIN):
+        return 0.0
+    d = k * math.sqrt(p_soc)
+    lo, hi = max(soc - d, 0.0), min(soc + d, 1.0)
+    if not hi - lo > SPREAD_MIN:
+        return 0.0
+    secant = (step.ocv(hi, tw_ocv)[0] - step.ocv(lo, tw_ocv)[0]) / (hi - lo)
+    return secant - step.ocv(soc, tw_ocv)[1]
 
 
 def gain_update(x: np.ndarray, P: np.ndarray, H: np.ndarray, R: float, innovation: float):
