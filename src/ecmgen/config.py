@@ -71,8 +71,8 @@ class EstimatorConfig:
     # voltage offset is taken as SOC error while the SOC is far less certain than s
     polarization_soc_sigma: float = 0.0
     # 0: the EKF linearises the OCV at its SOC estimate (the tangent); k > 0: over the SOC
-    # it still holds possible, the secant over soc +- k sigma_soc (a tangent on a flat
-    # stretch makes a filter far from the truth confident there before it gets there)
+    # it still holds possible, the secant over soc +- k sigma_soc (far from the truth on a
+    # curved OCV the tangent moves the SOC by the wrong amount per millivolt)
     ocv_slope_spread: float = 0.0
 
     def __post_init__(self):

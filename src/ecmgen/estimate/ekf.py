@@ -278,8 +278,8 @@ def spread_slope(step: StepModel, noise: NoiseModel, soc: float, p_soc: float, t
     """What to add to H's SOC entry so that its OCV slope is the secant over soc +- k
     sigma_soc (clamped to [0, 1]; k = ``ocv_slope_spread``) instead of the tangent at soc:
     0.0 with k = 0. The update then weighs the voltage by how much the OCV moves over the
-    SOC the filter still holds possible; the tangent, on a flat stretch, makes a filter
-    that is far from the truth confident before it gets there."""
+    SOC the filter still holds possible; far from the truth on a curved OCV the tangent
+    (the slope where the estimate is) moves the SOC by the wrong amount per millivolt."""
     k = noise.ocv_slope_spread
     if not (k > 0.0 and p_soc > P_SOC_MIN):
         return 0.0
