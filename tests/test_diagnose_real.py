@@ -54,7 +54,8 @@ def test_plett_a123_names_hysteresis_from_its_dynamic_test(tmp_path):
     from its dynamic test), diagnosed on that dynamic test ([diagnose] cycle) with its last
     40 % held out: the LFP hysteresis is named and pays there (10.6 -> 3.7 mV above 10 %
     SOC). Below 10 % SOC the held-out end is not judged: the end-of-discharge knee made the
-    gain look like noise."""
+    gain look like noise. The SOC filter on the diagnosed model, started anywhere on the
+    plateau, meets its target (:func:`_a123_started_on_the_plateau`)."""
     from conftest import REPO, SHARED_DATA
     from ecmgen.config import load_config
     from ecmgen.pipeline import run_diagnose
