@@ -239,9 +239,9 @@ class Ekf(Filter):
         P = F @ self.P @ F.T
         P[np.diag_indices(n)] += process_noise(sm, self.noise, aux, dt, self.first,
                                                self.P[0][0])
-        v_pred, H, ocv = sm.measure(x, aux, tw, tw_ocv, tfac)
         p_soc = float(P[0][0])
-        H[0] += spread_slope(sm, self.noise, x[0], p_soc, tw_ocv)
+        v_pred, H, ocv = sm.measure(x, aux, tw, tw_ocv, tfac,
+                                    ocv_slope=spread_slope(sm, self.noise, x[0], p_soc, tw_ocv))
         R = self.variance(v_pred, ocv, dt)
         if R > 0.0:
             x0 = np.array(x)
@@ -254,8 +254,8 @@ class Ekf(Filter):
                 if abs(xu[0] - x0[0]) < ITERATE_SOC:
                     xu = np.array(xu)
                     break
-                v_i, H_i, _ = sm.measure(xu, aux, tw, tw_ocv, tfac)
-                H_i[0] += spread_slope(sm, self.noise, xu[0], p_soc, tw_ocv)
+                v_i, H_i, _ = sm.measure(xu, aux, tw, tw_ocv, tfac, ocv_slope=spread_slope(
+                    sm, self.noise, xu[0], p_soc, tw_ocv))
                 H = np.array(H_i)
                 xu = np.array(xu)
                 x_next, K = gain_update(x0, P, H, R, v_meas - v_i - H @ (x0 - xu))
@@ -274,21 +274,20 @@ P_SOC_MIN = 1e-12    # ... and so is one of an SOC variance at or below this
 
 
 def spread_slope(step: StepModel, noise: NoiseModel, soc: float, p_soc: float, tw_ocv
-                 ) -> float:
-    """What to add to H's SOC entry so that its OCV slope is the secant over soc +- k
-    sigma_soc (clamped to [0, 1]; k = ``ocv_slope_spread``) instead of the tangent at soc:
-    0.0 with k = 0. The update then weighs the voltage by how much the OCV moves over the
-    SOC the filter still holds possible; far from the truth on a curved OCV the tangent
-    (the slope where the estimate is) moves the SOC by the wrong amount per millivolt."""
+                 ) -> float | None:
+    """The OCV slope H takes: the secant over soc +- k sigma_soc (clamped to [0, 1]; k =
+    ``ocv_slope_spread``), or None for the tangent at soc (k = 0, or a secant too narrow).
+    The update then weighs the voltage by how much the OCV moves over the SOC the filter
+    still holds possible; far from the truth on a curved OCV the tangent (the slope where
+    the estimate is) moves the SOC by the wrong amount per millivolt."""
     k = noise.ocv_slope_spread
     if not (k > 0.0 and p_soc > P_SOC_MIN):
-        return 0.0
+        return None
     d = k * math.sqrt(p_soc)
     lo, hi = max(soc - d, 0.0), min(soc + d, 1.0)
     if not hi - lo > SPREAD_MIN:
-        return 0.0
-    secant = (step.ocv(hi, tw_ocv)[0] - step.ocv(lo, tw_ocv)[0]) / (hi - lo)
-    return secant - step.ocv(soc, tw_ocv)[1]
+        return None
+    return (step.ocv(hi, tw_ocv)[0] - step.ocv(lo, tw_ocv)[0]) / (hi - lo)
 
 
 def gain_update(x: np.ndarray, P: np.ndarray, H: np.ndarray, R: float, innovation: float):

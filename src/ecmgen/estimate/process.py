@@ -366,10 +366,11 @@ class StepModel:
         return v0 + (v1 - v0) * w, s0 + (s1 - s0) * w
 
     def measure(self, x: list[float], aux, tw, tw_ocv, tfac: float = 1.0,
-                jacobian: bool = True):
+                jacobian: bool = True, ocv_slope: float | None = None):
         """Terminal voltage at state ``x`` (sample k, ``aux`` from :meth:`predict`), dv/dx
         (None without ``jacobian``) and the OCV, which the filter uses for the size of
-        the model's error."""
+        the model's error. ``ocv_slope``: the OCV's slope dv/dx takes (the EKF's secant,
+        :func:`ecmgen.estimate.ekf.spread_slope`); None: the tangent at ``x``."""
         i, charging, g0, dg0 = aux.i, aux.charging, aux.g0, aux.dg0
         soc = x[0]
         soc_t, dt_ds, _ = self.surface_soc(soc, aux.u_prev, tw_ocv)
@@ -387,7 +388,7 @@ class StepModel:
         H = None
         if jacobian:
             H = [0.0] * self.n
-            H[0] = docv + dr0 * g0 * i
+            H[0] = (docv if ocv_slope is None else ocv_slope) + dr0 * g0 * i
             H[1] = H[2] = 1.0
             for s in (self.i_ud, self.i_ux):
                 if s >= 0:
