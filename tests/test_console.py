@@ -58,3 +58,22 @@ def test_build_quiet_prints_nothing_but_warnings(tmp_path):
     assert res.returncode == 0, res.stderr
     assert res.stdout == ""
     assert all(line.startswith("warning") for line in res.stderr.splitlines()), res.stderr
+
+
+def test_the_command_line_runs_one_blas_thread_unless_told():
+    """Set before numpy loads (ecmgen.parallel measured why); a caller's own setting stays."""
+    import os
+    import subprocess
+    import sys
+
+    probe = ("import sys, os; import ecmgen.parallel; assert 'numpy' not in sys.modules; "
+             "import ecmgen.cli; print(os.environ['OPENBLAS_NUM_THREADS'], "
+             "os.environ['OMP_NUM_THREADS'])")
+    env = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
+    res = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True,
+                         text=True)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.split() == ["1", "1"]
+    res = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         env={**env, "OPENBLAS_NUM_THREADS": "3"})
+    assert res.stdout.split() == ["3", "1"]

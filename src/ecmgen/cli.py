@@ -5,18 +5,26 @@ from __future__ import annotations
 import argparse
 import contextlib
 import math
+import os
 import signal
 import sys
 import threading
 import warnings
 from pathlib import Path
 
-import numpy as np
+from .parallel import ONE_BLAS_THREAD
 
-from ._version import __version__
-from .errors import InputError, describe, reading, user_file_of
-from .files import json_text
-from .outputs import check_output_file, check_output_folder, refuse_inputs
+# The command line owns its process: one BLAS thread unless the caller sets another,
+# set before numpy loads (ecmgen.parallel says why).
+for _name, _value in ONE_BLAS_THREAD.items():
+    os.environ.setdefault(_name, _value)
+
+import numpy as np  # noqa: E402
+
+from ._version import __version__  # noqa: E402
+from .errors import InputError, describe, reading, user_file_of  # noqa: E402
+from .files import json_text  # noqa: E402
+from .outputs import check_output_file, check_output_folder, refuse_inputs  # noqa: E402
 
 
 def _given(cfg) -> set[Path]:

@@ -35,7 +35,11 @@ from typing import Any, Callable
 
 from .errors import InputError
 
-_WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+# one BLAS thread: set in spawned workers and by the command line before numpy loads. The
+# fits make many small BLAS calls: threads for them buy no speed and, spinning on cores
+# other processes need, made four `ecmgen diagnose` side by side on two cores 7.9 times
+# slower (bench/bench_blas_threads.py, docs/results.md)
+ONE_BLAS_THREAD = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
 def _quiet(_msg: str) -> None:
@@ -139,8 +143,8 @@ class Workers:
 
 @contextmanager
 def _worker_environment():
-    old = {k: os.environ.get(k) for k in _WORKER_ENV}
-    for k, v in _WORKER_ENV.items():
+    old = {k: os.environ.get(k) for k in ONE_BLAS_THREAD}
+    for k, v in ONE_BLAS_THREAD.items():
         os.environ.setdefault(k, v)
     try:
         yield
