@@ -21,9 +21,11 @@
  *   H = [dOCV/dsoc + dr0/dsoc g f i, 1, 1 (, 1) (, 1) (, m_v)] (with ECMRT_EST_SPREAD
  *       dOCV/dsoc is the secant over soc +- ocv_k sqrt(P_soc) after the predict, clamped
  *       to [0, 1], in every relinearisation too), R from the model error (of
- *       the overpotential, or of the one held in *eta when that is larger: mem_k > 0) and
- *       its correlation time (R = 0: the sample carries no information, e.g. dt = 0; but
- *       with start_a = 0 the first sample counts fully, the cell taken rested); with
+ *       the overpotential, or of the one held in *eta when that is larger: mem_k > 0), the
+ *       current offset through the resistances (offset_a (r0 + sum r_j), without the
+ *       offset state) and its correlation time (R = 0: the sample carries no
+ *       information, e.g. dt = 0; but with start_a = 0 the first sample counts fully, the
+ *       cell taken rested); with
  *       ECMRT_EST_SLOPES 0 the RC tables' SOC slopes are taken as 0 in F and H; the RC
  *       noise times pol_s2 / (pol_s2 + P_soc) when pol_s2 > 0; the resistances and their
  *       SOC slopes times the effects' factors
@@ -342,6 +344,9 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     const float sg = dir == ECMRT_CHARGE ? 1.0f : -1.0f;
     float ch, vx;
 #endif
+#if !ECMRT_EST_OFFSET
+    float rdc;
+#endif
 #if ECMRT_EST_OFFSET
     /* the offset column o of F (d x' / d offset: the filter's current is i_seen - offset),
      * the resistances before the current's factors, d(i g)/di of those factors */
@@ -497,6 +502,18 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     e = (nz->pol * m->x_r) * i;
     q[ECMRT_EST_IX] = ((e * e) * (1.0f - a[ECMRT_EST_IX] * a[ECMRT_EST_IX])) * ps;
 #endif
+#if !ECMRT_EST_OFFSET
+    /* the resistance a steady error in the current sees, r0 g0 + sum r_j g_j: the sensor's
+     * offset through it joins the model's error in R (with the offset state it is a state) */
+    rdc = p.r0 + rg;
+    rdc = rdc + p.rs;
+#if ECMRT_DIFF
+    rdc = rdc + rd;
+#endif
+#if ECMRT_FX_XRC
+    rdc = rdc + m->x_r;
+#endif
+#endif
 #if ECMRT_FX_HYST
     /* hysteresis: h' = a_h h + (1 - a_h) s, a_h = exp(-|i| dt / (3600 decay_ah)); its noise
      * sigma_h^2 (1 - a_h^2), 1 - a_h^2 written c_h (2 - c_h) */
@@ -617,6 +634,10 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     }
     e = nz->model_error * e;
     r = nz->vn2 + e * e;
+#if !ECMRT_EST_OFFSET
+    e = nz->offset_a * rdc;
+    r = r + e * e;
+#endif
     /* a record taken to start rested (start_a = 0, or first 2): its first sample counts fully */
     if (!(*first == 2u || (*first != 0u && nz->start_a == 0.0f)) && dt < nz->corr_s) {
         r = dt > 0.0f ? r * (nz->corr_s / dt) : 0.0f;

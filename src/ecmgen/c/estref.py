@@ -454,6 +454,13 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
                 o[ix] = -(x_r * cx)
             e = (nz["pol"] * x_r) * i
             q[ix] = ((e * e) * (ONE - a[ix] * a[ix])) * ps
+        if not off:                  # the resistance the current offset sees
+            rdc = r0a + rg
+            rdc = rdc + rs_
+            if diff:
+                rdc = rdc + src["r_diff"][t]
+            if xrc:
+                rdc = rdc + x_r
         if hyst:
             a[ih] = ONE - ch
             q[ih] = nz["p0_h"] * (ch * (F32(2.0) - ch))
@@ -518,6 +525,9 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
             held = e
         e = nz["model_error"] * e
         R = nz["vn2"] + e * e
+        if not off:
+            e = nz["offset_a"] * rdc
+            R = R + e * e
         if not (first and nz["start_a"] == ZERO) and dt < nz["corr_s"]:
             R = R * (nz["corr_s"] / dt) if dt > ZERO else ZERO
         first = False

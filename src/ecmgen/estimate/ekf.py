@@ -28,7 +28,11 @@ Noise (:class:`NoiseModel`, from the ``[estimator]`` settings):
   fraction of the branch's steady voltage). At rest the states decay as the model says.
 - Voltage: the model's voltage error is sigma_k^2 = voltage_noise_v^2 + (model_error *
   |v_pred - ocv|)^2 (it grows with the overpotential the model predicts: large under load,
-  in the cold and near empty, small at rest), and it is correlated over
+  in the cold and near empty, small at rest) + (offset r_dc)^2, the current sensor's
+  offset through the model's resistances (r_dc = r0 g0 + sum r_j g_j; without the offset
+  state: with it the offset is a state). At rest in the cold a 29 mA offset is 5-18 mV
+  of voltage the overpotential term does not cover, which the filter would otherwise read
+  as SOC (docs/estimator.md). The error is correlated over
   ``error_correlation_s``: one sample of length dt_k carries the information of
   dt_k / error_correlation_s independent samples, so R_k = sigma_k^2 * error_correlation_s
   / dt_k (at least sigma_k^2; a sample with dt = 0 is skipped).
@@ -121,12 +125,16 @@ class NoiseModel:
                 return held
         return eta
 
-    def measurement_variance(self, eta: float, dt: float, first: bool) -> float:
-        """R_k for the overpotential ``eta`` (:meth:`error_overpotential`), or 0.0 for a
+    def measurement_variance(self, eta: float, dt: float, first: bool, r_dc: float = 0.0
+                             ) -> float:
+        """R_k for the overpotential ``eta`` (:meth:`error_overpotential`) and the model's
+        resistance ``r_dc`` to the current offset (0 with the offset state), or 0.0 for a
         sample that carries no information (dt = 0, but for the first sample of a record
         taken to start rested)."""
         eta = self.model_error * eta
         var = self.voltage_noise_v * self.voltage_noise_v + eta * eta
+        w = self.offset_sigma_a * r_dc
+        var = var + w * w
         if (first and not self.anywhere) or dt >= self.error_correlation_s:
             return var
         if dt <= 0.0:
@@ -218,10 +226,14 @@ class Filter:
         self.first = True
         self.eta_held = 0.0
 
-    def variance(self, v_pred: float, ocv: float, dt: float) -> float:
-        """R of this sample (and the held overpotential updated); clears ``first``."""
+    def variance(self, v_pred: float, ocv: float, dt: float, x, aux, tw, tw_ocv,
+                 tfac: float) -> float:
+        """R of this sample at the predicted state ``x`` (and the held overpotential
+        updated); clears ``first``."""
+        sm = self.step_model
         self.eta_held = self.noise.error_overpotential(v_pred, ocv, dt, self.eta_held)
-        R = self.noise.measurement_variance(self.eta_held, dt, self.first)
+        r_dc = sm.dc_resistance(x, aux, tw, tw_ocv, tfac) if sm.i_b < 0 else 0.0
+        R = self.noise.measurement_variance(self.eta_held, dt, self.first, r_dc)
         self.first = False
         return R
 
@@ -242,7 +254,7 @@ class Ekf(Filter):
         p_soc = float(P[0][0])
         v_pred, H, ocv = sm.measure(x, aux, tw, tw_ocv, tfac,
                                     ocv_slope=spread_slope(sm, self.noise, x[0], p_soc, tw_ocv))
-        R = self.variance(v_pred, ocv, dt)
+        R = self.variance(v_pred, ocv, dt, x, aux, tw, tw_ocv, tfac)
         if R > 0.0:
             x0 = np.array(x)
             H = np.array(H)

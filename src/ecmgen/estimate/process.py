@@ -365,6 +365,15 @@ class StepModel:
         v1, s1 = _row_value(tab.rows[k + 1], j, t, inv, 0)
         return v0 + (v1 - v0) * w, s0 + (s1 - s0) * w
 
+    def dc_resistance(self, x: list[float], aux, tw, tw_ocv, tfac: float = 1.0) -> float:
+        """r0 g0 + sum of r_j g_j at state ``x`` (sample k, ``aux`` from :meth:`predict`):
+        the voltage per ampere of a steady error in the current the filter sees."""
+        soc_t, _, _ = self.surface_soc(x[0], aux.u_prev, tw_ocv)
+        r = self.r0(aux.charging, soc_t, tw)[0] * tfac * aux.g0
+        for _s, _a, rg in aux.rc:
+            r += rg
+        return r
+
     def measure(self, x: list[float], aux, tw, tw_ocv, tfac: float = 1.0,
                 jacobian: bool = True, ocv_slope: float | None = None):
         """Terminal voltage at state ``x`` (sample k, ``aux`` from :meth:`predict`), dv/dx

@@ -63,7 +63,7 @@ class Ukf(Filter):
         P = dX.T @ dX / (2 * n)
         P[np.diag_indices(n)] += q
         ocv = sm.ocv(float(xm[0]), tw_ocv)[0]
-        R = self.variance(zm, ocv, dt)
+        R = self.variance(zm, ocv, dt, xm.tolist(), aux_mean, tw, tw_ocv, tfac)
         self.charging = charging
         if R > 0.0:
             # additive process noise, points not redrawn: it enters Pzz and Pxz through
