@@ -235,8 +235,9 @@ def test_a123_with_hysteresis_from_diagnose():
     test_diagnose_real; the C filter on that model over the whole DST/US06/FUDS record
     (26 099 samples, 11 h), told SOC + 0.2 with 1 % of C offset and 1 % gain error in the
     current it sees: bit-identical to the float32 reference, within 1e-4 of the float64
-    filter but for a few samples at an OCV breakpoint, and its SOC RMSE against coulomb counting from the true start clearly below
-    that of the same filter without the hysteresis state."""
+    filter but for a few samples at an OCV breakpoint, and its SOC RMSE against coulomb
+    counting from the true start clearly below that of the same filter without the
+    hysteresis state."""
     from ecmgen.data.measure import read_timeseries
     from ecmgen.diagnosis.search import diagnose
     from ecmgen.model import EcmModel
