@@ -20,10 +20,12 @@ import tempfile
 import time
 from pathlib import Path
 
+from ecmgen.fleet.run import cores as usable_cores
+from ecmgen.parallel import ONE_BLAS_THREAD
+
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLE = REPO / "examples" / "panasonic-25degC" / "config.toml"
 ECMGEN = Path(sys.executable).with_name("ecmgen")
-VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def _cpu_of_children() -> float:
@@ -32,9 +34,9 @@ def _cpu_of_children() -> float:
 
 
 def _batch(jobs: int, threads: str, folder: Path) -> tuple[float, float]:
-    env = {k: v for k, v in os.environ.items() if k not in VARS}
+    env = {k: v for k, v in os.environ.items() if k not in ONE_BLAS_THREAD}
     if threads != "as shipped":
-        env.update({k: threads for k in VARS})
+        env.update({k: threads for k in ONE_BLAS_THREAD})
     cpu0, t0 = _cpu_of_children(), time.perf_counter()
     runs = [subprocess.Popen([str(ECMGEN), "diagnose", str(EXAMPLE), "--out",
                               str(folder / f"run{i}"), "-q", "--no-plots"], env=env,
@@ -50,7 +52,7 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=4)
     ap.add_argument("--repeat", type=int, default=1)
     args = ap.parse_args()
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    cores = usable_cores()
     settings = ("as shipped", str(cores))
     best: dict[tuple[str, int], tuple[float, float]] = {}
     with tempfile.TemporaryDirectory() as tmp:

@@ -344,13 +344,12 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
     const float sg = dir == ECMRT_CHARGE ? 1.0f : -1.0f;
     float ch, vx;
 #endif
-#if !ECMRT_EST_OFFSET
-    float rdc;
-#endif
 #if ECMRT_EST_OFFSET
     /* the offset column o of F (d x' / d offset: the filter's current is i_seen - offset),
      * the resistances before the current's factors, d(i g)/di of those factors */
     float o[ECMRT_EST_N], ds_di, rb0, rbf, dg0 = 1.0f, dgf = 1.0f;
+#else
+    float rdc;                        /* the resistance the current offset sees (R) */
 #endif
 #if ECMRT_SURFACE
     /* the u_diff column g of F (d x' / d u_diff through the surface SOC, besides a_diff) */

@@ -8,8 +8,10 @@ import os
 # and the command lines the tests start): the fits gain nothing from BLAS threads, and
 # their spinning on the cores the other worker needs makes the suite twice as long on
 # 2 cores (18:52 against 8:48 min).
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+from ecmgen.parallel import ONE_BLAS_THREAD  # noqa: E402  (it does not load numpy)
+
+for _name, _value in ONE_BLAS_THREAD.items():
+    os.environ.setdefault(_name, _value)
 
 from pathlib import Path  # noqa: E402
 
