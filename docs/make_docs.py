@@ -6,7 +6,9 @@ pictures in docs/img/, each from a build of the example (or of a variant of its 
 
 NAME: demo (the demo build, also the pictures), surface-off (the demo without the surface
 SOC), one-temperature (the 25 degC example, with its OCV from the rests and from the C/20
-test), estimator (the SOC filter on the demo's model). About a minute a build on 2 cores."""
+test), estimator (the SOC filter on the demo's model), accuracy-matrix (the committed
+baseline of bench/accuracy_matrix.py as it is: no build; its --update rewrites it). About a
+minute a build on 2 cores."""
 
 from __future__ import annotations
 
@@ -148,8 +150,19 @@ def estimator(tmp: Path) -> str:
     return "\n".join(lines) + "\n"
 
 
+def accuracy_matrix(_tmp: Path) -> str:
+    """The committed baseline of the accuracy matrix as its table."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("accuracy_matrix",
+                                                  REPO / "bench" / "accuracy_matrix.py")
+    bench = sys.modules["accuracy_matrix"] = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    return bench.table(json.loads(bench.BASELINE.read_text())["configurations"])
+
+
 BLOCKS = {"demo": demo, "surface-off": surface_off, "one-temperature": one_temperature,
-          "estimator": estimator}
+          "estimator": estimator, "accuracy-matrix": accuracy_matrix}
 
 
 def main(argv=None) -> int:
