@@ -11,8 +11,9 @@ The subset is the fast configurations that take distinct code paths: ``pan25`` (
 Panasonic pulse test as data.pulses, OCV from its rests, drive cycles with a temperature
 column), ``leaf`` (two Bitrode pulse tests over temperature, start SOC from their opening
 CV charge, records without a temperature column) and ``a123`` (a dynamic test with OCV
-files from another cycler). Their builds: about 9, 8 and 13 s on 2 cores
-(bench/accuracy_matrix.py --only pan25,leaf,a123).
+files from another cycler). Their builds took 5-13, 5-12 and 12-45 s on the 2 cores shared
+with other work (bench/accuracy_matrix.py --only pan25,leaf,a123: 35 s in all), this test
+25-45 s; the four-temperature Panasonic builds (15-60 s each) stay in the bench.
 """
 
 from __future__ import annotations
