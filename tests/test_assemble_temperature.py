@@ -216,3 +216,27 @@ def test_a_test_without_a_branch_gets_it_filled_in():
     assert t.r_diff_ohm[k] == 0.0 and t.tau_diff_s[k] == 500.0
     notes = "\n".join(m.notes)
     assert "i0_a at 25.8 degC" in notes and "r_diff_ohm = 0 there" in notes
+
+
+def test_an_ocv_row_beyond_its_rests_takes_the_nearest_row_that_measured_there():
+    """Rows measured over SOC 0.25-1 (-20 degC), 0.15-1 (0 degC) and 0.05-1 (25 degC),
+    each an entropic offset from one shape: below its own span a row follows the nearest
+    row that measured there, shifted to meet it, then the next; beyond every span, flat."""
+    from ecmgen.model.model import OcvOverTemperature
+    from ecmgen.model.temperature import fill_ocv_rows
+
+    soc = np.round(np.linspace(0.0, 1.0, 101), 9)
+    shape = 3.0 + 1.2 * soc - 0.3 * np.exp(-soc / 0.05)
+    temps = np.array([-20.0, 0.0, 25.0])
+    spans = [(0.25, 1.0), (0.15, 1.0), (0.05, 1.0)]
+    rows = np.vstack([shape + d for d in (-0.02, -0.01, 0.0)])
+    for row, (lo, _) in zip(rows, spans):          # held flat below the span, as measured
+        row[soc < lo] = row[np.searchsorted(soc, lo)]
+    got, notes = fill_ocv_rows(OcvOverTemperature(temps, soc, rows), spans)
+    cold = got.ocv_v[0]
+    inside = soc >= 0.05
+    assert np.allclose(cold[inside], shape[inside] - 0.02, atol=1e-12)
+    assert np.all(cold[soc < 0.05] == cold[np.searchsorted(soc, 0.05)])
+    assert np.allclose(got.ocv_v[2], rows[2])        # the warm row measured all it has
+    assert len(notes) == 2 and "from the 0.0 degC row" in notes[0] \
+        and "from the 25.0 degC row" in notes[0]

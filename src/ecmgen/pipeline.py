@@ -459,7 +459,9 @@ def fit_all(cfg: BuildConfig, progress: Progress = _quiet, *, workers: Workers |
         try:
             models[m] = assemble_over_temperature(
                 [t.models[m] for t in tests], temps, step_c=cfg.temperature_step_c,
-                warm_c=cfg.warm_row_c, labels=labels)
+                warm_c=cfg.warm_row_c, labels=labels, ocv_spans=[
+                    t.inputs.ocv_report.span if t.inputs.ocv_report else (0.0, 1.0)
+                    for t in tests])
         except ValueError as exc:
             raise InputError(cfg.path, str(exc)) from None
     warm = tests[int(np.nanargmax(temps))] if np.isfinite(temps).any() else tests[0]

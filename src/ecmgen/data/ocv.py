@@ -571,6 +571,11 @@ class OcvReport:
     rests_soc: np.ndarray | None       # the pulse test's rested points
     rests_v: np.ndarray | None
 
+    @property
+    def span(self) -> tuple[float, float]:
+        """The SOC span its sources measured together."""
+        return (min(c.span[0] for c in self.curves), max(c.span[1] for c in self.curves))
+
     def as_dict(self) -> dict:
         return {"sources": list(self.sources),
                 "spans": {c.name: list(c.span) for c in self.curves},

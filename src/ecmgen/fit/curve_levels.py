@@ -6,15 +6,21 @@ measured and fitted voltage (the fit plots)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ..data.dcir import Pulse
+from ..data.measure import TimeSeries, charging_direction
+from .curve_record import hats
 from .lsq import GRID_RATIO, solve_bounded
 from .points import SOC_LEVEL_GAP, soc_levels
 
 # candidate weights of the second-difference penalty (relative to the column scale); up to
 # 1e3: on the Leaf's 1 mV-resolution tests the held-out optimum lies at 30-100
 PENALTIES = tuple(10.0 ** np.arange(-6.0, 3.01, 0.5))
+BOTH_WAYS_SHARE = 0.1  # a dynamic test's blocks are levels of a direction that moves this
+                       # share of their charge (a drive profile's regen)
 CV_TIE = 0.01      # held-out errors this close (relative) are one: the smoother is kept
 # below this share of its run's largest value a resistance's penalty is on r, not ln r (ln r
 # of a weakly pinned node slides towards 0 without bound: the Leaf's charge r_fast went to
@@ -238,3 +244,48 @@ def r0_holds(bases, offsets, directions, spans) -> tuple[np.ndarray, np.ndarray]
                 held.append(off + k)
                 source.append(off + (k_lo if k < k_lo else k_hi))
     return np.array(held, dtype=int), np.array(source, dtype=int)
+
+
+def both_ways(blocks, series: TimeSeries, deadband_a: float,
+              min_share: float = BOTH_WAYS_SHARE) -> tuple[list, list[str]]:
+    """A dynamic test's blocks as levels of both directions, when the samples under current
+    of the blocks run the other way than their net charge for at least ``min_share`` of
+    the charge they move (a drive profile's regen): each direction's tables are then free
+    at every block. Returns (the levels, notes)."""
+    i, dt = series.current_a, np.diff(series.time_s, prepend=series.time_s[0])
+    ix = np.concatenate([np.arange(p.start, p.stop) for p in blocks])
+    charging = charging_direction(i[ix], deadband_a)
+    moved = np.abs(i[ix]) * dt[ix]
+    share = {d: float(moved[m].sum() / max(moved.sum(), 1e-300))
+             for d, m in (("charge", charging), ("discharge", ~charging))}
+    have = {p.direction for p in blocks}
+    add = [d for d in ("charge", "discharge") if d not in have and share[d] >= min_share]
+    if not add:
+        return blocks, []
+    other = [replace(p, direction=d) for d in add for p in blocks]
+    return blocks + other, [f"curve: the blocks run both ways ({100 * share[add[0]]:.0f} % of "
+                            f"their charge moved on {add[0]}): each direction's tables are "
+                            "free at every block"]
+
+
+def ocv_node_sets(nodes: np.ndarray) -> list[np.ndarray]:
+    """The OCV correction's nodes: the levels, and the levels with their midpoints."""
+    if nodes.size < 2:
+        return [nodes]
+    return [nodes, np.sort(np.concatenate([nodes, 0.5 * (nodes[1:] + nodes[:-1])]))]
+
+
+def pulse_sampling_s(series: TimeSeries, complete) -> float:
+    """The median sampling interval inside the complete pulses."""
+    dt = np.concatenate([np.diff(series.time_s[p.start:p.stop]) for p in complete])
+    dt = dt[dt > 0]
+    return float(np.median(dt)) if dt.size else 0.0
+
+
+def node_error(rec, prob, resid, nodes, mask, default):
+    """The weighted RMS residual of the rows near each SOC node (``default`` where none)."""
+    h = hats(rec.soc[prob.rows], nodes) * mask[prob.rows][:, None]
+    w2 = (prob.w ** 2)[:, None] * h
+    tot = w2.sum(axis=0)
+    e2 = (w2 * (resid[prob.rows] ** 2)[:, None]).sum(axis=0)
+    return np.where(tot > 0, np.sqrt(e2 / np.maximum(tot, 1e-300)), default)

@@ -271,18 +271,67 @@ def _ocv_rows(models: Sequence[EcmModel], temps: np.ndarray) -> OcvOverTemperatu
     return OcvOverTemperature(temps, soc, rows)
 
 
+def fill_ocv_rows(ocv: OcvOverTemperature, spans) -> tuple[OcvOverTemperature, list[str]]:
+    """Each OCV row beyond the SOC span its own sources measured (``spans``: (lo, hi) per
+    row), from the row nearest in temperature that measured there: its shape, shifted to
+    meet this row where its span ends (then from the next nearest row that reaches further,
+    and so on). A cold pulse test's rests stop where the voltage limit cuts its pulse sets
+    (the Panasonic 18650PF: SOC 0.20 / 0.25 at -10 / -20 degC) and a test that opens with
+    a charge from empty rests first well above empty (the Leaf at 25 degC): a row held
+    flat there reads hundreds of mV high where a discharge runs into it, while the cell's
+    OCV at another temperature differs by an entropic few mV. Beyond every row's span the
+    row stays flat. Returns the OCV and notes."""
+    rows = np.array(ocv.ocv_v, dtype=np.float64)
+    soc, temps = ocv.soc, ocv.temperature_c
+    spans = [(float(lo), float(hi)) for lo, hi in spans]
+    if rows.shape[0] < 2 or len(spans) != rows.shape[0]:
+        return ocv, []
+    notes = []
+    for k in range(len(spans)):
+        nearest = sorted((j for j in range(len(spans)) if j != k),
+                         key=lambda j: (abs(temps[j] - temps[k]), j))
+        for below in (True, False):
+            edge, pieces = spans[k][0] if below else spans[k][1], []
+            while True:
+                src = next((j for j in nearest
+                            if (spans[j][0] < edge - 1e-9 if below else spans[j][1] > edge + 1e-9)),
+                           None)
+                if src is None:
+                    break
+                reach = spans[src][0] if below else spans[src][1]
+                take = ((soc < edge - 1e-9) & (soc >= reach - 1e-9) if below else
+                        (soc > edge + 1e-9) & (soc <= reach + 1e-9))
+                shift = float(np.interp(edge, soc, rows[k]) - np.interp(edge, soc, rows[src]))
+                rows[k, take] = rows[src, take] + shift
+                pieces.append(f"SOC {reach:.2f}..{edge:.2f}" if below else
+                              f"SOC {edge:.2f}..{reach:.2f}")
+                pieces[-1] += (f" from the {_fmt_t(temps[src])} degC row, shifted by "
+                               f"{shift * 1e3:+.1f} mV to meet it at SOC {edge:.2f}")
+                edge = reach
+            held = soc < edge - 1e-9 if below else soc > edge + 1e-9
+            rows[k, held] = np.interp(edge, soc, rows[k])
+            if pieces:
+                notes.append(f"OCV [{_fmt_t(temps[k])} degC] beyond its own rests: "
+                             + "; ".join(pieces))
+        rows[k] = np.maximum.accumulate(rows[k])
+    return OcvOverTemperature(temps, soc, rows), notes
+
+
 def _fmt_t(t: float) -> str:
     return f"{t:.1f}"
 
 
 def assemble_over_temperature(models: Sequence[EcmModel], temperatures_c, *,
                               step_c: float = 5.0, warm_c: float | None = 45.0,
-                              labels: Sequence[str] | None = None) -> EcmModel:
+                              labels: Sequence[str] | None = None,
+                              ocv_spans: Sequence[tuple] | None = None) -> EcmModel:
     """One model over temperature from one-temperature ``models`` (one per pulse test, at
     ``temperatures_c``, any order; same method and capacity). See the module docstring.
 
-    ``labels`` name the tests in the notes (e.g. their files). A single model comes back
-    with its temperature on its rows (nothing to interpolate)."""
+    ``labels`` name the tests in the notes (e.g. their files); ``ocv_spans``, the SOC span
+    each test's OCV sources measured, are filled beyond from the other tests' rows
+    (:func:`fill_ocv_rows`). A single model comes back with its temperature on its rows
+    (nothing to interpolate)."""
     temps = np.asarray(temperatures_c, dtype=np.float64)
     if temps.shape != (len(models),) or not len(models):
         raise ValueError("assemble_over_temperature: one temperature per model")
@@ -292,6 +341,7 @@ def assemble_over_temperature(models: Sequence[EcmModel], temperatures_c, *,
     order = np.argsort(temps, kind="stable")
     temps, models = temps[order], [models[k] for k in order]
     labels = [labels[k] for k in order]
+    spans = None if ocv_spans is None else [ocv_spans[k] for k in order]
     close = np.flatnonzero(np.diff(temps) < MIN_SPACING_K)
     if close.size:
         k = int(close[0])
@@ -315,6 +365,9 @@ def assemble_over_temperature(models: Sequence[EcmModel], temperatures_c, *,
     ocv = _ocv_rows(models, temps)
     if len(models) == 1:
         ocv = OcvOverTemperature(temps, ocv.soc, ocv.ocv_v)
+    filled_ocv = []
+    if spans is not None and ocv.n_temperatures > 1:
+        ocv, filled_ocv = fill_ocv_rows(ocv, spans)
 
     notes = [f"[{_fmt_t(t)} degC] {n}" for t, m in zip(temps, models) for n in m.notes]
     notes += fills
@@ -340,6 +393,7 @@ def assemble_over_temperature(models: Sequence[EcmModel], temperatures_c, *,
         if ocv.n_temperatures > 1:
             notes.append("OCV: one row per pulse test at its temperature (from its own data), "
                          "linear in temperature between them, clamped beyond")
+            notes += filled_ocv
     inputs = tuple(r for m in models for r in m.inputs)
     return replace(base, ocv=ocv, charge=tables["charge"], discharge=tables["discharge"],
                    inputs=inputs, notes=tuple(notes))
