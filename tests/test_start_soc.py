@@ -181,3 +181,23 @@ def test_auto_start_soc_of_the_shared_cycles_within_half_a_millivolt_of_a_full_s
                                       f"{name}.mat"))
         auto, full = validate(model, series, None), validate(model, series, 1.0)
         assert abs(auto.overall.mae_v - full.overall.mae_v) < 0.5e-3, (folder, name)
+
+
+def test_a_start_soc_that_needs_an_offset_beyond_any_hysteresis_is_said_uncertain():
+    """A cell whose OCV falls steeply towards empty, and an OCV table held flat below SOC
+    0.12 (a test whose rests stop there): rests down to SOC 0.05 pull the fit to an offset
+    far beyond a hysteresis (LFP: 10-30 mV) and its note says the start is uncertain; with
+    the true OCV it says nothing."""
+    from ecmgen.data.ocv import OcvTable
+    from ecmgen.data.soc import Rests
+
+    soc = np.linspace(0.0, 1.0, 101)
+    true_v = 3.2 + 0.9 * soc - 0.5 * np.exp(-soc / 0.04)
+    held_v = np.where(soc < 0.12, true_v[12], true_v)
+    at = np.array([0.9, 0.6, 0.3, 0.05])
+    rests = Rests(np.arange(4), np.full(4, 3600.0), np.array([0, -1, -1, -1]),
+                  (at - at[0]) * 2.0, OcvTable(soc, true_v).ocv_at(at))
+    held = fit_start_soc(OcvTable(soc, held_v), 2.0, rests, "cycle.csv")
+    true = fit_start_soc(OcvTable(soc, true_v), 2.0, rests, "cycle.csv")
+    assert "warning" in held.note and "uncertain" in held.note
+    assert "warning" not in true.note and true.soc0 == pytest.approx(0.9, abs=0.005)

@@ -31,6 +31,9 @@ from ..errors import InputError
 from .measure import TimeSeries
 
 MAX_OFFSET_PRIOR_V = 0.02    # prior scale of the hysteresis offsets (LFP: 10-30 mV)
+# an offset beyond three times the prior's scale is no hysteresis but an OCV that does not
+# describe the rests (a flat hold beyond its measured span, another temperature or cell)
+OFFSET_WARN_V = 3 * MAX_OFFSET_PRIOR_V
 MIN_FIT_SPAN = 0.2           # a record's rests spanning this much SOC are fitted together
 NOISE_V = 0.002              # scale of a rested voltage's own scatter
 
@@ -156,6 +159,12 @@ def fit_start_soc(ocv, capacity_ah: float, rests: Rests, source="", *,
     text = ", ".join(f"{c * 1e3:+.1f} mV {n}" for n, c in offsets.items())
     note = (f"start SOC {s0:.3f} fitted so that {len(rests)} rested voltages match the OCV "
             f"(RMS {rms * 1e3:.1f} mV; hysteresis offset {text})")
+    worst = max((abs(c) for c in offsets.values()), default=0.0)
+    if worst > OFFSET_WARN_V:
+        note += (f"; warning: an offset of {worst * 1e3:.0f} mV is beyond any hysteresis "
+                 f"({OFFSET_WARN_V * 1e3:.0f} mV): the OCV does not describe these rests "
+                 "(SOC beyond its measured span, another temperature or cell), so this "
+                 "start SOC is uncertain; give it (soc0) if it is known")
     return StartSoc(float(s0), rms, offsets, len(rests), note)
 
 

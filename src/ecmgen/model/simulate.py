@@ -340,6 +340,8 @@ def validate(model: EcmModel, series: TimeSeries, soc0: float | None = None,
         warns = [flipped_sign_warning(name, lag.correlation[0])]
     else:
         warns = [soc_range_warning(sim.soc, name)]
+        if from_ocv and "warning" in how:
+            warns.append(f"{name}: start SOC {soc0:.3f} from {how}")
         if lag_samples:
             warns.append(lag.note(series.source))
         if overall.mae_v > FOREIGN_MAE_V:
