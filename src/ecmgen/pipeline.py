@@ -21,7 +21,7 @@ from .config import BuildConfig, PulseTest
 from .data import dcir as dcir_mod
 from .data.dynamic import dynamic_levels
 from .data.measure import TimeSeries
-from .data.sources import ocv_file_curves, read_series
+from .data.sources import check_column_maps, ocv_file_curves, read_series
 from .data import ocv as ocv_mod
 from .data.ocv import OcvTable
 from .console import detail_of
@@ -436,13 +436,13 @@ def _with_neighbour_taus(cfg: BuildConfig, fits: list[TestFit], workers: Workers
 
 def fit_all(cfg: BuildConfig, progress: Progress = _quiet, *, workers: Workers | int = 2,
             plots: bool = False):
-    """Every method's model of the config: (models, raw fits, inputs, tests).
-
+    """Every method's model of the config: (models, raw fits, inputs, tests), every
+    file's column map checked first (a wrong one said before the fits, not after them).
     The data.pulses / data.dcir form: one model per method as prepare + fit_models give it
     (``tests`` empty). [[data.pulse_tests]]: every test fitted (fit_pulse_tests, its fit
     plots drawn there with ``plots``) and each method's models joined over temperature
-    (model.temperature); ``inputs`` and ``raw`` are then those of the warmest test,
-    ``tests`` has them all."""
+    (model.temperature); ``inputs`` and ``raw``: the warmest test's; ``tests``: all."""
+    check_column_maps(cfg)
     if not cfg.over_temperature:
         inputs = prepare(cfg, progress)
         models, raw = fit_models(cfg, inputs, progress)

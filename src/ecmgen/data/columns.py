@@ -127,25 +127,36 @@ class ColumnMap:
 
     @classmethod
     def for_file(cls, table: dict | None, roles: tuple[str, ...], config_path,
-                 file: str | Path) -> "ColumnMap | None":
+                 file: str | Path, own: tuple[str, dict] | None = None
+                 ) -> "ColumnMap | None":
         """The mapping of one file of a config, from its parsed ``[data.columns]`` table.
 
         The global keys (``[data.columns]`` itself) apply to every CSV file; the first of
         ``roles`` (e.g. ``("extra_cycles", "cycle")``) with its own
-        ``[data.columns.<role>]`` table extends them, key by key, and applies to a .mat
-        file too (whose fields the global CSV names would not match). A cycler's own file
-        (ecmgen.data.native) takes only a role's table, over its reader's names. None: no
-        mapping, the file's layout is recognised by its names."""
+        ``[data.columns.<role>]`` table extends them, key by key, and the file's ``own``
+        table (its section's name and the table: a pulse test's columns, [data.columns.
+        files]) extends that; either applies to a .mat file too (whose fields the global
+        CSV names would not match). A cycler's own file (ecmgen.data.native) takes only
+        those, over its reader's names. None: no mapping, the file's layout is recognised
+        by its names."""
         table = table or {}
         common = {k: v for k, v in table.items() if not isinstance(v, dict)}
         role = next((r for r in roles if isinstance(table.get(r), dict)), None)
-        native = native_columns(file)
-        if native is not None:
-            return None if role is None else cls.from_toml(
-                {**native, **table[role]}, config_path, f"[data.columns.{role}]")
-        if role is not None:
-            section = f"[data.columns.{role}]" + (" with [data.columns]" if common else "")
-            return cls.from_toml({**common, **table[role]}, config_path, section)
+        layers = ([(f"[data.columns.{role}]", table[role])] if role is not None else []) + \
+            ([own] if own is not None else [])
+        base = native_columns(file)
+        if base is None:
+            base = common
+            if common and layers:
+                layers = [("[data.columns]", {})] + layers
+        elif not layers:
+            return None
+        if layers:
+            merged = dict(base)
+            for _, keys in layers:
+                merged.update(keys)
+            section = " with ".join(name for name, _ in reversed(layers))
+            return cls.from_toml(merged, config_path, section)
         if common and not (Path(file).is_file() and _is_mat(Path(file))):
             return cls.from_toml(common, config_path)
         return None

@@ -24,7 +24,8 @@ from .columns import (  # noqa: F401 (re-exported)
     CANONICAL_HEADER, CHARGE_UNITS_AH, CSV_LAYOUTS, CURRENT_SIGNS, CURRENT_UNITS_A,
     MAT_LAYOUT, TIME_UNITS_S, VOLTAGE_UNITS_V, ColumnMap, _is_mat)
 from .timing import LAG_MARGIN, VoltageLag, voltage_lag  # noqa: F401 (re-exported)
-from .plausible import check_current, check_temperature, check_voltage, implausible_ends
+from .plausible import (MAX_C_RATE, MAX_CURRENT_A, TEMPERATURE_RANGE_C, VOLTAGE_RANGE_V,
+                        check_current, check_temperature, check_voltage, implausible_ends)
 
 
 @dataclass(frozen=True)
@@ -211,20 +212,50 @@ def _headerless(path: Path, row: list[str], line: int, text_columns: bool = Fals
                             f"(e.g. time = 1, current = 2, voltage = 3)")
 
 
-def _read_csv(path: Path, columns: ColumnMap | None) -> tuple[_Raw, ColumnMap]:
+HEAD_ROWS = 100     # the rows a column map is checked on before a file is read whole
+
+
+def check_columns(path: str | Path, columns: ColumnMap | None, *,
+                  capacity_ah: float | None = None) -> None:
+    """The column map of a measurement file checked before a long run reads it whole
+    (InputError as reading would raise it): a CSV on its header and first HEAD_ROWS rows
+    (the names and positions, the header line or none, numbers in the mapped cells;
+    voltage, current and temperature in a cell's range, else the file is read whole to
+    tell a column or a unit mapped wrongly from a logger-off run the reading drops); a
+    .mat or cycler file on its names, where a map is given for it."""
+    with reading(path):
+        path = Path(path)
+        if is_native(path) or _is_mat(path):
+            if columns is not None:
+                (_read_native if is_native(path) else _read_mat)(path, columns)
+            return
+        raw, colmap = _read_csv(path, columns, max_rows=HEAD_ROWS)
+        values = _in_units(raw.values, colmap, [])
+        lo, hi = VOLTAGE_RANGE_V
+        temps = values.get("temperature", np.zeros(1))
+        peak = MAX_C_RATE * capacity_ah if capacity_ah is not None else MAX_CURRENT_A
+        if np.any((values["voltage"] < lo) | (values["voltage"] > hi)) or \
+                np.any(np.abs(values["current"]) > peak) or \
+                np.any((temps < TEMPERATURE_RANGE_C[0]) | (temps > TEMPERATURE_RANGE_C[1])):
+            _finish(path, *_read_csv(path, columns), capacity_ah)
+
+
+def _read_csv(path: Path, columns: ColumnMap | None, max_rows: int | None = None
+              ) -> tuple[_Raw, ColumnMap]:
     encoding = csv_encoding(path)
     try:
-        return _read_csv_as(path, columns, encoding)
+        return _read_csv_as(path, columns, encoding, max_rows)
     except UnicodeDecodeError:
         if encoding != "utf-8-sig":
             raise InputError(path, "starts as UTF-16 text (its BOM) but is not") from None
-        return _read_csv_as(path, columns, "latin-1")   # a Windows code page ("°C")
+        return _read_csv_as(path, columns, "latin-1", max_rows)   # a Windows code page ("°C")
 
 
-def _read_csv_as(path: Path, columns: ColumnMap | None, encoding: str
-                 ) -> tuple[_Raw, ColumnMap]:
+def _read_csv_as(path: Path, columns: ColumnMap | None, encoding: str,
+                 max_rows: int | None = None) -> tuple[_Raw, ColumnMap]:
     """The CSV's mapped columns as float64, converted a block of rows at a time (the
-    text is never in memory whole: ecmgen.data.csvtext)."""
+    text is never in memory whole: ecmgen.data.csvtext); its first ``max_rows`` only
+    where given."""
     source = CsvRows(path, encoding)
     rows = iter(source)
     has_header = columns is None or columns.header
@@ -249,6 +280,13 @@ def _read_csv_as(path: Path, columns: ColumnMap | None, encoding: str
         # a cycler's export holds text in columns of its own (Bitrode's "No", a mode
         # "CHRG"): only the mapped columns must hold numbers
         if not _numbers_only(_mapped_cells(columns, row)):
+            text = [(role, k) for role, k in columns.names().items()
+                    if k <= len(row) and row[k - 1].strip() and not _is_number(row[k - 1])]
+            if 0 < len(text) < len(columns.names()):    # numbers elsewhere: a text column
+                role, k = text[0]
+                raise InputError(path, f"{role} = {k}: line {line} holds "
+                                       f"{row[k - 1].strip()[:40]!r} in column {k}, not a "
+                                       f"number (a text column?)")
             raise InputError(path, f"header = false in [data.columns], but line {line} "
                                    f"holds names ({', '.join(c.strip() for c in row[:4])}"
                                    f"{', ...' if len(row) > 4 else ''}): a header line?")
@@ -276,7 +314,8 @@ def _read_csv_as(path: Path, columns: ColumnMap | None, encoding: str
     parts: dict[str, list[np.ndarray]] = {role: [] for role in position}
     line_parts: list[np.ndarray] = []
     done = 0
-    for block in blocks(itertools.chain(pending, rows)):
+    data_rows = itertools.islice(itertools.chain(pending, rows), max_rows)
+    for block in blocks(data_rows):
         lines = np.fromiter((ln for ln, _ in block), dtype=np.int64, count=len(block))
         cells_of = [r for _, r in block]
         _check_width(path, cells_of, lines, len(header), against, source.delimiter)

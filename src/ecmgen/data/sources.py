@@ -12,7 +12,7 @@ import numpy as np
 
 from ..config import COLUMN_ROLE_FALLBACK, WINDOW_ROLES, BuildConfig
 from . import ocv as ocv_mod
-from .measure import ColumnMap, TimeSeries, read_timeseries
+from .measure import ColumnMap, TimeSeries, check_columns, read_timeseries
 
 Progress = Callable[[str], None]
 
@@ -22,9 +22,7 @@ def read_series(cfg: BuildConfig, path: Path, role: str = "") -> TimeSeries:
     another cycler, for every CSV; ``[data.columns.<role>]`` extends it for one file role
     (``extra_cycles`` and ``judge`` fall back to ``cycle``'s); .mat files carry their own
     names. A validation file is cut to ``data.cycle_window_s`` when the config gives one."""
-    roles = (role, COLUMN_ROLE_FALLBACK[role]) if role in COLUMN_ROLE_FALLBACK else (role,)
-    columns = ColumnMap.for_file(cfg.columns, roles, cfg.path, path)
-    series = read_timeseries(path, columns, capacity_ah=cfg.capacity_ah)
+    series = read_timeseries(path, columns_for(cfg, path, role), capacity_ah=cfg.capacity_ah)
     temp = cfg.temperature_for(path) if series.temperature_c is None else None
     if isinstance(temp, Path):
         from .templog import with_temperature_log
@@ -37,6 +35,43 @@ def read_series(cfg: BuildConfig, path: Path, role: str = "") -> TimeSeries:
                                                f"temperature_c)",))
     window = cfg.window_for(path) if role in WINDOW_ROLES else None
     return series if window is None else series.window(*window)
+
+
+def columns_for(cfg: BuildConfig, path: Path, role: str) -> ColumnMap | None:
+    """The column map of one file of the config in ``role`` (None: known by its names)."""
+    roles = (role, COLUMN_ROLE_FALLBACK[role]) if role in COLUMN_ROLE_FALLBACK else (role,)
+    return ColumnMap.for_file(cfg.columns, roles, cfg.path, path,
+                              cfg.file_columns.get(Path(path).resolve()))
+
+
+def measurement_files(cfg: BuildConfig) -> list[tuple[Path, str]]:
+    """Every measurement file the config names, with its role, once each in the order
+    a build reads them (soc,ocv_v tables and DC-IR tables left out)."""
+    files = [(p, "ocv") for p in cfg.ocv_sources if p != "pulses"]
+    files += [(cfg.pulses, "pulses")] if cfg.pulses is not None else []
+    for test in cfg.pulse_tests:
+        files += [(p, "pulses") for p in (test.file, test.steps) if p is not None]
+        files += [(test.ocv, "ocv")] if test.ocv is not None else []
+    files += [(cfg.cycle, "cycle")] if cfg.cycle is not None else []
+    files += [(p, "extra_cycles") for p in cfg.extra_cycles]
+    diagnose = cfg.raw.get("diagnose") if isinstance(cfg.raw.get("diagnose"), dict) else {}
+    for key, role in (("cycle", "cycle"), ("judge", "judge")):
+        if isinstance(diagnose.get(key), str):
+            files.append((cfg.path.resolve().parent / diagnose[key], role))
+    seen, out = set(), []
+    for p, role in files:
+        p = Path(p).resolve()
+        if (p, role) not in seen and p.is_file() and not ocv_mod.looks_like_ocv_table(p):
+            seen.add((p, role))
+            out.append((p, role))
+    return out
+
+
+def check_column_maps(cfg: BuildConfig) -> None:
+    """Every measurement file's column map checked on the file's first lines, before any
+    fitting: a wrong map is the same one line reading would give, seconds earlier."""
+    for path, role in measurement_files(cfg):
+        check_columns(path, columns_for(cfg, path, role), capacity_ah=cfg.capacity_ah)
 
 
 def ocv_file_curve(cfg: BuildConfig, path: Path, progress: Progress,
