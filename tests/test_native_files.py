@@ -121,6 +121,21 @@ def test_neware_ndax_rest_with_two_temperature_channels(tmp_path):
     assert 25.3 < t2.temperature_c.min() and t2.temperature_c.max() < 25.7
 
 
+def test_a_config_maps_a_native_file_over_its_reader_names(cell_files, tmp_path):
+    from ecmgen.config import load_config
+    from ecmgen.data.sources import check_column_maps, read_series
+
+    path = neware_file("Unit27_Example_Data_File.ndax")
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(f'[cell]\ncapacity_ah = 2.9\n[data]\npulses = "{cell_files / "pulses.csv"}"\n'
+                   f'ocv = "{cell_files / "ocv.csv"}"\ncycle = "{path}"\n'
+                   f'[data.columns.files."{path.name}"]\ntemperature = "T2"\n')
+    config = load_config(cfg)
+    check_column_maps(config)
+    t2 = read_series(config, path, "cycle")
+    assert np.array_equal(t2.temperature_c, read_native(path).fields["T2"])
+
+
 def test_validate_runs_from_a_native_file(cell_files, capsys):
     path = neware_file("TestFile.nda")
     assert main(["validate", str(cell_files / "model.json"), str(path), "--json"]) == 0
