@@ -249,7 +249,8 @@ def cmd_validate(args) -> int:
         src = f"from {val.soc0_how}" if val.soc0_from_ocv else "given"
         print(f"{Path(args.cycle).name}: MAE {m.mae_v * 1e3:.2f} mV  RMSE {m.rmse_v * 1e3:.2f} mV"
               f"  max {m.max_abs_v * 1e3:.1f} mV  (soc0 {val.soc0:.4f} {src}; "
-              f"MAE at SOC>10 % {val.soc_above_10.mae_v * 1e3:.2f} mV"
+              + (f"MAE at SOC>10 % {val.soc_above_10.mae_v * 1e3:.2f} mV"
+                 if math.isfinite(val.soc_above_10.mae_v) else "never above 10 % SOC")
               + ("" if val.temperature_range_c is None else
                  "; cell {:.1f}..{:.1f} degC".format(*val.temperature_range_c)) + ")")
         for w in val.warnings:
