@@ -330,9 +330,11 @@ def cmd_estimate(args) -> int:
                                        settings=asdict(settings))))
     else:
         conv = "never" if f.converge_s is None else f"{f.converge_s:.0f} s"
+        late = (f"{f.soc_max_abs_after_600s * 100:.2f} % after 600 s" if math.isfinite(
+            f.soc_max_abs_after_600s) else "a record shorter than 600 s")
         print(f"{Path(args.cycle).name}: {settings.filter} SOC RMSE {f.soc_rmse * 100:.2f} %, "
-              f"max {f.soc_max_abs * 100:.2f} % ({f.soc_max_abs_after_600s * 100:.2f} % "
-              f"after 600 s), within 2 % from {conv}; coulomb counting RMSE "
+              f"max {f.soc_max_abs * 100:.2f} % ({late}), within 2 % from {conv}; coulomb "
+              f"counting RMSE "
               f"{cc.soc_rmse * 100:.2f} %, max {cc.soc_max_abs * 100:.2f} % "
               f"(soc0 {soc0:.4f}, guess {guess:.4f}, start {start})")
     return 0
