@@ -152,6 +152,16 @@ def neware_frame(steps, dt_s=1.0):
     discharge counters in mAh from 0 in each step, float32 as NewareNDA stores them.
     Returns the frame and the truth: time s, current A, charge Ah."""
     pd = pytest.importorskip("pandas")
+    rows, truth = logged_steps(steps, dt_s)
+    frame = pd.DataFrame(rows, columns=["Step", "Status", "Time", "Current(mA)",
+                                        "Charge_Capacity(mAh)", "Discharge_Capacity(mAh)"])
+    frame = frame.astype({c: "float32" for c in frame.columns[2:]})
+    return frame, truth
+
+
+def logged_steps(steps, dt_s=1.0):
+    """The rows of neware_frame (step, type, step clock, mA, the two counters in mAh) and
+    the truth (time s, current A, charge Ah)."""
     rows, truth = [], []
     t0, q0 = 0.0, 0.0
     for n, (amps, dur) in enumerate(steps, 1):
@@ -161,10 +171,7 @@ def neware_frame(steps, dt_s=1.0):
                          amps * 1e3, max(q, 0.0) * 1e3, max(-q, 0.0) * 1e3))
             truth.append((t0 + k, amps, q0 + q))
         t0, q0 = t0 + dur, q0 + amps * dur / 3600.0
-    frame = pd.DataFrame(rows, columns=["Step", "Status", "Time", "Current(mA)",
-                                        "Charge_Capacity(mAh)", "Discharge_Capacity(mAh)"])
-    frame = frame.astype({c: "float32" for c in frame.columns[2:]})
-    return frame, np.array(truth)
+    return rows, np.array(truth)
 
 
 def fake_neware(monkeypatch, frame, voltage_v):
@@ -257,7 +264,7 @@ def test_arbin_res_needs_mdbtools(tmp_path, monkeypatch):
 # which checks ecmgen's side, the names, units, sign and counters taken from them.
 
 def _known_record():
-    frame, truth = neware_frame(STEPS)
+    _, truth = logged_steps(STEPS)
     return truth.T, 3.6 + 0.01 * truth[:, 1]
 
 
