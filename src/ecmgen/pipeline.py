@@ -21,7 +21,8 @@ from .config import BuildConfig, PulseTest
 from .data import dcir as dcir_mod
 from .data.dynamic import dynamic_levels
 from .data.measure import TimeSeries
-from .data.sources import ocv_file_curves, read_series
+from .data.sign import check_sign
+from .data.sources import check_temperature_logs, ocv_file_curves, read_series
 from .data import ocv as ocv_mod
 from .data.ocv import OcvTable
 from .console import detail_of
@@ -269,6 +270,12 @@ class TestFit:
     pngs: dict[str, bytes] = field(default_factory=dict)      # its plots, if asked for
 
 
+# a pulse test's temperature_c and its own temperature column may differ by self-heating
+# (the shared Panasonic tests: medians in the pulses within 0.9 K of the chamber's 25, 0,
+# -10, -20 degC); more than this is another test's label
+PULSE_LABEL_TOL_K = 5.0
+
+
 def pulse_test_config(cfg: BuildConfig, test: PulseTest) -> BuildConfig:
     """The one-test config of a [[data.pulse_tests]] entry: what prepare and fit_models
     read (``pulse_tests`` then holds that one test, e.g. for its ``steps`` file). The
@@ -333,6 +340,13 @@ def _fit_pulse_test(cfg: BuildConfig, test: PulseTest, progress: Progress, t0: f
     inputs = prepare(sub, progress)
     if test.temperature_c is not None:
         temp, source = float(test.temperature_c), "configured"
+        measured = pulses_temperature_c(inputs)
+        if measured is not None and abs(measured - temp) > PULSE_LABEL_TOL_K:
+            raise InputError(cfg.path, f"the pulse test {test.file.name} is given temperature_c "
+                                       f"= {temp:g} degC, but its own cell temperature column "
+                                       f"reads {measured:.1f} degC in its pulses (median): "
+                                       "labels swapped? (leave temperature_c out to take the "
+                                       "file's)")
     else:
         measured = pulses_temperature_c(inputs)
         if measured is None and len(cfg.pulse_tests) > 1:
@@ -341,12 +355,7 @@ def _fit_pulse_test(cfg: BuildConfig, test: PulseTest, progress: Progress, t0: f
                                         "[[data.pulse_tests]] table")
         temp = np.nan if measured is None else measured
         source = "median cell temperature in its pulses"
-    # the files by the names the notes use (tests of one cell share file names)
-    names = _test_file_names(cfg)
-    files = {"ocv": sub.ocv, "pulses": sub.pulses, "steps": test.steps}
-    records = tuple(replace(r, name=names.get(files[r.role], r.name))
-                    if files.get(r.role) is not None else r for r in inputs.records)
-    inputs = replace(inputs, records=records)
+    inputs = replace(inputs, records=pulse_test_records(cfg, test, inputs.records))
     timings = {"read, pulses, DC-IR, OCV": time.perf_counter() - t0}
     models, raw = {}, {}
     for m in cfg.methods:   # one at a time, for the timings
@@ -362,6 +371,17 @@ def _fit_pulse_test(cfg: BuildConfig, test: PulseTest, progress: Progress, t0: f
     return TestFit(test=test, label=temperature_label(temp), temperature_c=temp,
                    temperature_from=source, inputs=replace(inputs, pulses_series=None),
                    models=models, raw=raw, seconds=time.perf_counter() - t0, timings=timings)
+
+
+def pulse_test_records(cfg: BuildConfig, test: PulseTest, records) -> tuple:
+    """A pulse test's input records with its files by the names the notes use (tests of
+    one cell share file names): each record renamed only if it is that file's, so the
+    other parts of a split data.ocv keep their own names (before: all named as the first)."""
+    names = _test_file_names(cfg)
+    files = {"ocv": test.ocv, "pulses": test.file, "steps": test.steps}
+    return tuple(replace(r, name=names.get(files[r.role], r.name))
+                 if files.get(r.role) is not None and r.name == files[r.role].name else r
+                 for r in records)
 
 
 def _test_file_names(cfg: BuildConfig) -> dict[Path, str]:
@@ -585,6 +605,7 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
     out_dir = Path(out_dir).resolve()
     given = cfg.input_files()      # outputs must never replace one
     check_output_folder(out_dir, given)     # before the fit, not after it
+    check_temperature_logs(cfg)
     with _workers_for(cfg, workers) as pool:
         models, raw, inputs, tests = fit_all(cfg, progress, workers=pool, plots=plots)
         lap("fit")
@@ -734,6 +755,11 @@ def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _qu
     out_dir = Path(out_dir).resolve()
     given = cfg.input_files() | {p for p in (judge_path, cycle_path) if p is not None}
     check_output_folder(out_dir, given)
+    fit_series = read_series(cfg, cycle_path, "cycle")     # read and checked before the fit
+    judge = read_series(cfg, judge_path, "judge") if judge_path is not None else None
+    for record in (fit_series, judge):  # a flipped current is "unexplained" otherwise
+        if record is not None:
+            check_sign(record)
     fit_cfg = replace(cfg, methods=(cfg.best,))
     if "curve_branches" not in (cfg.raw.get("fit") or {}):
         # the base of a diagnosis is the plain 2RC: the diffusion pair and the Butler-Volmer
@@ -743,8 +769,6 @@ def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _qu
                  "[fit] curve_branches = true fits them into the base)")
     models, raw, inputs, _ = fit_all(fit_cfg, progress)
     base = models[cfg.best]
-    fit_series = read_series(cfg, cycle_path, "cycle")
-    judge = read_series(cfg, judge_path, "judge") if judge_path is not None else None
     refits = {}
     if cfg.best == "curve" and not cfg.over_temperature:
         refits["current_dependent_resistance"] = lambda: _refit_with_current_dependence(

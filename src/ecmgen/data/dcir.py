@@ -22,6 +22,7 @@ import numpy as np
 from ..errors import InputError, reading
 from ..files import write_atomic
 from .measure import TimeSeries
+from .sign import check_sign
 
 DEFAULT_TIMES_S = (0.1, 1.0, 3.0, 6.0, 10.0)
 
@@ -234,6 +235,7 @@ def find_pulses(series: TimeSeries, capacity_ah: float, *, soc0: float,
         raise InputError(series.source, f"no pulses found (current steps above {thr:.3g} A "
                                         f"after at least {min_rest_s:g} s of rest, lasting at "
                                         f"most {max_pulse_s:g} s): not a pulse test?")
+    check_sign(series, "pulse test")         # before the SOC span it would throw off
     check_soc_span(series, pulses, "pulse", soc0, capacity_ah)
     return flag_cut_short(series, pulses)
 

@@ -39,6 +39,16 @@ def read_series(cfg: BuildConfig, path: Path, role: str = "") -> TimeSeries:
     return series if window is None else series.window(*window)
 
 
+def check_temperature_logs(cfg: BuildConfig) -> None:
+    """Read every time-stamped temperature log the config names now, before any fit: a
+    log without a time column is bad input at once, not after the fit of the pulses."""
+    from .templog import read_temperature_log
+
+    logs = cfg.temperature_c.values() if isinstance(cfg.temperature_c, dict) else ()
+    for log in sorted({v for v in logs if isinstance(v, Path)}):
+        read_temperature_log(log)
+
+
 def ocv_file_curve(cfg: BuildConfig, path: Path, progress: Progress,
                     low: TimeSeries | None = None) -> ocv_mod.OcvCurve:
     """The OCV curve of one file source: a soc,ocv_v table or a low-rate test (``low``:
