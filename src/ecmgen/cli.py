@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import math
 import os
 import signal
@@ -708,24 +709,51 @@ def main(argv=None) -> int:
     args = parser().parse_args(argv)
     try:
         with _no_stray_warnings(), _sigterm_unwinds():
-            return int(args.func(args) or 0)
+            code = int(args.func(args) or 0)
+            sys.stdout.flush()          # a full or closed stdout fails here, not at exit
+            return code
     except InputError as exc:
         return _error(str(exc))
+    except OSError as exc:
+        if exc.filename is not None or exc.errno not in _STDOUT_ERRNOS:
+            return _boundary(exc)
+        _silence_stdout()               # else Python's own flush at exit fails again
+        if exc.errno == errno.EPIPE:    # `ecmgen ... | head`: the reader left, not an error
+            return 141
+        return _error(f"standard output: cannot be written ({describe(exc)})")
     except KeyboardInterrupt:
         return 130
     except Terminated:
         return 143
     except Exception as exc:
-        # the one boundary: an exception raised while reading a user's file (marked by
-        # ecmgen.errors.reading), or the system refusing a path (an output folder under
-        # /proc, a full disk), is bad input or a bad place: one line, exit 2. Anything
-        # else is a fault of ecmgen and keeps its traceback (exit 1).
-        where = user_file_of(exc)
-        if where is None and isinstance(exc, OSError) and exc.filename is not None:
-            where = exc.filename
-        if where is None:
-            raise
-        return _error(f"{where}: {describe(exc)}")
+        return _boundary(exc)
+
+
+# errors of a write to a full, broken or closed standard output (a file name is not set)
+_STDOUT_ERRNOS = {errno.ENOSPC, errno.EPIPE, errno.EIO, errno.EDQUOT, errno.EBADF,
+                  errno.EFBIG}
+
+
+def _silence_stdout() -> None:
+    try:
+        fd = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(fd, sys.stdout.fileno())
+        os.close(fd)
+    except (OSError, ValueError, AttributeError):
+        pass
+
+
+def _boundary(exc: BaseException) -> int:
+    """The one boundary: an exception raised while reading a user's file (marked by
+    ecmgen.errors.reading), or the system refusing a path (an output folder under /proc, a
+    full disk), is bad input or a bad place: one line, exit 2. Anything else is a fault of
+    ecmgen and keeps its traceback (exit 1)."""
+    where = user_file_of(exc)
+    if where is None and isinstance(exc, OSError) and exc.filename is not None:
+        where = exc.filename
+    if where is None:
+        raise exc
+    return _error(f"{where}: {describe(exc)}")
 
 
 def _error(message: str) -> int:

@@ -38,10 +38,19 @@ STAGING_PREFIX = ".ecmgen-staging-"
 STALE_UNNAMED_S = 24 * 3600.0
 
 
+def resolved(path: str | Path, option: str = "--out") -> Path:
+    """``path`` resolved; a symbolic link loop on the way is bad input, not a traceback."""
+    try:
+        return Path(path).resolve()
+    except (RuntimeError, OSError) as exc:      # RuntimeError: "Symlink loop" (3.11, 3.12)
+        raise InputError(path, f"{option}: cannot be resolved ({exc}): a symbolic link "
+                               "that leads back to itself? give another path") from None
+
+
 def refuse_inputs(out: str | Path, inputs: Iterable[str | Path | None], option: str = "--out"
                   ) -> None:
     """InputError unless ``out`` is none of ``inputs`` (compared as resolved paths)."""
-    target = Path(out).resolve()
+    target = resolved(out, option)
     for p in inputs:
         if p is not None and Path(p).resolve() == target:
             raise InputError(out, f"{option} would overwrite an input file of this command; "
@@ -55,6 +64,10 @@ def check_output_file(out: str | Path, inputs: Iterable, option: str = "--out") 
     refuse_inputs(out, inputs, option)
     if out.is_dir():
         raise InputError(out, f"{option} is a directory; give a file name")
+    if out.exists() and not out.is_file():
+        # the write goes via a temporary file and a rename, which would replace the node
+        raise InputError(out, f"{option} is not a regular file (a device or a pipe); "
+                              "give a file name")
     _check_writable(out, option)
     return out
 
@@ -62,7 +75,7 @@ def check_output_file(out: str | Path, inputs: Iterable, option: str = "--out") 
 def _check_writable(out: Path, option: str, folder: Path | None = None) -> None:
     """Refuse now, not after the work, a place no file can be written: a temporary file
     is made (and removed at once) in the nearest folder that exists on the way to it."""
-    folder = folder or out.resolve().parent
+    folder = folder or resolved(out, option).parent
     while not folder.exists():
         folder = folder.parent
     if not folder.is_dir():
@@ -82,7 +95,7 @@ def check_output_folder(out: str | Path, inputs: Iterable, option: str = "--out"
     refuse_inputs(out, inputs, option)
     if out.exists() and not out.is_dir():
         raise InputError(out, f"{option} is an existing file; give a folder")
-    _check_writable(out, option, out.resolve())
+    _check_writable(out, option, resolved(out, option))
     return out
 
 

@@ -34,7 +34,7 @@ from typing import Callable
 
 from ..errors import InputError
 from ..files import write_atomic
-from ..outputs import check_output_folder, refuse_inputs
+from ..outputs import check_output_folder, refuse_inputs, resolved
 from .manifest import Row, read_manifest
 from .task import Options, Outcome, run_row
 
@@ -87,7 +87,7 @@ def run_fleet(manifest: str | Path, out: str | Path, *, scheduler: str | None = 
     """Build every row of ``manifest`` into ``out`` (see the module doc)."""
     t0 = time.perf_counter()
     rows = read_manifest(manifest)
-    out = Path(out).resolve()
+    out = resolved(out)
     inputs = {Path(manifest).resolve(), *(r.config for r in rows)}
     check_output_folder(out, inputs)
     for name in FLEET_FILES:        # e.g. the manifest given as study/fleet.csv, --out study
