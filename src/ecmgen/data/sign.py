@@ -69,13 +69,14 @@ def check_sign(series, what: str = "record", slow: bool = False) -> None:
     (``slow``: a low-rate test, judged by its trend; else by its current steps)."""
     if series.voltage_v is None:
         return
+    where = series.source or None
     if slow:
         span, against = trend_sign(series.time_s, series.current_a, series.voltage_v)
         if span >= MIN_TREND_V and against >= FLIPPED_SHARE:
-            raise InputError(series.source, f"{what}: the voltage falls as charge goes in "
-                                            f"({against:.0%} of its movement); {HINT}")
+            raise InputError(where, f"{what}: the voltage falls as charge goes in "
+                                    f"({against:.0%} of its movement); {HINT}")
         return
     n, against = step_sign(series.current_a, series.voltage_v)
     if n >= MIN_STEPS and against >= FLIPPED_SHARE:
-        raise InputError(series.source, f"{what}: at {against:.0%} of its {n} current steps "
-                                        f"the voltage moves against the current; {HINT}")
+        raise InputError(where, f"{what}: at {against:.0%} of its {n} current steps the "
+                                f"voltage moves against the current; {HINT}")
