@@ -22,7 +22,8 @@ from .data import dcir as dcir_mod
 from .data.dynamic import dynamic_levels
 from .data.measure import TimeSeries
 from .data.sign import check_sign
-from .data.sources import check_temperature_logs, ocv_file_curves, read_series
+from .data.sources import (check_pulse_label, check_temperature_logs, ocv_file_curves,
+                           pulse_test_records, read_series, pulse_file_names)
 from .data import ocv as ocv_mod
 from .data.ocv import OcvTable
 from .console import detail_of
@@ -270,12 +271,6 @@ class TestFit:
     pngs: dict[str, bytes] = field(default_factory=dict)      # its plots, if asked for
 
 
-# a pulse test's temperature_c and its own temperature column may differ by self-heating
-# (the shared Panasonic tests: medians in the pulses within 0.9 K of the chamber's 25, 0,
-# -10, -20 degC); more than this is another test's label
-PULSE_LABEL_TOL_K = 5.0
-
-
 def pulse_test_config(cfg: BuildConfig, test: PulseTest) -> BuildConfig:
     """The one-test config of a [[data.pulse_tests]] entry: what prepare and fit_models
     read (``pulse_tests`` then holds that one test, e.g. for its ``steps`` file). The
@@ -340,13 +335,7 @@ def _fit_pulse_test(cfg: BuildConfig, test: PulseTest, progress: Progress, t0: f
     inputs = prepare(sub, progress)
     if test.temperature_c is not None:
         temp, source = float(test.temperature_c), "configured"
-        measured = pulses_temperature_c(inputs)
-        if measured is not None and abs(measured - temp) > PULSE_LABEL_TOL_K:
-            raise InputError(cfg.path, f"the pulse test {test.file.name} is given temperature_c "
-                                       f"= {temp:g} degC, but its own cell temperature column "
-                                       f"reads {measured:.1f} degC in its pulses (median): "
-                                       "labels swapped? (leave temperature_c out to take the "
-                                       "file's)")
+        check_pulse_label(cfg, test, pulses_temperature_c(inputs))
     else:
         measured = pulses_temperature_c(inputs)
         if measured is None and len(cfg.pulse_tests) > 1:
@@ -371,24 +360,6 @@ def _fit_pulse_test(cfg: BuildConfig, test: PulseTest, progress: Progress, t0: f
     return TestFit(test=test, label=temperature_label(temp), temperature_c=temp,
                    temperature_from=source, inputs=replace(inputs, pulses_series=None),
                    models=models, raw=raw, seconds=time.perf_counter() - t0, timings=timings)
-
-
-def pulse_test_records(cfg: BuildConfig, test: PulseTest, records) -> tuple:
-    """A pulse test's input records with its files by the names the notes use (tests of
-    one cell share file names): each record renamed only if it is that file's, so the
-    other parts of a split data.ocv keep their own names (before: all named as the first)."""
-    names = _test_file_names(cfg)
-    files = {"ocv": test.ocv, "pulses": test.file, "steps": test.steps}
-    return tuple(replace(r, name=names.get(files[r.role], r.name))
-                 if files.get(r.role) is not None and r.name == files[r.role].name else r
-                 for r in records)
-
-
-def _test_file_names(cfg: BuildConfig) -> dict[Path, str]:
-    """Short, distinct names for the files of the pulse tests (see short_names)."""
-    files = list(dict.fromkeys(p for t in cfg.pulse_tests for p in (t.file, t.steps, t.ocv)
-                               if p is not None))
-    return dict(zip(files, short_names(files)))
 
 
 def _workers_for(cfg: BuildConfig, workers: int) -> Workers:
@@ -472,7 +443,7 @@ def fit_all(cfg: BuildConfig, progress: Progress = _quiet, *, workers: Workers |
 
     tests = fit_pulse_tests(cfg, progress, workers, plots)
     temps = [t.temperature_c for t in tests]
-    names = _test_file_names(cfg)
+    names = pulse_file_names(cfg)
     labels = [names[t.test.file] for t in tests]
     models = {}
     for m in cfg.methods:
