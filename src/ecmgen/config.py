@@ -319,6 +319,8 @@ def _file(base: Path, d: dict, key: str, path: Path, where: str = "data") -> Pat
     if not isinstance(v, str) or not v:
         raise InputError(path, f"{where}.{key} must be a file name")
     p = (base / v).resolve()
+    if p.is_dir():
+        raise InputError(path, f"{where}.{key} names a folder, not a file: {v} ({p})")
     if not p.is_file():
         raise InputError(path, f"{where}.{key} names a missing file: {v} (looked for {p})")
     return p
@@ -454,7 +456,8 @@ def _load_config(path: Path) -> BuildConfig:
     if path.is_dir():
         raise InputError(path, "is a folder; give the config file (a .toml)")
     try:
-        raw = tomllib.loads(path.read_bytes().decode("utf-8"))
+        # utf-8-sig: a byte order mark (Windows editors write one) is not TOML's error
+        raw = tomllib.loads(path.read_bytes().decode("utf-8-sig"))
     except FileNotFoundError:
         raise InputError(path, "no such config file") from None
     except UnicodeDecodeError as exc:

@@ -11,6 +11,8 @@ from typing import Callable
 import numpy as np
 
 from ..config import COLUMN_ROLE_FALLBACK, WINDOW_ROLES, BuildConfig
+from ..errors import InputError
+from ..files import short_names
 from . import ocv as ocv_mod
 from .measure import ColumnMap, TimeSeries, check_columns, read_timeseries
 
@@ -74,6 +76,16 @@ def check_column_maps(cfg: BuildConfig) -> None:
         check_columns(path, columns_for(cfg, path, role), capacity_ah=cfg.capacity_ah)
 
 
+def check_temperature_logs(cfg: BuildConfig) -> None:
+    """Read every time-stamped temperature log the config names now, before any fit: a
+    log without a time column is bad input at once, not after the fit of the pulses."""
+    from .templog import read_temperature_log
+
+    logs = cfg.temperature_c.values() if isinstance(cfg.temperature_c, dict) else ()
+    for log in sorted({v for v in logs if isinstance(v, Path)}):
+        read_temperature_log(log)
+
+
 def ocv_file_curve(cfg: BuildConfig, path: Path, progress: Progress,
                     low: TimeSeries | None = None) -> ocv_mod.OcvCurve:
     """The OCV curve of one file source: a soc,ocv_v table or a low-rate test (``low``:
@@ -121,3 +133,38 @@ def ocv_file_curves(cfg: BuildConfig, sources, progress: Progress
         elif first != "pulses":
             curves[first] = ocv_file_curve(cfg, first, progress)
     return kept, curves, notes
+
+
+# a pulse test's temperature_c and its own temperature column may differ by self-heating
+# (the shared Panasonic tests: medians in the pulses within 0.9 K of the chamber's 25, 0,
+# -10, -20 degC); more than this is another test's label
+PULSE_LABEL_TOL_K = 5.0
+
+
+def check_pulse_label(cfg: BuildConfig, test, measured: float | None) -> None:
+    """InputError when a pulse test's temperature_c contradicts its own temperature column
+    (``measured``: the median in its pulses; None: the file has none)."""
+    temp = float(test.temperature_c)
+    if measured is not None and abs(measured - temp) > PULSE_LABEL_TOL_K:
+        raise InputError(cfg.path, f"the pulse test {test.file.name} is given temperature_c = "
+                                   f"{temp:g} degC, but its own cell temperature column reads "
+                                   f"{measured:.1f} degC in its pulses (median): labels "
+                                   "swapped? (leave temperature_c out to take the file's)")
+
+
+def pulse_test_records(cfg: BuildConfig, test, records) -> tuple:
+    """A pulse test's input records with its files by the names the notes use (tests of
+    one cell share file names): each record renamed only if it is that file's, so the
+    other parts of a split data.ocv keep their own names (before: all named as the first)."""
+    names = pulse_file_names(cfg)
+    files = {"ocv": test.ocv, "pulses": test.file, "steps": test.steps}
+    return tuple(replace(r, name=names.get(files[r.role], r.name))
+                 if files.get(r.role) is not None and r.name == files[r.role].name else r
+                 for r in records)
+
+
+def pulse_file_names(cfg: BuildConfig) -> dict[Path, str]:
+    """Short, distinct names for the files of the pulse tests (see short_names)."""
+    files = list(dict.fromkeys(p for t in cfg.pulse_tests for p in (t.file, t.steps, t.ocv)
+                               if p is not None))
+    return dict(zip(files, short_names(files)))
