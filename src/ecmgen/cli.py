@@ -265,7 +265,7 @@ def cmd_estimate(args) -> int:
     from .estimate.run import estimate_csv_text, estimate_json, estimate_record
     from .files import write_atomic
     from .model.model import load_model
-    from .model.simulate import initial_soc
+    from .model.simulate import start_estimate
 
     out = None
     if args.out:
@@ -296,15 +296,18 @@ def cmd_estimate(args) -> int:
         from dataclasses import replace
 
         settings = replace(settings, filter=args.filter)
-    soc0 = args.soc0
+    soc0, unsettled = args.soc0, False
     if soc0 is None:
         if series.temperature_c is None and args.temperature_c is not None:
             from dataclasses import replace
 
             series = replace(series, temperature_c=np.full(series.time_s.size,
                                                            args.temperature_c))
-        soc0 = initial_soc(model, series)
+        found = start_estimate(model, series)
+        soc0, unsettled = found.soc0, not found.settled
     start = args.start
+    if start is None and unsettled and not set_keys & {"start", "start_polarization_c"}:
+        start = "anywhere"              # it opens under load or mid-relaxation: not rested
     if args.window_s is not None:
         first_t = float(series.time_s[0])
         series, soc0 = _window_start(model, series, soc0, args.window_s)
