@@ -271,7 +271,7 @@ def cmd_validate(args) -> int:
 
 
 def cmd_estimate(args) -> int:
-    from dataclasses import asdict
+    from dataclasses import asdict, replace
 
     from .config import EstimatorConfig, load_config, start_settings
     from .data.measure import read_timeseries
@@ -295,8 +295,6 @@ def cmd_estimate(args) -> int:
         if out is not None:
             check_output_file(out, _given(cfg))
         if args.window_s is not None:   # the option wins over data.cycle_window_s
-            from dataclasses import replace
-
             cfg = replace(cfg, cycle_window_s=None)
         settings = cfg.estimator
         series = read_series(cfg, Path(args.cycle), "cycle")
@@ -306,21 +304,17 @@ def cmd_estimate(args) -> int:
     else:
         series = read_timeseries(args.cycle, capacity_ah=model.capacity_ah)
     if args.filter:
-        from dataclasses import replace
-
         settings = replace(settings, filter=args.filter)
-    soc0, unsettled = args.soc0, False
+    soc0, start = args.soc0, args.start
     if soc0 is None:
         if series.temperature_c is None and args.temperature_c is not None:
-            from dataclasses import replace
-
             series = replace(series, temperature_c=np.full(series.time_s.size,
                                                            args.temperature_c))
         found = start_estimate(model, series)
-        soc0, unsettled = found.soc0, not found.settled
-    start = args.start
-    if start is None and unsettled and not set_keys & {"start", "start_polarization_c"}:
-        start = "anywhere"              # it opens under load or mid-relaxation: not rested
+        soc0 = found.soc0
+        if start is None and not found.settled and not set_keys & {"start",
+                                                                   "start_polarization_c"}:
+            start = "anywhere"          # it opens under load or mid-relaxation: not rested
     if args.window_s is not None:
         first_t = float(series.time_s[0])
         series, soc0 = _window_start(model, series, soc0, args.window_s)
