@@ -252,7 +252,8 @@ def start_soc(model: EcmModel, series: TimeSeries) -> tuple[float, str]:
 
 def start_estimate(model: EcmModel, series: TimeSeries) -> StartSoc:
     """The start SOC of a record for ``model``. A record that opens settled (a rest whose
-    voltage has stopped moving, or a charge ending in a constant-voltage phase) is read
+    voltage has stopped moving, a charge ending in a constant-voltage phase or above the
+    top of the OCV: :func:`ecmgen.data.soc.settled_opening`) is read
     from its voltage (:func:`ecmgen.data.soc.record_start_soc`; a model over temperature
     uses its OCV at the record's first temperature). Any other opening -- under load, in a
     stop of a few seconds, mid-relaxation -- is read from the voltage over its first
@@ -260,11 +261,11 @@ def start_estimate(model: EcmModel, series: TimeSeries) -> StartSoc:
     from ..data.soc import record_start_soc, settled_opening
 
     rest_a = max(model.direction_deadband_a, model.capacity_ah / 100.0)
-    if settled_opening(series, model.capacity_ah, rest_a):
-        temps = sample_temperatures(model, series.time_s.size, series.temperature_c,
-                                    series.source)
-        ocv = model.ocv.at_temperature(None if temps is None or model.ocv.n_temperatures == 1
-                                       else float(temps[0]))
+    temps = sample_temperatures(model, series.time_s.size, series.temperature_c,
+                                series.source)
+    ocv = model.ocv.at_temperature(None if temps is None or model.ocv.n_temperatures == 1
+                                   else float(temps[0]))
+    if settled_opening(series, model.capacity_ah, rest_a, float(ocv.ocv_v[-1])):
         soc0, how = record_start_soc(ocv, model.capacity_ah, series, rest_a)
         return StartSoc(float(soc0), 0.0, True, how)
     return window_start_soc(model, series)
