@@ -271,14 +271,14 @@ def cmd_validate(args) -> int:
 
 
 def cmd_estimate(args) -> int:
-    from dataclasses import asdict
+    from dataclasses import asdict, replace
 
     from .config import EstimatorConfig, load_config, start_settings
     from .data.measure import read_timeseries
     from .estimate.run import estimate_csv_text, estimate_json, estimate_record
     from .files import write_atomic
     from .model.model import load_model
-    from .model.simulate import initial_soc
+    from .model.simulate import start_estimate
 
     out = None
     if args.out:
@@ -295,8 +295,6 @@ def cmd_estimate(args) -> int:
         if out is not None:
             check_output_file(out, _given(cfg))
         if args.window_s is not None:   # the option wins over data.cycle_window_s
-            from dataclasses import replace
-
             cfg = replace(cfg, cycle_window_s=None)
         settings = cfg.estimator
         series = read_series(cfg, Path(args.cycle), "cycle")
@@ -306,18 +304,17 @@ def cmd_estimate(args) -> int:
     else:
         series = read_timeseries(args.cycle, capacity_ah=model.capacity_ah)
     if args.filter:
-        from dataclasses import replace
-
         settings = replace(settings, filter=args.filter)
-    soc0 = args.soc0
+    soc0, start = args.soc0, args.start
     if soc0 is None:
         if series.temperature_c is None and args.temperature_c is not None:
-            from dataclasses import replace
-
             series = replace(series, temperature_c=np.full(series.time_s.size,
                                                            args.temperature_c))
-        soc0 = initial_soc(model, series)
-    start = args.start
+        found = start_estimate(model, series)
+        soc0 = found.soc0
+        if start is None and not found.settled and not set_keys & {"start",
+                                                                   "start_polarization_c"}:
+            start = "anywhere"          # it opens under load or mid-relaxation: not rested
     if args.window_s is not None:
         first_t = float(series.time_s[0])
         series, soc0 = _window_start(model, series, soc0, args.window_s)
