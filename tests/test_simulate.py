@@ -5,7 +5,6 @@ import numpy as np
 import pytest
 
 from conftest import flat, synthetic_nca_model
-from ecmgen.errors import InputError
 from ecmgen.data.measure import TimeSeries
 from ecmgen.model.simulate import Metrics, initial_soc, simulate, validate
 
@@ -68,11 +67,17 @@ def test_initial_soc_inverts_the_ocv_of_the_first_rest(synthetic_model):
     assert val.soc0_from_ocv and val.overall.mae_v < 1e-9
 
 
-def test_initial_soc_without_rest_is_a_clear_error(synthetic_model):
+def test_a_short_record_under_load_gives_an_uncertain_start(synthetic_model):
+    """Ten seconds at 5 A tell the start SOC only within the model's error under load (19 %
+    of a ~0.15 V overpotential, ~0.1 SOC at this OCV slope), however well they are fitted:
+    the start is said to be uncertain, not read to three digits."""
+    from ecmgen.model.simulate import start_estimate
+
     t = np.arange(10.0)
     series = TimeSeries(t, np.full(10, -5.0), np.full(10, 3.7), source="busy.csv")
-    with pytest.raises(InputError, match="busy.csv.*no rested sample"):
-        initial_soc(synthetic_model, series)
+    got = start_estimate(synthetic_model, series)
+    assert not got.settled and got.uncertain and got.sigma > 0.05
+    assert "uncertain" in got.how
 
 
 def test_metrics():

@@ -308,6 +308,10 @@ def _charge_end(series: TimeSeries, a: int, rest_a: float, min_rest_s: float) ->
 
 SHORT_REST_S = 10.0          # the stops of a drive cycle count as rests of an unrelaxed record
 RELAXED_DRIFT_V = 0.001      # a rest whose voltage moves more over its last half is unrelaxed
+# a record opening with a rest shorter than settled_opening's min_rest_s is settled if
+# its voltage is flat over all of it (the cell had rested before the record began), and
+# it is at least this long
+FLAT_REST_S = 30.0
 
 
 def _window_means(series: TimeSeries, end: int) -> tuple[np.ndarray, float] | None:
@@ -364,24 +368,39 @@ def settled_opening(series: TimeSeries, capacity_ah: float, rest_a: float, ocv_t
                     min_rest_s: float = 300.0) -> bool:
     """Whether the record opens where its voltage tells the SOC without a model: with a
     charge ending in a constant-voltage phase, or one of at least CV_CHARGE_SHARE of the
-    capacity that ends at or above ``ocv_top_v`` (a full charge), or with a rest of at
-    least ``min_rest_s`` whose voltage has stopped moving (:func:`_unrelaxed`). A record
+    capacity that ends at or above ``ocv_top_v`` (a full charge), at rest at or above
+    ``ocv_top_v`` (a full cell, as the Panasonic drive cycles open), or with a rest of at
+    least ``min_rest_s`` whose voltage has stopped moving (:func:`_unrelaxed`) or of at
+    least FLAT_REST_S whose voltage has not moved at all (:func:`_flat`). A record
     cut from a drive (under load, in a stop of a few seconds, mid-relaxation) does not."""
     if opening_cv_charge(series, capacity_ah, rest_a) is not None:
         return True
     i, t, v = series.current_a, series.time_s, series.voltage_v
     moving = np.flatnonzero(np.abs(i) > rest_a)
-    if moving.size == 0:
-        return True
+    if moving.size == 0 or (moving[0] > 0 and v[0] >= ocv_top_v):
+        return True                          # at rest above the OCV's top: the cell is full
     first = int(moving[0])
     if i[first] > 0:
         b = _charge_end(series, first, rest_a, 60.0)
         q = series.coulomb_ah()
         return bool(q[b - 1] - q[first] >= CV_CHARGE_SHARE * capacity_ah
                     and v[b - 1] >= ocv_top_v)
-    if first == 0 or t[first - 1] - t[0] < min_rest_s:
+    if first == 0 or t[first - 1] - t[0] < FLAT_REST_S:
         return False
-    return _unrelaxed(series, first - 1) is None
+    if t[first - 1] - t[0] >= min_rest_s:
+        return _unrelaxed(series, first - 1) is None
+    return _flat(series, first - 1)
+
+
+def _flat(series: TimeSeries, end: int) -> bool:
+    """Whether the voltage of the rest 0..end moved by no more than RELAXED_DRIFT_V (and
+    its noise) from its start to its end: a cell relaxed before the record began. A rest
+    entered from a load moves most in its first seconds, so a record cut there fails."""
+    got = _window_means(series, end)
+    if got is None:
+        return False
+    means, noise = got
+    return abs(float(means[2] - means[0])) <= max(RELAXED_DRIFT_V, 4.0 * noise)
 
 
 def record_start_soc(ocv, capacity_ah: float, series: TimeSeries, rest_a: float,

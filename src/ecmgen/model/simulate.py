@@ -303,7 +303,11 @@ def window_start_soc(model: EcmModel, series: TimeSeries,
     cost, rms = _window_residual(model, part, temps, soc0)
     t0 = None if temps is None else float(temps[0])
     slope = float(np.interp(soc0, *_ocv_slope(model, t0)))
-    sigma = rms / max(slope, 1e-3)
+    # the larger of two: the residual over the OCV's slope (what a model error that size
+    # moves), and the profile's half width (how far the start SOC moves, the RC voltages
+    # refitted, before the weighted misfit grows by one: a short window or one under load
+    # says little however well it is fitted)
+    sigma = max(rms / max(slope, 1e-3), _profile_half_width(misfit, soc0, cost + 1.0))
     how = (f"the voltage over its first {t[n - 1] - t[0]:.0f} s against the model (it opens "
            f"unsettled: under load, or in a rest too short to read), each RC pair's starting "
            f"voltage fitted with it: {soc0:.3f} +- {sigma:.3f} (residual {rms * 1e3:.1f} mV RMS "
@@ -311,6 +315,22 @@ def window_start_soc(model: EcmModel, series: TimeSeries,
     if sigma > START_SOC_TOLERANCE:
         how += "; warning: the start SOC is uncertain: give soc0 where it is known"
     return StartSoc(soc0, float(sigma), False, how)
+
+
+def _profile_half_width(misfit, soc0: float, limit: float) -> float:
+    """Half the width of the SOC interval about ``soc0`` where ``misfit`` stays below
+    ``limit`` (each side found by bisection; a side that never reaches it ends at 0 or 1)."""
+    widths = []
+    for end in (0.0, 1.0):
+        near, far = soc0, end
+        if misfit(far) <= limit:
+            widths.append(abs(far - soc0))
+            continue
+        for _ in range(20):
+            mid = 0.5 * (near + far)
+            near, far = (mid, far) if misfit(mid) <= limit else (near, mid)
+        widths.append(abs(0.5 * (near + far) - soc0))
+    return 0.5 * (widths[0] + widths[1])
 
 
 def _window_residual(model: EcmModel, part: TimeSeries, temps, soc0: float
