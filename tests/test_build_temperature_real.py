@@ -14,8 +14,10 @@ from ecmgen.cli import main
 EXAMPLE = REPO / "examples" / "panasonic-temperature"
 
 
-@pytest.mark.slow
-def test_25_and_0_degC_build_meets_its_bounds(tmp_path, capsys):
+@pytest.fixture(scope="module")
+def build_25_and_0(tmp_path_factory):
+    """The build's --json document and its MAE per (method, cycle) in mV."""
+    tmp_path = tmp_path_factory.mktemp("t25_0")
     c25, c0 = REPO / "examples" / "panasonic-25degC", EXAMPLE / "0degC"
     cfg = tmp_path / "cell.toml"
     cfg.write_text(
@@ -23,28 +25,51 @@ def test_25_and_0_degC_build_meets_its_bounds(tmp_path, capsys):
         f'extra_cycles = ["{c0 / "us06.mat"}", "{c0 / "hwfet.mat"}"]\nsoc0 = 1.0\n' +
         "".join(f'[[data.pulse_tests]]\nfile = "{d / "hppc.mat"}"\nsoc0 = 1.0\n'
                 f'steps = "{d / "hppc-soc-steps.mat"}"\n' for d in (c25, c0)))
-    rc = main(["build", str(cfg), "--out", str(tmp_path / "out"), "--json", "--quiet",
-               "--no-c", "--no-plots"])
-    out = capsys.readouterr()
-    assert rc == 0, out.err
-    doc = json.loads(out.out)
-    temps = [t["temperature_c"] for t in doc["temperature"]["pulse_tests"]]
-    assert temps == [pytest.approx(25.8, abs=0.3), pytest.approx(0.6, abs=0.3)]
+    import subprocess
+    import sys
+
+    res = subprocess.run([sys.executable, "-m", "ecmgen.cli", "build", str(cfg), "--out",
+                          str(tmp_path / "out"), "--json", "--quiet", "--no-c", "--no-plots"],
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    doc = json.loads(res.stdout)
     mae = {(m, c): v["mae_v"] * 1e3 for m, val in doc["validation"].items()
            for c, v in val["cycles"].items()}
-    assert doc["validation"]["curve"]["cycles"]["0degC/us06.mat"]["temperature_c"]["max"] > 13
-    for key, bound in BOUNDS_MV.items():
-        assert mae[key] < bound, (key, mae[key], mae)
+    return doc, mae
 
 
-# MAE bounds in mV: measured 16.5 / 41.1 / 20.0 (curve: whole-test fit with the diffusion
-# pair and the Butler-Volmer branch, the default over temperature) and 37.1 / 82.9 / 75.7
-# (ga: five-point fits at the highest complete C-rate per level; lm within 1 mV) on
-# 25 degC US06 / 0 degC US06 / 0 degC HWFET, plus a margin
 _25, _0U, _0H = "panasonic-25degC/us06.mat", "0degC/us06.mat", "0degC/hwfet.mat"
-BOUNDS_MV = {("curve", _25): 20.0, ("curve", _0U): 46.0, ("curve", _0H): 25.0,
-             ("ga", _25): 45.0, ("ga", _0U): 95.0, ("ga", _0H): 90.0,
-             ("lm", _25): 45.0, ("lm", _0U): 95.0, ("lm", _0H): 90.0}
+# The report's verdict: a model passes a cycle within [report] max_mae_mv (default 50 mV).
+VERDICT_MV = 50.0
+# The paper's five-point methods miss it on the 0 degC cycles that warm to 14 degC
+# (82.9 / 75.7 mV when this test was written): known misses, strict.
+KNOWN_MISSES = {(m, c) for m in ("ga", "lm") for c in (_0U, _0H)}
+
+
+@pytest.mark.slow
+def test_25_and_0_degC_tests_read_their_temperatures(build_25_and_0):
+    doc, _ = build_25_and_0
+    temps = [t["temperature_c"] for t in doc["temperature"]["pulse_tests"]]
+    assert temps == [pytest.approx(25.8, abs=0.3), pytest.approx(0.6, abs=0.3)]
+    assert doc["validation"]["curve"]["cycles"]["0degC/us06.mat"]["temperature_c"]["max"] > 13
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("key", [
+    pytest.param((m, c), marks=pytest.mark.xfail(strict=True, reason="known miss"))
+    if (m, c) in KNOWN_MISSES else (m, c)
+    for m in ("curve", "ga", "lm") for c in (_25, _0U, _0H)])
+def test_25_and_0_degC_build_passes_the_reports_verdict(build_25_and_0, key):
+    _, mae = build_25_and_0
+    assert mae[key] <= VERDICT_MV, (key, mae[key])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("cycle", [_25, _0U, _0H])
+def test_25_and_0_degC_whole_test_fit_beats_the_papers_methods(build_25_and_0, cycle):
+    """The default fit against the paper's five-point GA / LM on the same data and cycle."""
+    _, mae = build_25_and_0
+    assert mae[("curve", cycle)] < min(mae[("ga", cycle)], mae[("lm", cycle)]), mae
 
 
 @pytest.mark.slow

@@ -73,13 +73,12 @@ def test_bundled_example_meets_the_accuracy_target(tmp_path):
     assert res.returncode == 0, res.stderr
     doc = json.loads(res.stdout)
     val = doc["validation"]
-    # whole-test fit: <= 22 mV MAE on both drive cycles (measured 19.8 and 16.4 mV; the
-    # per-level window fit before it: 20.4 and 15.2 mV)
+    # every method within the report's verdict ([report] max_mae_mv, 50 mV), and the
+    # whole-test fit ahead of the paper's five-point GA / LM on each cycle
     for cycle in ("us06.mat", "hwfet-a.mat"):
-        assert val["curve"]["cycles"][cycle]["mae_v"] <= 0.022
-    # the paper's five-point methods land at about 30 mV on these NCA cycles
-    for m in ("ga", "lm"):
-        assert 0.020 < val[m]["cycles"]["us06.mat"]["mae_v"] < 0.045
+        got = {m: val[m]["cycles"][cycle]["mae_v"] for m in ("curve", "ga", "lm")}
+        assert max(got.values()) <= 0.050, (cycle, got)
+        assert got["curve"] < min(got["ga"], got["lm"]), (cycle, got)
     assert any("discharge pulses only" in n for n in doc["notes"])
     for png in ("dcir-fit.png", "curve-fit.png", "validation-us06.png"):
         assert (tmp_path / "demo" / png).stat().st_size > 10_000

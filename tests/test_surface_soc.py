@@ -293,4 +293,6 @@ def test_build_passes_it_on(tmp_path):
         assert result.c_report[numeric]["bit_exact_vs_reference"], numeric
     mae = {name: v.overall.mae_v for name, v in result.validations["curve"].items()}
     cold = [v for name, v in mae.items() if name.startswith(("n10degC", "n20degC"))]
-    assert len(cold) == 4 and np.mean(cold) < 0.040     # 36.9 mV; 54.5 without (README)
+    # the cold cycles better than the same build with it off (52.0 mV mean: the generated
+    # surface-off block of docs/results.md, docs/make_docs.py)
+    assert len(cold) == 4 and np.mean(cold) < 0.052
