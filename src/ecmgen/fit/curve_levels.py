@@ -13,7 +13,8 @@ import numpy as np
 from ..data.dcir import Pulse
 from ..data.measure import TimeSeries, charging_direction
 from .curve_record import hats
-from .lsq import GRID_RATIO, solve_bounded
+from .curve_cv import held_out_errors
+from .lsq import GRID_RATIO
 from .points import SOC_LEVEL_GAP, soc_levels
 
 # candidate weights of the second-difference penalty (relative to the column scale); up to
@@ -113,24 +114,8 @@ def choose_penalty(prob, z: np.ndarray, lay: dict, penalties=PENALTIES) -> tuple
     levels = [r for r in levels if r.size]
     if len(levels) < 3:
         return prob.penalty, {}
-    gram = z.T @ z
-    g = z.T @ prob.yw
-    free = lay["free"]
-    folds = []
-    for r in levels:
-        zk, yk = z[r], prob.yw[r]
-        folds.append((zk, yk, gram - zk.T @ zk, g - zk.T @ yk))
-    errors = {}
-    for lam in penalties:
-        e = 0.0
-        for zk, yk, gk, qk in folds:
-            x = solve_bounded(*prob.regularised(gk, qk, lay, lam)[:2], free)
-            res = yk - zk @ x
-            f = zk[:, free]
-            if f.size:
-                res = res - f @ np.linalg.lstsq(f, res, rcond=None)[0]
-            e += float(res @ res)
-        errors[float(lam)] = e
+    errors = dict(zip((float(lam) for lam in penalties),
+                      (float(e) for e in held_out_errors(prob, z, lay, penalties, levels))))
     best = min(errors.values())
     lam = max(k for k, v in errors.items() if v <= (1.0 + CV_TIE) * best)
     return lam, errors
