@@ -100,11 +100,13 @@ from ..data.measure import TimeSeries
 from ..data.ocv import OcvTable
 from ..data.steps import merge_soc_steps
 from ..errors import InputError
+from ..parallel import in_threads
 from .curve_levels import (CV_TIE, both_ways, choose_penalty, data_tau_ranges,
                            level_fit_windows, level_nodes, level_windows, log_penalty,
                            log_references, node_error, ocv_node_sets, pulse_sampling_s, r0_holds,
                            second_difference, taus_on_bound, tied_slow_pairs)
-from .curve_record import Record, W_SPAN_S, hats, pulse_record, rc_response, side_by_side
+from .curve_record import (THREADS_BYTES, Record, ResponseCache, W_SPAN_S, grid_bytes, hats,
+                           pulse_record, rc_response, share_responses, side_by_side)
 from .lsq import log_grid, nelder_mead, solve_bounded
 
 SOC_NODES = np.round(np.linspace(0.0, 1.0, 21), 10)
@@ -251,7 +253,7 @@ class _Problem:
         self.cv_sse = float("inf")      # held-out error leaving one level out (the fit's)
         # the SOC level (index) each row belongs to, -1 between levels (leave-one-out)
         self.level = np.full(self.rows.size, -1) if levels is None else levels[self.rows]
-        self._cache: dict = {}
+        self._cache = ResponseCache()
 
     def _pair_mask(self, d: str) -> np.ndarray:
         """The rows driving direction ``d``'s slow and diffusion columns."""
@@ -267,16 +269,14 @@ class _Problem:
         """The unit responses of branch ``kind`` at ``tau``: weighted rows (cached; the
         searches revisit time constants), or every kept sample (``full``)."""
         key = (kind, round(float(np.log(tau)), 9))
-        if not full and key in self._cache:
-            return self._cache[key]
+        cached = None if full else self._cache.get(key)
+        if cached is not None:
+            return cached
         u = {"fast": self.u_fast, "slow": self.u_slow, "diff": self.u_diff}[kind]
         x = rc_response(self.rec, tau, u)
         if full:
             return x
-        if len(self._cache) > 96:
-            self._cache.clear()
-        out = self._cache[key] = np.asfortranarray((x.T[:, self.rows] * self.w).T)
-        return out
+        return self._cache.put(key, np.multiply(x[self.rows], self.w[:, None]))
 
     def width(self, kind: str) -> int:
         """Columns of a branch block: its resistances, then one free restart state per gap."""
@@ -354,10 +354,14 @@ def _search(prob: _Problem, ranges: dict, progress=None):
     number of evaluations, notes)."""
     kinds = list(ranges)
     grids = {k: log_grid(*ranges[k]) for k in kinds}
-    blocks = [prob.r0w] + [prob.block(k, tau) for k in kinds for tau in grids[k]]
-    z = side_by_side(blocks)
+    # every grid block side by side, made as it is copied in (a large record's blocks and
+    # their copy would be in memory at once)
+    z = side_by_side((prob.block(k, tau) if k else prob.r0w for k, tau in
+                      [(None, None)] + [(k, tau) for k in kinds for tau in grids[k]]),
+                     [prob.r0w.shape[1]] + [prob.width(k) for k in kinds for _ in grids[k]])
     gram = z.T @ z
     g = z.T @ prob.yw
+    del z
     width = {k: prob.width(k) for k in kinds}
     lay = prob.layout(kinds)
     start, off = {}, prob.r0w.shape[1]
@@ -560,15 +564,23 @@ def _fit_problem(rec: Record, complete, directions, capacity_ah: float, i0_a, sp
     # C-rates at a level) to tell it from r0 i
     split = may_split and all(len({p.c_rate for p in complete if p.direction == d}) >= 2
                               for d in directions)
-    fits = []
+    probs = []
     for nodes_ocv in ocv_node_sets(ocv_nodes):
         prob = _Problem(rec, bases, nodes_ocv, i0_a, spans, levels, split_ocv=split,
                         soc_span=span, current_factor=current_factor, tied=tied)
         if prob.rows.size < 4 * (prob.jd + prob.n_ocv):
             raise InputError(series.source, f"only {prob.rows.size} samples to fit the curve "
                                             "method on")
-        fits.append((prob, _fit_time_constants(prob, ranges, progress if not fits else None,
-                                                 neighbour_taus)))
+        if probs:
+            share_responses(prob, probs[0])
+        probs.append(prob)
+    # each node set's fit is its own: side by side on threads, as one after the other,
+    # where two searches' grid designs at once take little memory
+    calls = [(prob, ranges, progress if k == 0 else None, neighbour_taus)
+             for k, prob in enumerate(probs)]
+    fits = list(zip(probs, in_threads(_fit_time_constants, calls)
+                    if grid_bytes(probs[0], ranges) <= THREADS_BYTES else
+                    [_fit_time_constants(*c) for c in calls]))
     if len(fits) == 1:
         return fits[0][0], fits[0][1], []
     (p0, f0), (p1, f1) = fits
