@@ -66,6 +66,9 @@ class _Prob:
         m[np.diag_indices_from(m)] += 1e-12 * float(np.mean(np.diag(gram))) + 1e-300
         return m, g.copy(), 0.0
 
+    def regularised_many(self, gram, g, lay, penalties):
+        return [self.regularised(gram, g, lay, lam) for lam in penalties]
+
 
 def test_held_out_errors_are_those_of_one_weight_at_a_time():
     rng = np.random.default_rng(3)

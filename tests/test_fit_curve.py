@@ -424,8 +424,8 @@ def test_the_node_sets_side_by_side_give_the_fit_of_one_after_the_other(monkeypa
         return fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, diffusion=False)
 
     side_by_side = fit()
-    monkeypatch.setattr(curve, "THREADS_BYTES", -1)
-    monkeypatch.setattr(curve, "share_responses", lambda prob, other: None)
+    monkeypatch.setattr(curve._cr, "THREADS_BYTES", -1)
+    monkeypatch.setattr(curve._cr, "share_responses", lambda prob, other: None)
     alone = fit()
     assert side_by_side.notes == alone.notes
     for d in ("charge", "discharge"):

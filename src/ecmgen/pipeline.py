@@ -168,7 +168,6 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet,
     from .fit.ga import fit_ga
     from .fit.lm import fit_lm
     from .fit.points import five_point_rows
-    from .fit.smooth import smooth_point_fit
     from .model.spans import model_span_notes
 
     models: dict[str, EcmModel] = {}
@@ -176,6 +175,8 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet,
     common = _common(cfg, inputs)
     point_methods = [m for m in cfg.methods if m in ("ga", "lm")]
     if point_methods:
+        from .fit.smooth import smooth_point_fit      # scipy.optimize: only when used
+
         rows, n = five_point_rows(inputs.dcir, cfg.c_rate)
         raw["point_table"] = rows
         fits = {}

@@ -105,8 +105,8 @@ from .curve_levels import (CV_TIE, both_ways, choose_penalty, data_tau_ranges,
                            level_fit_windows, level_nodes, level_windows, log_penalty,
                            log_references, node_error, ocv_node_sets, pulse_sampling_s, r0_holds,
                            second_difference, taus_on_bound, tied_slow_pairs)
-from .curve_record import (THREADS_BYTES, Record, ResponseCache, W_SPAN_S, grid_bytes, hats,
-                           pulse_record, rc_response, share_responses, side_by_side)
+from . import curve_record as _cr
+from .curve_record import Record, W_SPAN_S, hats, pulse_record, rc_response, side_by_side
 from .lsq import log_grid, nelder_mead, solve_bounded
 
 SOC_NODES = np.round(np.linspace(0.0, 1.0, 21), 10)
@@ -253,7 +253,7 @@ class _Problem:
         self.cv_sse = float("inf")      # held-out error leaving one level out (the fit's)
         # the SOC level (index) each row belongs to, -1 between levels (leave-one-out)
         self.level = np.full(self.rows.size, -1) if levels is None else levels[self.rows]
-        self._cache = ResponseCache()
+        self._cache, self._taus = _cr.ResponseCache(), _cr.RevisitedTaus()
 
     def _pair_mask(self, d: str) -> np.ndarray:
         """The rows driving direction ``d``'s slow and diffusion columns."""
@@ -268,15 +268,16 @@ class _Problem:
     def block(self, kind: str, tau: float, full: bool = False) -> np.ndarray:
         """The unit responses of branch ``kind`` at ``tau``: weighted rows (cached; the
         searches revisit time constants), or every kept sample (``full``)."""
-        key = (kind, round(float(np.log(tau)), 9))
-        cached = None if full else self._cache.get(key)
-        if cached is not None:
-            return cached
+        if not full:
+            tau = self._taus.tau(kind, tau)
+            cached = self._cache.get((kind, tau))
+            if cached is not None:
+                return cached
         u = {"fast": self.u_fast, "slow": self.u_slow, "diff": self.u_diff}[kind]
         x = rc_response(self.rec, tau, u)
         if full:
             return x
-        return self._cache.put(key, np.multiply(x[self.rows], self.w[:, None]))
+        return self._cache.put((kind, tau), np.multiply(x[self.rows], self.w[:, None]))
 
     def width(self, kind: str) -> int:
         """Columns of a branch block: its resistances, then one free restart state per gap."""
@@ -304,22 +305,30 @@ class _Problem:
         + a tiny ridge (columns no row sees, e.g. with a short relax_s, would be singular).
         A run with references in ``log_ref`` has its penalty on ln r instead, linearised
         about them (:func:`log_penalty`); the third term is then its constant part."""
-        lam = self.penalty if penalty is None else penalty
-        m, q, k = gram.copy(), g.copy(), 0.0
+        return self.regularised_many(gram, g, lay, [self.penalty if penalty is None
+                                                    else penalty])[0]
+
+    def regularised_many(self, gram: np.ndarray, g: np.ndarray, lay: dict, penalties) -> list:
+        """:meth:`regularised` at each weight of ``penalties`` (its terms worked out once)."""
         scale = np.sqrt(np.maximum(np.diag(gram), 0.0))
+        runs = []
         for a, n, d in lay["smooth"]:
-            sl = slice(a, a + n)
-            c = lam * float(np.mean(scale[sl])) ** 2
             ref = self.log_ref.get(a)
-            if ref is None:
-                m[sl, sl] += c * self.dtd[d]
-            else:
-                pm, pq, pk = log_penalty(self.dd[d], ref)
+            terms = (self.dtd[d], None, 0.0) if ref is None else log_penalty(self.dd[d], ref)
+            runs.append((slice(a, a + n), float(np.mean(scale[a:a + n])) ** 2, *terms))
+        ridge = 1e-12 * float(np.mean(np.diag(gram))) + 1e-300
+        out = []
+        for lam in penalties:
+            m, q, k = gram.copy(), g.copy(), 0.0
+            for sl, s2, pm, pq, pk in runs:
+                c = lam * s2
                 m[sl, sl] += c * pm
-                q[sl] += c * pq
-                k += c * pk
-        m[np.diag_indices_from(m)] += 1e-12 * float(np.mean(np.diag(gram))) + 1e-300
-        return m, q, k
+                if pq is not None:
+                    q[sl] += c * pq
+                    k += c * pk
+            m[np.diag_indices_from(m)] += ridge
+            out.append((m, q, k))
+        return out
 
     def solve(self, gram: np.ndarray, g: np.ndarray, lay: dict, hold_r0: bool = False
               ) -> tuple[np.ndarray, float]:
@@ -354,8 +363,7 @@ def _search(prob: _Problem, ranges: dict, progress=None):
     number of evaluations, notes)."""
     kinds = list(ranges)
     grids = {k: log_grid(*ranges[k]) for k in kinds}
-    # every grid block side by side, made as it is copied in (a large record's blocks and
-    # their copy would be in memory at once)
+    # every grid block side by side, each made as it is copied in (no block list beside it)
     z = side_by_side((prob.block(k, tau) if k else prob.r0w for k, tau in
                       [(None, None)] + [(k, tau) for k in kinds for tau in grids[k]]),
                      [prob.r0w.shape[1]] + [prob.width(k) for k in kinds for _ in grids[k]])
@@ -572,15 +580,13 @@ def _fit_problem(rec: Record, complete, directions, capacity_ah: float, i0_a, sp
             raise InputError(series.source, f"only {prob.rows.size} samples to fit the curve "
                                             "method on")
         if probs:
-            share_responses(prob, probs[0])
+            _cr.share_responses(prob, probs[0])
         probs.append(prob)
-    # each node set's fit is its own: side by side on threads, as one after the other,
+    # each node set's fit is its own: side by side on threads (as one after the other)
     # where two searches' grid designs at once take little memory
-    calls = [(prob, ranges, progress if k == 0 else None, neighbour_taus)
-             for k, prob in enumerate(probs)]
-    fits = list(zip(probs, in_threads(_fit_time_constants, calls)
-                    if grid_bytes(probs[0], ranges) <= THREADS_BYTES else
-                    [_fit_time_constants(*c) for c in calls]))
+    fits = list(zip(probs, in_threads(_fit_time_constants, [
+        (prob, ranges, progress if k == 0 else None, neighbour_taus)
+        for k, prob in enumerate(probs)], _cr.grid_bytes(probs[0], ranges) <= _cr.THREADS_BYTES)))
     if len(fits) == 1:
         return fits[0][0], fits[0][1], []
     (p0, f0), (p1, f1) = fits

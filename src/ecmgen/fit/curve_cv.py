@@ -25,7 +25,7 @@ def held_out_errors(prob, z: np.ndarray, lay: dict, penalties, levels: list) -> 
     for r in levels:
         zk, yk = z[r], prob.yw[r]
         gk, qk = gram - zk.T @ zk, g - zk.T @ yk
-        xs = solve_bounded_many([prob.regularised(gk, qk, lay, lam)[:2] for lam in penalties],
+        xs = solve_bounded_many([mq[:2] for mq in prob.regularised_many(gk, qk, lay, penalties)],
                                 free)
         res = yk[:, None] - zk @ xs.T
         basis = _range_basis(zk[:, free])

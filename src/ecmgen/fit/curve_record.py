@@ -174,6 +174,27 @@ class ResponseCache:
             return block
 
 
+class RevisitedTaus:
+    """The time constant a problem's response block is made at: of those whose ln tau
+    rounds to the same 9 decimals, the first met since the book was last cleared (beyond
+    97 entries). The searches meet a time constant again a rounding away (a grid point
+    reached from the simplex, exp(ln tau)); the fit has always taken the block first made
+    for it, and this keeps that, whatever the blocks' own cache (:class:`ResponseCache`,
+    by the exact tau) holds."""
+
+    def __init__(self):
+        self._taus: dict = {}
+
+    def tau(self, kind: str, tau: float) -> float:
+        key = (kind, round(float(np.log(tau)), 9))
+        first = self._taus.get(key)
+        if first is None:
+            if len(self._taus) > 96:
+                self._taus.clear()
+            first = self._taus[key] = float(tau)
+        return first
+
+
 def share_responses(prob, other) -> None:
     """``prob`` (a whole-test fit's problem, :class:`ecmgen.fit.curve._Problem`) takes
     ``other``'s inputs and response blocks where they are its own too: the same record,
