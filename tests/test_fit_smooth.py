@@ -124,9 +124,10 @@ def test_two_nearly_equal_time_constants_keep_their_names_over_soc():
     assert np.array_equal(srf, rf) and np.all(sf < ss)
 
 
-def test_batched_residuals_and_jacobians_are_the_single_ones():
-    """The weight's choice solves every left-out fit at once (one array per quantity):
-    each row of the batch is bit for bit the residual and Jacobian of that fit alone."""
+def test_batched_normal_equations_are_those_of_the_single_jacobians():
+    """The weight's choice solves every left-out fit at once: each row of the batch has the
+    residual of that fit alone (bit for bit), and the gradient and Gauss-Newton matrix of
+    its Jacobian (to rounding)."""
     soc, _, r = _rows(2e-5)
     r[3, 0] = 0.001          # a row whose R0 barrier is active
     data = _prepare(T_S, r)
@@ -138,10 +139,14 @@ def test_batched_residuals_and_jacobians_are_the_single_ones():
     weights[[0, 1, 2], [2, 5, 8]] = 0.0
     for tied in (False, True):
         prob.tied = tied
-        res, jac = prob.residuals(xs, lams, weights), prob.jacobians(xs, lams, weights)
+        res = prob.residuals(xs, lams, weights)
+        g, h = prob.normal_equations(xs, lams, weights)
         for k in range(3):
-            assert np.array_equal(res[k], prob.residual(xs[k], lams[k], weights[k]))
-            assert np.array_equal(jac[k], prob.jacobian(xs[k], lams[k], weights[k]))
+            one = prob.residual(xs[k], lams[k], weights[k])
+            jac = prob.jacobian(xs[k], lams[k], weights[k])
+            assert np.array_equal(res[k], one)
+            assert np.allclose(g[k], jac.T @ one, rtol=1e-12, atol=1e-12 * np.abs(g[k]).max())
+            assert np.allclose(h[k], jac.T @ jac, rtol=1e-12, atol=1e-12 * np.abs(h[k]).max())
 
 
 def test_the_cheap_solver_reaches_the_full_solvers_minimum():

@@ -125,31 +125,39 @@ class _Direction:
         smooth = root * (self.d2 @ xs.reshape(f, n, 4))
         return np.concatenate([data.reshape(f, -1), barrier, smooth.reshape(f, -1)], axis=1)
 
-    def jacobians(self, xs, lam, weights):
-        """:meth:`jacobian` of several x at once: (F, rows, 4n)."""
-        f, n, n_t, m = xs.shape[0], self.n, self.d.shape[1], self.d2.shape[0]
+    def normal_equations(self, xs, lam, weights):
+        """The gradient J'r and the Gauss-Newton matrix J'J of :meth:`residuals` at several
+        x at once ((F, 4n), (F, 4n, 4n)). A level's data and R0 rows depend on its own four
+        parameters only, and the smoothness rows are linear in x: J'J is a 4 x 4 block per
+        level plus the constant D2'D2 of each parameter's weight, built as such."""
+        f, n, n_t = xs.shape[0], self.n, self.d.shape[1]
         p = np.exp(xs.reshape(f, n, 4))
         tf, ts, rf, rs = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
         t0, tm = self.t0[:, None], self.tm
-        w = self.mask * weights[..., None] / self.scale[:, None]
-        jac = np.zeros((f, n * n_t + n + 4 * m, 4 * n))
-        data = jac[:, :n * n_t].reshape(f, n, n_t, n, 4)
-        barrier = jac[:, n * n_t:n * n_t + n].reshape(f, n, n, 4)
-        k = np.arange(n)
-        active = (_r0(self.ra, self.t0, tf, ts, rf, rs) < 0) * _BARRIER / self.scale
+        w = self.mask * weights[..., None] / self.scale[:, None]          # (F, n, n_t)
+        local = np.zeros((f, n, n_t + 1, 4))          # each level's data rows, its R0 row
+        r0 = _r0(self.ra, self.t0, tf, ts, rf, rs)
+        active = (r0 < 0) * _BARRIER / self.scale
+        fit = np.zeros((f, n, n_t))
         for q, (tau, r) in enumerate(((tf, rf), (ts, rs))):
             e0, e = np.exp(-t0 / tau[..., None]), np.exp(-tm / tau[..., None])
-            dphi = (t0 / tau[..., None]) * e0 - (tm / tau[..., None]) * e
-            # advanced indices apart from a slice come first: (level, F, n_t)
-            data[:, k, :, k, q] = np.moveaxis(r[..., None] * dphi * w, 1, 0)
-            data[:, k, :, k, 2 + q] = np.moveaxis(r[..., None] * (e0 - e) * w, 1, 0)
-            barrier[:, k, k, q] = active * r * np.exp(-self.t0 / tau) * self.t0 / tau
-            barrier[:, k, k, 2 + q] = active * r * np.expm1(-self.t0 / tau)
-        root = np.sqrt(self._weights_each(lam, f))
-        smooth = jac[:, n * n_t + n:].reshape(f, m, 4, n, 4)
-        for q in range(4):
-            smooth[:, :, q, :, q] = root[:, q, None, None] * self.d2
-        return jac
+            phi = -e0 * np.expm1(-(tm - t0) / tau[..., None])
+            fit += r[..., None] * phi
+            local[:, :, :n_t, q] = r[..., None] * ((t0 / tau[..., None]) * e0 -
+                                                   (tm / tau[..., None]) * e) * w
+            local[:, :, :n_t, 2 + q] = r[..., None] * (e0 - e) * w
+            local[:, :, n_t, q] = active * r * np.exp(-self.t0 / tau) * self.t0 / tau
+            local[:, :, n_t, 2 + q] = active * r * np.expm1(-self.t0 / tau)
+        res = np.concatenate([(fit - self.d) * w, (_BARRIER * np.minimum(r0, 0.0)
+                                                    / self.scale)[..., None]], axis=2)
+        # the smoothness rows: residual sqrt(w) D2 x, so J'r = S x and J'J = S
+        h = np.einsum("ab,fq,qr->faqbr", self.d2.T @ self.d2, self._weights_each(lam, f),
+                      np.eye(4))
+        g = np.einsum("fij,fj->fi", h.reshape(f, 4 * n, 4 * n), xs) + \
+            np.einsum("fkti,fkt->fki", local, res).reshape(f, 4 * n)
+        k = np.arange(n)
+        h[:, k, :, k, :] += np.moveaxis(np.einsum("fkti,fktj->fkij", local, local), 1, 0)
+        return g, h.reshape(f, 4 * n, 4 * n)
 
     def weights(self, lam: float) -> np.ndarray:
         """The smoothing weight of each parameter (tau_fast, tau_slow, r_fast, r_slow)."""
@@ -183,6 +191,7 @@ def _descend(prob: _Direction, x0: np.ndarray, lam: np.ndarray, weights: np.ndar
     x = np.clip(x0, lo + 1e-9, hi - 1e-9)
     r = prob.residuals(x, lam, weights)
     cost = np.einsum("fr,fr->f", r, r)
+    del r
     mu = np.full(x.shape[0], 1e-3)
     going = np.ones(x.shape[0], bool)
     eye = np.eye(x.shape[1], dtype=bool)
@@ -190,9 +199,7 @@ def _descend(prob: _Direction, x0: np.ndarray, lam: np.ndarray, weights: np.ndar
         ix = np.flatnonzero(going)
         if not ix.size:
             break
-        jac = prob.jacobians(x[ix], lam[ix], weights[ix])
-        g = np.einsum("frc,fr->fc", jac, r[ix])
-        h = np.matmul(jac.transpose(0, 2, 1), jac)
+        g, h = prob.normal_equations(x[ix], lam[ix], weights[ix])
         # a variable on a bound that the gradient pushes out stays there
         held = ((x[ix] <= lo) & (g > 0)) | ((x[ix] >= hi) & (g < 0))
         h = np.where(held[:, :, None] | held[:, None, :], 0.0, h)
@@ -207,14 +214,16 @@ def _descend(prob: _Direction, x0: np.ndarray, lam: np.ndarray, weights: np.ndar
             rn = prob.residuals(xn, lam[ix[t]], weights[ix[t]])
             cn = np.einsum("fr,fr->f", rn, rn)
             ok = cn < cost[ix[t]]
+            step = np.max(np.abs(xn - x[ix[t]]), axis=1)
             done, fail = ix[t[ok]], ix[t[~ok]]
-            step = np.max(np.abs(xn[ok] - x[done]), axis=1)
             gain = cost[done] - cn[ok]
-            x[done], r[done], cost[done] = xn[ok], rn[ok], cn[ok]
+            x[done], cost[done] = xn[ok], cn[ok]
             mu[done] = np.maximum(mu[done] / 3.0, 1e-12)
-            going[done[(gain <= 1e-12 * cost[done]) | (step <= 1e-10)]] = False
+            going[done[(gain <= 1e-12 * cost[done]) | (step[ok] <= 1e-10)]] = False
             mu[fail] *= 4.0
-            todo[t[ok]] = False
+            # a step too short to move x that still does not lower the cost: at a minimum
+            going[fail[step[~ok] <= 1e-10]] = False
+            todo[t[ok | (step <= 1e-10)]] = False
             if not todo.any():
                 break
         going[ix[todo]] = False             # no step lowers the cost: at a minimum
