@@ -88,21 +88,36 @@ def validation_plots(workers: Workers, validations: dict, best: str) -> dict:
 
 
 def submit_c(workers: Workers, cfg: BuildConfig, result, staging: Path):
-    """The C of the best model and its check (:func:`c_outputs`) as a task of ``workers``;
-    it writes into ``staging``, and gets only the best model and its validations."""
+    """The C of the best model (if the code generator is installed) and its checks, as
+    tasks of ``workers``: the files with the check against Python, and the estimator's two
+    checks beside it (:mod:`ecmgen.c.check`); they write into ``staging``. Returns what
+    gives the ``"c"`` block (``.result(progress)``), or None."""
+    try:
+        from .c.check import ESTIMATOR_PARTS, c_files, c_plan, estimator_part
+    except ImportError:
+        return None
     best = result.best
     slim = SimpleNamespace(models={best: result.models[best]}, best=best,
                            validations={best: result.validations.get(best, {})})
-    return workers.submit(c_outputs, cfg, slim, staging)
+    plan = c_plan(cfg, slim)
+    parts = [workers.submit(estimator_part, plan, part) for part in ESTIMATOR_PARTS] \
+        if plan.check_estimator else []
+    return _CTasks(plan, workers.submit(c_files, cfg, plan, staging), parts)
 
 
-def c_outputs(cfg: BuildConfig, result, staging: Path, progress: Progress = _quiet):
-    """Generate C for the best model (if the code generator is installed) and check it."""
-    try:
-        from .c.check import build_c_outputs
-    except ImportError:
-        return None
-    return build_c_outputs(cfg, result, staging, progress)
+class _CTasks:
+    def __init__(self, plan, files, parts):
+        self.plan, self.files, self.parts = plan, files, parts
+
+    def result(self, progress: Progress = _quiet) -> dict:
+        from .c.check import with_estimator
+
+        block = self.files.result(progress)
+        parts = [task.result(progress) for task in self.parts]
+        if parts and "skipped" not in block.get("float", {}):
+            detail_of(progress)("checking the C estimator against its references")
+            with_estimator(block, self.plan, *parts)
+        return block
 
 
 def plot_files(raw: dict, inputs, tests, tasks: dict, progress: Progress) -> dict[str, bytes]:
