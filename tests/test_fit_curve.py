@@ -444,3 +444,25 @@ def test_the_response_cache_keeps_the_recently_used_within_its_size():
     cache.put(3, blocks[3])
     assert cache.get(1) is None and cache.get(0) is blocks[0] and cache.get(3) is blocks[3]
     assert cache.put(3, blocks[4]) is blocks[3]   # a block is the same whoever computes it
+
+
+def test_a_fit_again_with_the_first_fits_searches_is_the_fit_from_scratch():
+    """Offered its neighbours' time constants, a test is fitted again: taking the first
+    fit's time-constant searches (``searches``) gives bit for bit the fit that searches
+    again."""
+    truth = synthetic_nca_model(tau_fast_s=2.0, tau_slow_s=60.0)
+    series, soc0 = make_pulse_test(truth, soc_levels=(0.9, 0.7, 0.5, 0.3), c_rates=(1.0, 3.0),
+                                   noise_v=0.001, seed=2, log_moves=True)
+    pulses = find_pulses(series, truth.capacity_ah, soc0=soc0)
+
+    def fit(**kw):
+        return fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, diffusion=False,
+                                **kw)
+
+    first = fit()
+    offer = {"fast": first.tau_fast_s * 1.2, "slow": first.tau_slow_s * 0.8}
+    again, scratch = fit(neighbour_taus=offer, searches=first.searches), fit(neighbour_taus=offer)
+    assert again.notes == scratch.notes
+    for d in ("charge", "discharge"):
+        for k, v in scratch.rc_columns(d).items():
+            assert np.array_equal(v, again.rc_columns(d)[k]), (d, k)

@@ -160,10 +160,12 @@ def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
 
 
 def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet,
-               neighbour_taus: dict | None = None) -> tuple[dict[str, EcmModel], dict]:
+               neighbour_taus: dict | None = None, searches: list | None = None
+               ) -> tuple[dict[str, EcmModel], dict]:
     """Fit every method of the config; returns the models and the raw fits (for plots).
     ``neighbour_taus``: the curve method's time constants from the tests on either side
-    in temperature (:func:`ecmgen.fit.curve.fit_pulse_curves`)."""
+    in temperature; ``searches``: those of its earlier fit of this test
+    (:func:`ecmgen.fit.curve.fit_pulse_curves`)."""
     from .fit.checks import flag_notes, point_fit_flags
     from .fit.ga import fit_ga
     from .fit.lm import fit_lm
@@ -207,7 +209,7 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet,
         raw["point_fits"] = fits
     if "curve" in cfg.methods:
         models["curve"], raw["curve_fit"], raw["flags"]["curve"] = curve_model(
-            cfg, inputs, common, progress, neighbour_taus=neighbour_taus)
+            cfg, inputs, common, progress, neighbour_taus=neighbour_taus, searches=searches)
     return models, raw
 
 
@@ -219,7 +221,7 @@ def _common(cfg: BuildConfig, inputs: Inputs) -> dict:
 
 def curve_model(cfg: BuildConfig, inputs: Inputs, common: dict, progress: Progress = _quiet,
                 current_factor=None, tau_ranges: dict | None = None,
-                neighbour_taus: dict | None = None):
+                neighbour_taus: dict | None = None, searches: list | None = None):
     """The curve method's model of a prepared test: (model, its CurveFit, its flags).
     ``current_factor``: a current-dependent resistance the fit takes as given
     (:func:`ecmgen.fit.curve.fit_pulse_curves`; then no Butler-Volmer branch);
@@ -245,7 +247,7 @@ def curve_model(cfg: BuildConfig, inputs: Inputs, common: dict, progress: Progre
                           i0_a=bv.i0_a if bv else None, diffusion=branches, steps=inputs.steps,
                           relax_s=cfg.relax_s, direction_deadband_a=common["direction_deadband_a"],
                           blocks_both_ways=cfg.dynamic, current_factor=current_factor,
-                          neighbour_taus=neighbour_taus,
+                          neighbour_taus=neighbour_taus, searches=searches,
                           **{**(DYNAMIC_TAU_RANGES if cfg.dynamic else {}), **(tau_ranges or {})})
     flags = curve_fit_flags(cf, float(relax.max()) if relax.size else None)
     model = EcmModel(charge=RcTable(**cf.rc_columns("charge")),
@@ -302,17 +304,17 @@ def one_test_c(tests, inputs: Inputs | None) -> float | None:
 
 def fit_pulse_test(cfg: BuildConfig, k: int, plots: bool = False,
                    neighbour_taus: dict | None = None, curve_plot: bool = True,
-                   progress: Progress = _quiet) -> TestFit:
+                   searches: list | None = None, progress: Progress = _quiet) -> TestFit:
     """Read, extract and fit pulse test ``k`` of the config, every method of the config
     (and draw its fit plots, as PNG bytes, with ``plots``: the whole-test fit's with
-    ``curve_plot``); ``neighbour_taus``: see :func:`fit_models` (the fit again with them
-    draws only the whole-test fit's plot)."""
+    ``curve_plot``); ``neighbour_taus``, ``searches``: see :func:`fit_models` (the fit
+    again with them draws only the whole-test fit's plot)."""
     import time
 
     t0 = time.perf_counter()
     test = cfg.pulse_tests[k]
     try:
-        fit = _fit_pulse_test(cfg, test, progress, t0, neighbour_taus)
+        fit = _fit_pulse_test(cfg, test, progress, t0, neighbour_taus, searches)
     except InputError as exc:
         if exc.path is None:    # say which test it was
             raise InputError(test.file, exc.message) from None
@@ -333,7 +335,8 @@ def fit_pulse_test(cfg: BuildConfig, k: int, plots: bool = False,
 
 
 def _fit_pulse_test(cfg: BuildConfig, test: PulseTest, progress: Progress, t0: float,
-                    neighbour_taus: dict | None = None) -> TestFit:
+                    neighbour_taus: dict | None = None, searches: list | None = None
+                    ) -> TestFit:
     import time
 
     sub = pulse_test_config(cfg, test)
@@ -358,7 +361,8 @@ def _fit_pulse_test(cfg: BuildConfig, test: PulseTest, progress: Progress, t0: f
     models, raw = {}, {}
     for m in cfg.methods:   # one at a time, for the timings
         t1 = time.perf_counter()
-        got, got_raw = fit_models(replace(sub, methods=(m,)), inputs, progress, neighbour_taus)
+        got, got_raw = fit_models(replace(sub, methods=(m,)), inputs, progress, neighbour_taus,
+                                  searches)
         models.update(got)
         for key, value in got_raw.items():
             if isinstance(value, dict) and isinstance(raw.get(key), dict):
@@ -423,7 +427,9 @@ def _with_neighbour_taus(cfg: BuildConfig, fits: list[TestFit], workers: Workers
     offer = neighbour_time_constants([f.temperature_c for f in fits],
                                      [f.raw.get("curve_fit") for f in fits])
     curve_only = replace(cfg, methods=("curve",))
-    tasks = {k: workers.submit(fit_pulse_test, curve_only, k, plots, taus)
+    # the fit again takes the first fit's time-constant searches (the same test and settings)
+    tasks = {k: workers.submit(fit_pulse_test, curve_only, k, plots, taus, True,
+                               fits[k].raw["curve_fit"].searches)
              for k, taus in enumerate(offer) if taus is not None}
     # the plots of the whole-test fits that stand, beside the fits again
     plot_tasks = {k: workers.submit(curve_fit_png, f.raw["curve_fit"], f.label, f.temperature_c)

@@ -274,3 +274,22 @@ def node_error(rec, prob, resid, nodes, mask, default):
     tot = w2.sum(axis=0)
     e2 = (w2 * (resid[prob.rows] ** 2)[:, None]).sum(axis=0)
     return np.where(tot > 0, np.sqrt(e2 / np.maximum(tot, 1e-300)), default)
+
+
+def r0_spans(complete, directions, min_rates: int) -> dict:
+    """Per direction: (lo, hi), the SOC range of the pulses of the levels whose complete
+    pulses span at least ``need`` C-rates (``min_rates``, or as many as the best level has
+    if fewer), (low, high), that of all complete pulses, and ``need``."""
+    socs = np.array([p.soc for p in complete])
+    dirs = np.array([p.direction for p in complete])
+    rates = np.array([p.c_rate for p in complete])
+    out = {}
+    for d in directions:
+        levels = [g for g in soc_levels(socs, dirs) if dirs[g[0]] == d]
+        n = [np.unique(rates[g]).size for g in levels]
+        need = min(min_rates, max(n))
+        pinned = np.concatenate([g for g, k in zip(levels, n) if k >= need])
+        every = np.concatenate(levels)
+        out[d] = (float(socs[pinned].min()), float(socs[pinned].max()),
+                  float(socs[every].min()), float(socs[every].max()), need)
+    return out

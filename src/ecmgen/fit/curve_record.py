@@ -185,6 +185,12 @@ class RevisitedTaus:
     def __init__(self):
         self._taus: dict = {}
 
+    def state(self) -> dict:
+        return dict(self._taus)
+
+    def restore(self, state: dict) -> None:
+        self._taus = dict(state)
+
     def tau(self, kind: str, tau: float) -> float:
         key = (kind, round(float(np.log(tau)), 9))
         first = self._taus.get(key)
@@ -193,6 +199,34 @@ class RevisitedTaus:
                 self._taus.clear()
             first = self._taus[key] = float(tau)
         return first
+
+
+def node_set_searches(searches: list, k: int) -> dict:
+    """The time-constant searches of OCV-offset node set ``k`` in ``searches`` (one dict
+    per node set; a new one added for a node set met the first time)."""
+    while len(searches) <= k:
+        searches.append({})
+    return searches[k]
+
+
+def remembered(search, prob, ranges: dict, progress=None):
+    """``search(prob, ranges, progress)``, or what it gave for these ranges before
+    (``prob.searches``: the same test fitted again, offered its neighbours' time constants,
+    searches as it did the first time). Only a problem's first search is kept and taken,
+    with the time constants it met (:class:`RevisitedTaus`): what follows then meets the
+    same blocks as after the search itself. Returns a copy."""
+    key = tuple((k, tuple(float(v) for v in r)) for k, r in ranges.items())
+    first = not prob._taus.state()
+    got = prob.searches.get(key) if first else None
+    if got is not None:
+        result, met = got
+        prob._taus.restore(met)
+    else:
+        result = search(prob, ranges, progress)
+        if first:
+            prob.searches[key] = (result, prob._taus.state())
+    taus, x, cost, n_eval, notes = result
+    return dict(taus), np.array(x, copy=True), cost, n_eval, list(notes)
 
 
 def share_responses(prob, other) -> None:
