@@ -139,7 +139,9 @@ class Workers:
         # it holds until the pool is closed
         self._env = _worker_environment()
         self._env.__enter__()
-        self._pool = ProcessPoolExecutor(max_workers=self.processes, mp_context=_context())
+        self._pool = ProcessPoolExecutor(max_workers=self.processes, mp_context=_context(),
+                                         initializer=_adopt_environment,
+                                         initargs=(dict(os.environ),))
 
     def close(self) -> None:
         if self._pool is not None:
@@ -160,6 +162,13 @@ class Workers:
 # forked from, instead of in each freshly started worker
 PRELOAD = ["ecmgen.pipeline", "ecmgen.validation", "ecmgen.fit.curve", "scipy.optimize",
            "matplotlib.pyplot"]
+
+
+def _adopt_environment(env: dict) -> None:
+    """A worker's environment is this process's when the pool starts (CC, ECMGEN_CACHE, ..),
+    not the fork server's, which started with the first pool of the process."""
+    os.environ.clear()
+    os.environ.update(env)
 
 
 def _context():
