@@ -20,7 +20,8 @@ import pytest  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 C_DIR = REPO / "tests" / "c"      # the tests' C programs (lintable C, not strings)
-SHARED_DATA = REPO.parent / "shared" / "data"
+# ECMGEN_SHARED_DATA: the shared data elsewhere (a git worktree's checkout is not beside it)
+SHARED_DATA = Path(os.environ.get("ECMGEN_SHARED_DATA", REPO.parent / "shared" / "data"))
 PANASONIC = SHARED_DATA / "panasonic-18650pf-25degC"
 CALCE = SHARED_DATA / "calce-a123-lfp"
 

@@ -224,6 +224,8 @@ def test_temperature_from_a_time_stamped_log(folder):
     ("time_s,voltage_v\n10,3.7\n11,3.7\n", ["no temperature column"]),
     ("time_s,temperature_c\n1e9,25\n1.1e9,26\n", ["do not overlap", "same clock"]),
     ("time_s,temperature_c\n10,warm\n", ["line 2: not a number"]),
+    # 1 s of a 4 s record: before, its two values were stretched over the whole record
+    ("time_s,temperature_c\n12,25\n13,26\n", ["cover 25.0 %", "the log of another test"]),
 ])
 def test_bad_temperature_logs_are_one_line(folder, log, words, capsys):
     _record(folder / "cycle.csv")

@@ -282,3 +282,16 @@ def test_a_time_without_a_value_is_said_and_dropped_before_the_fits(tmp_path, ca
     assert dcir.t_s.tolist() == [0.1, 3.0, 6.0, 10.0]
     rows, _ = five_point_rows(dcir)
     assert len(rows) == 2 and np.isfinite(rows.r_ohm).all()
+
+
+def test_the_first_time_asked_is_read_at_that_time_not_at_the_first_sample():
+    """`--times 1 3 6 10` (also `[dcir] times_s`): before, R(1 s) was the first sample's
+    (0.1 s) value, as if the first time were always R0; the analytic R(t) of the model is
+    the truth at each time."""
+    m = flat(synthetic_nca_model())
+    series, soc0 = make_pulse_test(m, soc_levels=(0.6,), c_rates=(2.0,))
+    pulses = find_pulses(series, m.capacity_ah, soc0=soc0)
+    full = extract_dcir(series, pulses, (0.1, 1.0, 3.0, 6.0, 10.0))
+    late = extract_dcir(series, pulses, (1.0, 3.0, 6.0, 10.0))
+    assert np.array_equal(late.r_ohm, full.r_ohm[:, 1:])
+    assert late.r_ohm[0, 0] > full.r_ohm[0, 0] * 1.05       # R(1 s) above R(0.1 s)

@@ -468,6 +468,21 @@ def test_real_cycle_targets(folder, name):
     assert np.mean(err <= 3 * run.estimate.soc_sigma) > 0.95
 
 
+def test_cli_estimate_judges_the_start_from_the_record(cycle_files):
+    """Without --soc0 the start SOC comes from the record; one that opens under load (this
+    cycle's first sample draws 3 A) gets the filter of a start anywhere, never the rested
+    one silently; --start rested still wins."""
+    import json
+
+    for args, start in (((), "anywhere"), (("--start", "rested"), "rested")):
+        res = _cli("estimate", cycle_files / "model.json", cycle_files / "cycle.csv",
+                   "--json", *args)
+        assert res.returncode == 0, res.stderr
+        doc = json.loads(res.stdout)
+        assert doc["start"] == start
+        assert doc["soc0"] == pytest.approx(0.9, abs=0.005)
+
+
 def test_a_cold_mid_cycle_start_reads_the_soc_from_the_ocv_honestly():
     """-10 degC HWFET cut under load at SOC 0.6, told 0.4, with the BMS's sensor errors and
     the start-anywhere settings: with the RC tables' SOC slopes in the Jacobians the filter

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
@@ -46,9 +45,7 @@ GOOD_CSV = ("time_s,current_a,voltage_v\n"
 @pytest.mark.parametrize("name", PANASONIC_FILES)
 def test_reads_panasonic_mat(name):
     path = need(PANASONIC / name)
-    t0 = time.perf_counter()
-    ts = read_timeseries(path, capacity_ah=2.9)
-    assert time.perf_counter() - t0 < 2.0  # ~0.2 s for 100k rows; generous for slow CI
+    ts = read_timeseries(path, capacity_ah=2.9)      # its speed: bench/bench_read.py
     assert ts.source == str(path)
     n = len(ts)
     for f in FIELDS:
@@ -92,13 +89,6 @@ def test_reads_calce_ocv_csv_with_index_column():
     # Low-rate CHARGE: current positive, voltage rising 2.59 -> 3.60 V.
     assert np.all(ts.current_a > 0.049)
     assert ts.voltage_v[-1] > ts.voltage_v[0] + 0.9
-
-
-def test_calce_csv_reads_fast():
-    path = need(CALCE / "dynamics-dst-us06-fuds.csv")
-    t0 = time.perf_counter()
-    read_timeseries(path)
-    assert time.perf_counter() - t0 < 1.0
 
 
 # --------------------------------------------------------------------------- example

@@ -51,6 +51,9 @@ def test_build_json_on_a_synthetic_cell(synthetic_project):
     res2 = run_cli("validate", out / "model.json", folder / "cycle.csv", "--json")
     assert res2.returncode == 0, res2.stderr
     assert json.loads(res2.stdout)["mae_v"] == pytest.approx(doc["validation"]["curve"]["mae_v"])
+    # ... also above 10 % SOC, per cycle, as report.md and validate --json give it
+    assert doc["validation"]["curve"]["cycles"]["cycle.csv"]["soc_above_10"] == pytest.approx(
+        json.loads(res2.stdout)["soc_above_10"])
     # the simulated cycle's voltage answers its current on time
     assert json.loads(res2.stdout)["voltage_lag_samples"] == 0
     assert doc["validation"]["curve"]["cycles"]["cycle.csv"]["voltage_lag_samples"] == 0

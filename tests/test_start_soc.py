@@ -165,10 +165,12 @@ def test_an_unrelaxed_opening_rest_is_taken_where_its_relaxation_heads():
 
 @pytest.mark.slow
 def test_auto_start_soc_of_the_shared_cycles_within_half_a_millivolt_of_a_full_start():
-    """The eight shared Panasonic drive cycles start full. Before: -20 degC US06 opened with
-    a two-sample 'rest' already carrying the first 0.05 A and was started at 0.997 (MAE
-    0.58 mV worse than SOC 1.0); a rest too short to tell its OCV now gives way to all the
-    record's rests."""
+    """The eight shared Panasonic drive cycles start full: each auto start gives the MAE of
+    SOC 1.0 within 0.5 mV, or says it is uncertain with 1.0 within two of its sigma (six
+    open under load, read against the model over their first 2400 s; this older model
+    errs 60 mV on the -20 degC US06, whose start it reads 0.99 +- 0.02)."""
+    from ecmgen.model.simulate import start_estimate
+
     from conftest import REPO, SHARED_DATA, need
     from ecmgen.data.measure import read_timeseries
     from ecmgen.model.model import load_model
@@ -180,7 +182,9 @@ def test_auto_start_soc_of_the_shared_cycles_within_half_a_millivolt_of_a_full_s
         series = read_timeseries(need(SHARED_DATA / f"panasonic-18650pf-{folder}" /
                                       f"{name}.mat"))
         auto, full = validate(model, series, None), validate(model, series, 1.0)
-        assert abs(auto.overall.mae_v - full.overall.mae_v) < 0.5e-3, (folder, name)
+        got = start_estimate(model, series)
+        assert abs(auto.overall.mae_v - full.overall.mae_v) < 0.5e-3 or \
+            (got.uncertain and abs(got.soc0 - 1.0) <= 2 * got.sigma), (folder, name, got)
 
 
 def test_a_start_soc_that_needs_an_offset_beyond_any_hysteresis_is_said_uncertain():
@@ -201,3 +205,47 @@ def test_a_start_soc_that_needs_an_offset_beyond_any_hysteresis_is_said_uncertai
     true = fit_start_soc(OcvTable(soc, true_v), 2.0, rests, "cycle.csv")
     assert "warning" in held.note and "uncertain" in held.note
     assert "warning" not in true.note and true.soc0 == pytest.approx(0.9, abs=0.005)
+
+
+def _drive(seconds: float, seed: int = 0):
+    """A discharge-heavy drive profile (1 Hz, 20 s steps of -8 .. +2 A)."""
+    t = np.arange(0.0, seconds, 1.0)
+    rng = np.random.default_rng(seed)
+    return t, np.repeat(rng.uniform(-8.0, 2.0, t.size // 20 + 1), 20)[:t.size]
+
+
+@pytest.mark.parametrize("cut_s", [900.0, 1805.0])
+def test_a_record_cut_under_load_is_read_against_the_model(cut_s):
+    """The model's own cell (1 mV noise), driven from SOC 0.9 and cut in the drive: the
+    opening is unsettled, the start SOC comes from the voltage over the first window
+    against the model, within a tenth of a percent of the truth, and it is sure of it;
+    the opening rest logic read the first 20 s step's voltage as a rest before."""
+    from ecmgen.model.simulate import start_estimate
+
+    model = synthetic_nca_model()
+    t, i = _drive(5400.0)
+    sim = simulate(model, t, i, 0.9)
+    v = sim.voltage_v + np.random.default_rng(1).normal(0.0, 0.001, t.size)
+    k = int(np.searchsorted(t, cut_s))
+    part = TimeSeries(t[k:] - t[k], i[k:], v[k:])
+    got = start_estimate(model, part)
+    assert not got.settled and "against the model" in got.how
+    assert got.soc0 == pytest.approx(sim.soc[k - 1], abs=0.001)
+    assert got.sigma < 0.005 and "uncertain" not in got.how
+
+
+def test_an_unsure_start_is_said_uncertain_on_validate():
+    """The same cut judged by a model 30 % off in its resistances: the start SOC moves and
+    the residual grows, and validate warns that the start is uncertain."""
+    from dataclasses import replace as dc_replace
+
+    model = synthetic_nca_model()
+    t, i = _drive(5400.0)
+    v = simulate(model, t, i, 0.9).voltage_v
+    k = int(np.searchsorted(t, 1805.0))
+    part = TimeSeries(t[k:] - t[k], i[k:], v[k:], source="cut.csv")
+    wrong = dc_replace(model, discharge=dc_replace(model.discharge,
+                                                   r0_ohm=model.discharge.r0_ohm * 1.3,
+                                                   r_slow_ohm=model.discharge.r_slow_ohm * 1.3))
+    val = validate(wrong, part)
+    assert any("start SOC" in w and "uncertain" in w for w in val.warnings)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import math
 import os
 import signal
@@ -24,7 +25,7 @@ import numpy as np  # noqa: E402
 from ._version import __version__  # noqa: E402
 from .errors import InputError, describe, reading, user_file_of  # noqa: E402
 from .files import json_text  # noqa: E402
-from .outputs import check_output_file, check_output_folder, refuse_inputs  # noqa: E402
+from .outputs import check_output_file, check_output_folder, refuse_inputs, staged  # noqa: E402
 
 
 def _given(cfg) -> set[Path]:
@@ -79,6 +80,7 @@ def cmd_build(args) -> int:
                        strict=args.strict)
     finally:
         getattr(progress, "close", lambda: None)()
+    _warn_kept(result.out_dir)
     if args.json:
         print(json_text(build_json(result), indent=1))
         return 0
@@ -108,6 +110,16 @@ def cmd_build(args) -> int:
                   f"vectors and test in {where}/ (ecmgen verify {where})")
         print(build_summary(result))
     return 0
+
+
+def _warn_kept(out: Path) -> None:
+    """Name the user's edited files a run wrote again (kept beside, as <name>.edited)."""
+    from .outputs import kept_beside
+
+    for name in kept_beside(out):
+        print(f"warning: {_shown_path(out / name.rsplit('.edited', 1)[0])} was changed since "
+              f"ecmgen wrote it; your version is kept as {_shown_path(out / name)}",
+              file=sys.stderr)
 
 
 def _shown_path(path: Path) -> str:
@@ -249,7 +261,8 @@ def cmd_validate(args) -> int:
         src = f"from {val.soc0_how}" if val.soc0_from_ocv else "given"
         print(f"{Path(args.cycle).name}: MAE {m.mae_v * 1e3:.2f} mV  RMSE {m.rmse_v * 1e3:.2f} mV"
               f"  max {m.max_abs_v * 1e3:.1f} mV  (soc0 {val.soc0:.4f} {src}; "
-              f"MAE at SOC>10 % {val.soc_above_10.mae_v * 1e3:.2f} mV"
+              + (f"MAE at SOC>10 % {val.soc_above_10.mae_v * 1e3:.2f} mV"
+                 if math.isfinite(val.soc_above_10.mae_v) else "never above 10 % SOC")
               + ("" if val.temperature_range_c is None else
                  "; cell {:.1f}..{:.1f} degC".format(*val.temperature_range_c)) + ")")
         for w in val.warnings:
@@ -258,14 +271,14 @@ def cmd_validate(args) -> int:
 
 
 def cmd_estimate(args) -> int:
-    from dataclasses import asdict
+    from dataclasses import asdict, replace
 
     from .config import EstimatorConfig, load_config, start_settings
     from .data.measure import read_timeseries
     from .estimate.run import estimate_csv_text, estimate_json, estimate_record
     from .files import write_atomic
     from .model.model import load_model
-    from .model.simulate import initial_soc
+    from .model.simulate import start_estimate
 
     out = None
     if args.out:
@@ -282,8 +295,6 @@ def cmd_estimate(args) -> int:
         if out is not None:
             check_output_file(out, _given(cfg))
         if args.window_s is not None:   # the option wins over data.cycle_window_s
-            from dataclasses import replace
-
             cfg = replace(cfg, cycle_window_s=None)
         settings = cfg.estimator
         series = read_series(cfg, Path(args.cycle), "cycle")
@@ -293,18 +304,17 @@ def cmd_estimate(args) -> int:
     else:
         series = read_timeseries(args.cycle, capacity_ah=model.capacity_ah)
     if args.filter:
-        from dataclasses import replace
-
         settings = replace(settings, filter=args.filter)
-    soc0 = args.soc0
+    soc0, start = args.soc0, args.start
     if soc0 is None:
         if series.temperature_c is None and args.temperature_c is not None:
-            from dataclasses import replace
-
             series = replace(series, temperature_c=np.full(series.time_s.size,
                                                            args.temperature_c))
-        soc0 = initial_soc(model, series)
-    start = args.start
+        found = start_estimate(model, series)
+        soc0 = found.soc0
+        if start is None and not found.settled and not set_keys & {"start",
+                                                                   "start_polarization_c"}:
+            start = "anywhere"          # it opens under load or mid-relaxation: not rested
     if args.window_s is not None:
         first_t = float(series.time_s[0])
         series, soc0 = _window_start(model, series, soc0, args.window_s)
@@ -329,9 +339,11 @@ def cmd_estimate(args) -> int:
                                        settings=asdict(settings))))
     else:
         conv = "never" if f.converge_s is None else f"{f.converge_s:.0f} s"
+        late = (f"{f.soc_max_abs_after_600s * 100:.2f} % after 600 s" if math.isfinite(
+            f.soc_max_abs_after_600s) else "a record shorter than 600 s")
         print(f"{Path(args.cycle).name}: {settings.filter} SOC RMSE {f.soc_rmse * 100:.2f} %, "
-              f"max {f.soc_max_abs * 100:.2f} % ({f.soc_max_abs_after_600s * 100:.2f} % "
-              f"after 600 s), within 2 % from {conv}; coulomb counting RMSE "
+              f"max {f.soc_max_abs * 100:.2f} % ({late}), within 2 % from {conv}; coulomb "
+              f"counting RMSE "
               f"{cc.soc_rmse * 100:.2f} %, max {cc.soc_max_abs * 100:.2f} % "
               f"(soc0 {soc0:.4f}, guess {guess:.4f}, start {start})")
     return 0
@@ -350,10 +362,9 @@ def _window_start(model, series, soc0: float, window_s):
 
 
 def _settings_from_validation(cfg, model, settings, cycle: Path):
-    """[estimator] model_error / error_correlation_s not set in the config: measured on the
-    config's validation cycles (data.cycle, data.extra_cycles), leaving out the cycle being
-    estimated, so that its own residual never tunes its filter. Returns (settings, the keys
-    measured)."""
+    """[estimator] model_error / error_correlation_s not set in the config: measured on its
+    validation cycles but the one being estimated (its own residual never tunes its
+    filter). Returns (settings, the keys measured)."""
     from dataclasses import replace
 
     from .estimate.residual import settings_from_cycles
@@ -414,20 +425,24 @@ def cmd_codegen(args) -> int:
         names = file_names(spec.prefix, spec.numeric) | vector_names(spec.prefix, spec.numeric)
         for name in [v for v in names.values() if isinstance(v, str)] + names["runtime"]:
             refuse_inputs(out / name, [args.model])
-        files = generate_c(model, out, prefix=args.prefix, numeric=args.numeric,
-                           dt_s=args.dt_s, estimator=estimator)
-        files += write_golden(spec, out)        # no cycle here: a drive of pulses and rests
-        if estimator is not None:
-            from .c.estc import prepare_estimator
-            from .c.estgolden import write_est_golden
-            from .c.golden import drive_segment
+        # staged as a build's files: none half-written, an edited file kept beside
+        with staged(out, {Path(args.model).resolve()}, remove_leftovers=False) as \
+                (staging, files):
+            generate_c(model, staging, prefix=args.prefix, numeric=args.numeric,
+                       dt_s=args.dt_s, estimator=estimator)
+            write_golden(spec, staging)         # no cycle here: a drive of pulses and rests
+            if estimator is not None:
+                from .c.estc import prepare_estimator
+                from .c.estgolden import write_est_golden
+                from .c.golden import drive_segment
 
-            files += write_est_golden(spec, prepare_estimator(model, spec, estimator), out,
-                                      drive_segment(spec))
+                write_est_golden(spec, prepare_estimator(model, spec, estimator), staging,
+                                 drive_segment(spec))
     except InputError as exc:
         if exc.path is not None:
             raise
         raise InputError(args.model, exc.message) from None
+    _warn_kept(out)
     if estimator is not None and model.ageing is not None:
         print(f"note: {AGED_ESTIMATOR}", file=sys.stderr)
     if not args.quiet:
@@ -486,7 +501,10 @@ def cmd_fleet(args) -> int:
 def cmd_age(args) -> int:
     from .fleet.law import write_aged_model
 
-    out, law, base = write_aged_model(args.fleet_dir, args.out, args.base)
+    notes: list[str] = []
+    out, law, base = write_aged_model(args.fleet_dir, args.out, args.base, notes)
+    for n in notes:
+        print(f"note: {n}", file=sys.stderr)
     x = law.equivalent_full_cycles
     print(f"ageing law over {x[0]:g}..{x[-1]:g} equivalent full cycles ({x.size} check-ups): "
           f"resistance x{law.resistance_scale[-1]:.3f}, capacity x{law.capacity_scale[-1]:.3f} "
@@ -690,24 +708,46 @@ def main(argv=None) -> int:
     args = parser().parse_args(argv)
     try:
         with _no_stray_warnings(), _sigterm_unwinds():
-            return int(args.func(args) or 0)
+            code = int(args.func(args) or 0)
+            sys.stdout.flush()          # a full or closed stdout fails here, not at exit
+            return code
     except InputError as exc:
         return _error(str(exc))
+    except OSError as exc:
+        if exc.filename is not None or exc.errno not in _STDOUT_ERRNOS:
+            return _boundary(exc)
+        _silence_stdout()               # else Python's own flush at exit fails again
+        if exc.errno == errno.EPIPE:    # `ecmgen ... | head`: the reader left, not an error
+            return 141
+        return _error(f"standard output: cannot be written ({describe(exc)})")
     except KeyboardInterrupt:
         return 130
     except Terminated:
         return 143
     except Exception as exc:
-        # the one boundary: an exception raised while reading a user's file (marked by
-        # ecmgen.errors.reading), or the system refusing a path (an output folder under
-        # /proc, a full disk), is bad input or a bad place: one line, exit 2. Anything
-        # else is a fault of ecmgen and keeps its traceback (exit 1).
-        where = user_file_of(exc)
-        if where is None and isinstance(exc, OSError) and exc.filename is not None:
-            where = exc.filename
-        if where is None:
-            raise
-        return _error(f"{where}: {describe(exc)}")
+        return _boundary(exc)
+
+
+# errors of a write to a full, broken or closed standard output (a file name is not set)
+_STDOUT_ERRNOS = {errno.ENOSPC, errno.EPIPE, errno.EIO, errno.EDQUOT, errno.EBADF, errno.EFBIG}
+
+
+def _silence_stdout() -> None:
+    with contextlib.suppress(OSError, ValueError, AttributeError):
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+
+
+def _boundary(exc: BaseException) -> int:
+    """The one boundary: an exception raised while reading a user's file (marked by
+    ecmgen.errors.reading), or the system refusing a path (an output folder under /proc, a
+    full disk), is bad input or a bad place: one line, exit 2. Anything else is a fault of
+    ecmgen and keeps its traceback (exit 1)."""
+    where = user_file_of(exc)
+    if where is None and isinstance(exc, OSError) and exc.filename is not None:
+        where = exc.filename
+    if where is None:
+        raise exc
+    return _error(f"{where}: {describe(exc)}")
 
 
 def _error(message: str) -> int:

@@ -227,6 +227,9 @@ class BuildConfig:
     # column, one for all or resolved file -> degC
     temperature_c: float | dict[Path, float] | None = None
     dynamic: bool = False         # data.dynamic: ``pulses`` is a dynamic test (its blocks)
+    # a file's own column map, resolved file -> (its section, the table): a pulse test's
+    # columns (for its file and steps), [data.columns.files] (over those)
+    file_columns: dict[Path, tuple[str, dict]] = field(default_factory=dict)
 
     def window_for(self, path: Path) -> tuple[float, float] | None:
         """The time window (s, the file's own time axis) for a validation file, if any."""
@@ -283,6 +286,7 @@ class PulseTest:
     steps: Path | None            # the SOC-step record between its pulse sets, if any
     ocv: Path | None              # None: from its own rests
     dynamic: bool = False         # a dynamic test (as data.dynamic), not a pulse test
+    columns: dict | None = None   # its own column map (its file and steps)
 
 
 def _table(d: dict, key: str, path: Path) -> dict:
@@ -315,6 +319,8 @@ def _file(base: Path, d: dict, key: str, path: Path, where: str = "data") -> Pat
     if not isinstance(v, str) or not v:
         raise InputError(path, f"{where}.{key} must be a file name")
     p = (base / v).resolve()
+    if p.is_dir():
+        raise InputError(path, f"{where}.{key} names a folder, not a file: {v} ({p})")
     if not p.is_file():
         raise InputError(path, f"{where}.{key} names a missing file: {v} (looked for {p})")
     return p
@@ -385,6 +391,22 @@ def _temperatures(data: dict, base: Path, path: Path, known: list[Path]):
 
 
 
+def _file_columns(columns: dict | None, tests: tuple[PulseTest, ...], base: Path,
+                  path: Path, known: list[Path]) -> dict[Path, tuple[str, dict]]:
+    """Each file's own column map: a pulse test's columns for its file and steps, then
+    [data.columns.files] by file name (over a test's)."""
+    own: dict[Path, tuple[str, dict]] = {}
+    for n, test in enumerate(tests, 1):
+        if test.columns is not None:
+            for p in (test.file, test.steps):
+                if p is not None:
+                    own[p] = (f"data.pulse_tests[{n}].columns", test.columns)
+    for name, table in ((columns or {}).get("files") or {}).items():
+        p = _named_file(name, base, path, "[data.columns.files]", known)
+        own[p] = (f"[data.columns.files.{name!r}]", table)
+    return own
+
+
 def _pulse_tests(data: dict, base: Path, path: Path, ocv: Path | None
                  ) -> tuple[PulseTest, ...]:
     """The [[data.pulse_tests]] entries (``ocv``: the data.ocv file, None for "pulses")."""
@@ -410,7 +432,8 @@ def _pulse_tests(data: dict, base: Path, path: Path, ocv: Path | None
         test = PulseTest(file=file, soc0=_number(entry, "soc0", path, where,
                                                  unit_interval=True),
                          temperature_c=temp, steps=_file(base, entry, "steps", path, where),
-                         ocv=test_ocv, dynamic=entry.get("dynamic", False))
+                         ocv=test_ocv, dynamic=entry.get("dynamic", False),
+                         columns=entry.get("columns"))
         for k, other in enumerate(tests, 1):
             if other.file == file:
                 raise InputError(path, f"{where} names the same file as "
@@ -433,7 +456,8 @@ def _load_config(path: Path) -> BuildConfig:
     if path.is_dir():
         raise InputError(path, "is a folder; give the config file (a .toml)")
     try:
-        raw = tomllib.loads(path.read_bytes().decode("utf-8"))
+        # utf-8-sig: a byte order mark (Windows editors write one) is not TOML's error
+        raw = tomllib.loads(path.read_bytes().decode("utf-8-sig"))
     except FileNotFoundError:
         raise InputError(path, "no such config file") from None
     except UnicodeDecodeError as exc:
@@ -503,7 +527,7 @@ def _load_config(path: Path) -> BuildConfig:
     if columns is not None and not isinstance(columns, dict):
         raise InputError(path, "[data.columns] must be a table")
     for key, value in (columns or {}).items():
-        if isinstance(value, dict) and key not in COLUMN_ROLES:
+        if isinstance(value, dict) and key not in COLUMN_ROLES and key != "files":
             raise InputError(path, f"[data.columns.{key}]: {key!r} is not a file role "
                                    f"(one of {', '.join(COLUMN_ROLES)})")
 
@@ -584,7 +608,8 @@ def _load_config(path: Path) -> BuildConfig:
                                "temperature the tables follow the tests")
 
     known = [pulses, ocv, _file(base, data, "cycle", path), *extra_paths,
-             *(p for t in pulse_tests for p in (t.file, t.steps, t.ocv))]
+             *(p for t in pulse_tests for p in (t.file, t.steps, t.ocv)),
+             *(s for s in sources if s != "pulses")]
     return BuildConfig(
         path=path, capacity_ah=capacity, pulses=pulses, dcir=dcir, dynamic=dynamic is not None,
         pulses_soc0=_number(data, "pulses_soc0", path, "data", None, unit_interval=True),
@@ -611,4 +636,5 @@ def _load_config(path: Path) -> BuildConfig:
                            positive=True),
         estimator=estimator_config(raw.get("estimator", {}), path),
         raw=raw, cycle_window_s=_cycle_windows(data, base, path, known),
-        temperature_c=_temperatures(data, base, path, known))
+        temperature_c=_temperatures(data, base, path, known),
+        file_columns=_file_columns(columns, pulse_tests, base, path, known))

@@ -40,6 +40,8 @@ class Key:
     choices: tuple = ()
     required: bool = False
     out_of_range: str = ""        # the range message, if plainer words say it better
+    keys_of: str = ""             # a TABLE of that section's keys (per_file: one per file)
+    per_file: bool = False
 
 
 @dataclass(frozen=True)
@@ -114,6 +116,9 @@ SECTIONS: tuple[Section, ...] = (
         Key("ocv", FILE, "this test's OCV (a file, or \"pulses\")", default="data.ocv"),
         Key("dynamic", BOOL, "the file is a dynamic test, as data.dynamic (its table "
             "temperature: the median cell temperature in its blocks)", default="false"),
+        Key("columns", TABLE, "this test's own column map for its file and steps: the keys "
+            "of [data.columns], over [data.columns] and [data.columns.pulses] key by key",
+            keys_of="data.columns"),
     ), array=True),
     Section("data.columns", "CSV columns, units and current sign (every CSV of the "
             "config; [data.columns.<role>] extends it for one role's files: "
@@ -139,6 +144,10 @@ SECTIONS: tuple[Section, ...] = (
                      "charge_negative"), default='"charge_positive"'),
         Key("header", BOOL, "false: no header line, columns given by position",
             default="true"),
+        Key("files", TABLE, "per file, its own column map: {\"us06.csv\" = {header = "
+            "false, time = 2, ...}} (a path, or the name of one file of the config), over "
+            "[data.columns] and its role's table key by key", keys_of="data.columns",
+            per_file=True),
     ), roles=COLUMN_ROLES),
     Section("dcir", "the DC-IR table of the pulse test", (
         Key("times_s", NUMBERS, "DC-IR times after each pulse's start (4 or more, "
@@ -358,7 +367,23 @@ def _check_table(section: Section, table: Any, label: str, where: str) -> None:
             raise SchemaError(f"{where}.{name} must be a table ([{section.name}.{name}])")
         if key.kind == TABLE and f"{section.name}.{name}" in BY_NAME:
             continue             # its own section, checked by check_config
+        if key.keys_of:
+            _check_keys_of(key, v, f"{where}.{name}")
+            continue
         check_value(key, v, f"{where}.{name}")
+
+
+def _check_keys_of(key: Key, v: Any, where: str) -> None:
+    """A table of another section's keys (its sub-tables of roles not allowed), or with
+    ``per_file`` a table of such tables by file name."""
+    of = BY_NAME[key.keys_of]
+    plain = Section(of.name, of.help, tuple(k for k in of.keys if not k.keys_of))
+    tables = v if key.per_file and isinstance(v, dict) else {None: v}
+    for name, table in tables.items():
+        label = where if name is None else f"{where}.{name!r}"
+        if not isinstance(table, dict):
+            raise SchemaError(f"{label} must be a table of [{of.name}] keys")
+        _check_table(plain, table, label, label)
 
 
 def check_config(raw: dict) -> None:

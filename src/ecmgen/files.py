@@ -41,9 +41,11 @@ def write_atomic(path: Path, text: str | bytes) -> None:
 def json_safe(obj):
     """``obj`` with every non-finite float (NaN: a figure that has no value, e.g. the MAE
     above 10 % SOC of a cycle that never gets there) as None, so the JSON is valid: JSON
-    has no NaN, and json.dumps would write a bare ``NaN`` that strict readers refuse."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
+    has no NaN, and json.dumps would write a bare ``NaN`` that strict readers refuse; the
+    others to 12 significant digits, as a person writes them, without the binary noise of
+    a sum of time stamps."""
+    if isinstance(obj, float):      # 12 digits: 23374, not 23374.000000000004
+        return float(f"{obj:.12g}") if math.isfinite(obj) else None
     if isinstance(obj, dict):
         return {k: json_safe(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):

@@ -11,13 +11,15 @@
 - A manifest (``ecmgen-manifest.json``) lists what ecmgen wrote into ``--out`` with each
   file's SHA-256. A later build into the same folder removes the files of the earlier one
   it does not write again (c/fixed, PNGs, per-method models), so that what is in the
-  folder belongs to one model. A file changed since ecmgen wrote it is kept and named.
+  folder belongs to one model. A file changed since ecmgen wrote it is kept and named;
+  one that a new run writes again is kept beside it as ``<name>.edited``.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import tempfile
 import time
@@ -36,10 +38,19 @@ STAGING_PREFIX = ".ecmgen-staging-"
 STALE_UNNAMED_S = 24 * 3600.0
 
 
+def resolved(path: str | Path, option: str = "--out") -> Path:
+    """``path`` resolved; a symbolic link loop on the way is bad input, not a traceback."""
+    try:
+        return Path(path).resolve()
+    except (RuntimeError, OSError) as exc:      # RuntimeError: "Symlink loop" (3.11, 3.12)
+        raise InputError(path, f"{option}: cannot be resolved ({exc}): a symbolic link "
+                               "that leads back to itself? give another path") from None
+
+
 def refuse_inputs(out: str | Path, inputs: Iterable[str | Path | None], option: str = "--out"
                   ) -> None:
     """InputError unless ``out`` is none of ``inputs`` (compared as resolved paths)."""
-    target = Path(out).resolve()
+    target = resolved(out, option)
     for p in inputs:
         if p is not None and Path(p).resolve() == target:
             raise InputError(out, f"{option} would overwrite an input file of this command; "
@@ -53,6 +64,10 @@ def check_output_file(out: str | Path, inputs: Iterable, option: str = "--out") 
     refuse_inputs(out, inputs, option)
     if out.is_dir():
         raise InputError(out, f"{option} is a directory; give a file name")
+    if out.exists() and not out.is_file():
+        # the write goes via a temporary file and a rename, which would replace the node
+        raise InputError(out, f"{option} is not a regular file (a device or a pipe); "
+                              "give a file name")
     _check_writable(out, option)
     return out
 
@@ -60,7 +75,7 @@ def check_output_file(out: str | Path, inputs: Iterable, option: str = "--out") 
 def _check_writable(out: Path, option: str, folder: Path | None = None) -> None:
     """Refuse now, not after the work, a place no file can be written: a temporary file
     is made (and removed at once) in the nearest folder that exists on the way to it."""
-    folder = folder or out.resolve().parent
+    folder = folder or resolved(out, option).parent
     while not folder.exists():
         folder = folder.parent
     if not folder.is_dir():
@@ -80,7 +95,7 @@ def check_output_folder(out: str | Path, inputs: Iterable, option: str = "--out"
     refuse_inputs(out, inputs, option)
     if out.exists() and not out.is_dir():
         raise InputError(out, f"{option} is an existing file; give a folder")
-    _check_writable(out, option, out.resolve())
+    _check_writable(out, option, resolved(out, option))
     return out
 
 
@@ -138,25 +153,33 @@ def remove_stale_staging(parent: Path) -> list[Path]:
 
 
 @contextmanager
-def staged(out_dir: Path, given: set[Path]):
+def staged(out_dir: Path, given: set[Path], remove_leftovers: bool = True):
     """Yield (staging folder, list of final paths); on success the staged files move into
     out_dir (the list is filled) and the earlier build's leftovers go; on any error or
-    interruption nothing reaches out_dir and the staging folder is removed."""
+    interruption nothing reaches out_dir (a commit that fails part-way puts back what it
+    had replaced) and the staging folder is removed. ``remove_leftovers`` False: files of
+    earlier runs stay (``ecmgen codegen``: models of other prefixes share a folder)."""
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_staging(out_dir.parent)
     staging = Path(tempfile.mkdtemp(prefix=_staging_name(), dir=out_dir.parent))
     files: list[Path] = []
     try:
         yield staging, files
-        files.extend(commit(staging, out_dir, given))
+        files.extend(commit(staging, out_dir, given, remove_leftovers))
     finally:
         shutil.rmtree(staging, ignore_errors=True)
 
 
-def commit(staging: Path, out_dir: Path, given: set[Path]) -> list[Path]:
+def commit(staging: Path, out_dir: Path, given: set[Path], remove_leftovers: bool = True
+           ) -> list[Path]:
     """Move the staged files into out_dir (refusing to replace any file the user gave),
     remove what the previous manifest lists and this build did not write, and write the
-    new manifest. Returns the paths of the staged files in out_dir."""
+    new manifest. Returns the paths of the staged files in out_dir.
+
+    All or nothing: a file it replaces is first moved aside (into the staging folder, on
+    the same disk) and put back if a later move fails. A file it would replace that is
+    not ecmgen's as the previous manifest recorded it (the user edited it, or wrote it) is
+    kept beside, as ``<name>.edited`` (named in the manifest's ``kept_changed``)."""
     staged_files = [p for p in sorted(staging.rglob("*")) if p.is_file()]
     rel = [p.relative_to(staging).as_posix() for p in staged_files]
     targets = [out_dir / r for r in rel]
@@ -165,17 +188,63 @@ def commit(staging: Path, out_dir: Path, given: set[Path]) -> list[Path]:
             raise InputError(t, "output would overwrite an input file; choose another --out")
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(out_dir, "--out is an existing file; give a folder")
+    for t in targets + [out_dir / MANIFEST]:
+        if t.is_dir() and not t.is_symlink():
+            raise InputError(t, "is a folder where ecmgen writes a file; move it away")
     hashes = {r: file_sha256(p) for r, p in zip(rel, staged_files)}
     out_dir.mkdir(parents=True, exist_ok=True)
+    aside = Path(tempfile.mkdtemp(prefix=".replaced-", dir=staging))
     with _locked(out_dir):      # two builds into one folder: one after the other
         previous = read_manifest(out_dir)
-        for src, dst in zip(staged_files, targets):
-            dst.parent.mkdir(parents=True, exist_ok=True)
-            shutil.move(str(src), str(dst))
-        kept = _remove_leftovers(out_dir, previous, hashes, given)
-        write_atomic(out_dir / MANIFEST, json.dumps(
-            {"written_by": "ecmgen", "files": hashes, "kept_changed": kept}, indent=1) + "\n")
+        moved: list[Path] = []
+        replaced: list[tuple[Path, Path]] = []
+        edited: list[tuple[Path, Path]] = []
+        try:
+            for src, dst, r in zip(staged_files, targets, rel):
+                if dst.is_file() and not dst.is_symlink():
+                    sha = file_sha256(dst)
+                    if sha == hashes[r]:
+                        continue                    # the same bytes: left alone
+                    keep = previous.get(r) != sha   # not as ecmgen wrote it: the user's
+                    b = aside / r
+                    b.parent.mkdir(parents=True, exist_ok=True)
+                    shutil.move(str(dst), str(b))
+                    replaced.append((b, dst))
+                    if keep:
+                        edited.append((b, dst))
+                dst.parent.mkdir(parents=True, exist_ok=True)
+                shutil.move(str(src), str(dst))
+                moved.append(dst)
+            beside = [_free_name(dst) for _, dst in edited]
+            kept = [p.relative_to(out_dir).as_posix() for p in beside]
+            if remove_leftovers:
+                kept += _remove_leftovers(out_dir, previous, hashes, given)
+                files = hashes
+            else:
+                files = {**previous, **hashes}
+            write_atomic(out_dir / MANIFEST, json.dumps(
+                {"written_by": "ecmgen", "files": files, "kept_changed": kept}, indent=1) + "\n")
+            for (b, _), name in zip(edited, beside):
+                shutil.move(str(b), str(name))
+        except BaseException:
+            for dst in moved:
+                dst.unlink(missing_ok=True)
+            for b, dst in replaced:
+                if b.exists():
+                    shutil.move(str(b), str(dst))
+            raise
     return targets
+
+
+def _free_name(dst: Path) -> Path:
+    """Where a user's file that ecmgen replaces is kept: ``<name>.edited`` beside it
+    (``.edited-2`` ... when taken)."""
+    name = dst.with_name(dst.name + ".edited")
+    n = 2
+    while name.exists() or name.is_symlink():
+        name = dst.with_name(f"{dst.name}.edited-{n}")
+        n += 1
+    return name
 
 
 @contextmanager
@@ -206,6 +275,33 @@ def read_manifest(out_dir: Path) -> dict[str, str]:
     if not isinstance(files, dict):
         return {}
     return {k: v for k, v in files.items() if isinstance(k, str) and isinstance(v, str)}
+
+
+def remove_outputs(out_dir: Path, given: set[Path] = frozenset()) -> list[str]:
+    """Remove what the manifest in out_dir lists, unchanged since ecmgen wrote it, and the
+    manifest (a run that failed leaves no earlier results that look like its own); return
+    the changed files, which are kept (and listed in a manifest of no files)."""
+    previous = read_manifest(out_dir)
+    if not previous:
+        return []
+    with _locked(out_dir):
+        kept = _remove_leftovers(out_dir, previous, {}, set(given))
+        if kept:
+            write_atomic(out_dir / MANIFEST, json.dumps(
+                {"written_by": "ecmgen", "files": {}, "kept_changed": kept}, indent=1) + "\n")
+        else:
+            (out_dir / MANIFEST).unlink(missing_ok=True)
+    return kept
+
+
+def kept_beside(out_dir: Path) -> list[str]:
+    """The files the last commit into out_dir kept as ``<name>.edited``: the user's
+    versions of files it wrote again (from its manifest's kept_changed)."""
+    try:
+        kept = json.loads((out_dir / MANIFEST).read_text()).get("kept_changed", [])
+    except (OSError, ValueError, AttributeError):
+        return []
+    return [k for k in kept if isinstance(k, str) and re.search(r"\.edited(-\d+)?$", k)]
 
 
 def _inside(out_dir: Path, rel: str) -> Path | None:

@@ -132,7 +132,6 @@ class Workers:
                 t._future.cancel()
 
     def _start(self) -> None:
-        import multiprocessing
         from concurrent.futures import ProcessPoolExecutor
 
         # workers are spawned as tasks arrive and read the environment when they start:

@@ -21,12 +21,14 @@ from .config import BuildConfig, PulseTest
 from .data import dcir as dcir_mod
 from .data.dynamic import dynamic_levels
 from .data.measure import TimeSeries
-from .data.sources import ocv_file_curves, read_series
+from .data.sign import check_sign
+from .data.sources import (check_column_maps, check_pulse_label, check_temperature_logs,
+                           ocv_file_curves, pulse_file_names, pulse_test_records, read_series)
 from .data import ocv as ocv_mod
 from .data.ocv import OcvTable
 from .console import detail_of
 from .errors import InputError
-from .files import file_sha256, short_names, temperature_label
+from .files import file_sha256, temperature_label
 from .model.model import RC_FIELDS, EcmModel, InputRecord, RcTable
 from .model.tables import copied_directions, level_tables
 from .model.simulate import Validation
@@ -343,6 +345,7 @@ def _fit_pulse_test(cfg: BuildConfig, test: PulseTest, progress: Progress, t0: f
     inputs = prepare(sub, progress)
     if test.temperature_c is not None:
         temp, source = float(test.temperature_c), "configured"
+        check_pulse_label(cfg, test, pulses_temperature_c(inputs))
     else:
         measured = pulses_temperature_c(inputs)
         if measured is None and len(cfg.pulse_tests) > 1:
@@ -351,12 +354,7 @@ def _fit_pulse_test(cfg: BuildConfig, test: PulseTest, progress: Progress, t0: f
                                         "[[data.pulse_tests]] table")
         temp = np.nan if measured is None else measured
         source = "median cell temperature in its pulses"
-    # the files by the names the notes use (tests of one cell share file names)
-    names = _test_file_names(cfg)
-    files = {"ocv": sub.ocv, "pulses": sub.pulses, "steps": test.steps}
-    records = tuple(replace(r, name=names.get(files[r.role], r.name))
-                    if files.get(r.role) is not None else r for r in inputs.records)
-    inputs = replace(inputs, records=records)
+    inputs = replace(inputs, records=pulse_test_records(cfg, test, inputs.records))
     timings = {"read, pulses, DC-IR, OCV": time.perf_counter() - t0}
     models, raw = {}, {}
     for m in cfg.methods:   # one at a time, for the timings
@@ -373,13 +371,6 @@ def _fit_pulse_test(cfg: BuildConfig, test: PulseTest, progress: Progress, t0: f
     return TestFit(test=test, label=temperature_label(temp), temperature_c=temp,
                    temperature_from=source, inputs=replace(inputs, pulses_series=None),
                    models=models, raw=raw, seconds=time.perf_counter() - t0, timings=timings)
-
-
-def _test_file_names(cfg: BuildConfig) -> dict[Path, str]:
-    """Short, distinct names for the files of the pulse tests (see short_names)."""
-    files = list(dict.fromkeys(p for t in cfg.pulse_tests for p in (t.file, t.steps, t.ocv)
-                               if p is not None))
-    return dict(zip(files, short_names(files)))
 
 
 def _workers_for(cfg: BuildConfig, workers: int) -> Workers:
@@ -465,13 +456,13 @@ def curve_fit_png(curve_fit, label: str, temperature_c: float,
 
 def fit_all(cfg: BuildConfig, progress: Progress = _quiet, *, workers: Workers | int = 2,
             plots: bool = False):
-    """Every method's model of the config: (models, raw fits, inputs, tests).
-
+    """Every method's model of the config: (models, raw fits, inputs, tests), every
+    file's column map checked first (a wrong one said before the fits, not after them).
     The data.pulses / data.dcir form: one model per method as prepare + fit_models give it
     (``tests`` empty). [[data.pulse_tests]]: every test fitted (fit_pulse_tests, its fit
     plots drawn there with ``plots``) and each method's models joined over temperature
-    (model.temperature); ``inputs`` and ``raw`` are then those of the warmest test,
-    ``tests`` has them all."""
+    (model.temperature); ``inputs`` and ``raw``: the warmest test's; ``tests``: all."""
+    check_column_maps(cfg)
     if not cfg.over_temperature:
         inputs = prepare(cfg, progress)
         models, raw = fit_models(cfg, inputs, progress)
@@ -481,7 +472,7 @@ def fit_all(cfg: BuildConfig, progress: Progress = _quiet, *, workers: Workers |
 
     tests = fit_pulse_tests(cfg, progress, workers, plots)
     temps = [t.temperature_c for t in tests]
-    names = _test_file_names(cfg)
+    names = pulse_file_names(cfg)
     labels = [names[t.test.file] for t in tests]
     models = {}
     for m in cfg.methods:
@@ -554,6 +545,7 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
     out_dir = Path(out_dir).resolve()
     given = cfg.input_files()      # outputs must never replace one
     check_output_folder(out_dir, given)     # before the fit, not after it
+    check_temperature_logs(cfg)
     with _workers_for(cfg, workers) as pool:
         models, raw, inputs, tests = fit_all(cfg, progress, workers=pool, plots=plots)
         lap("fit")
@@ -637,6 +629,11 @@ def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _qu
     out_dir = Path(out_dir).resolve()
     given = cfg.input_files() | {p for p in (judge_path, cycle_path) if p is not None}
     check_output_folder(out_dir, given)
+    fit_series = read_series(cfg, cycle_path, "cycle")     # read and checked before the fit
+    judge = read_series(cfg, judge_path, "judge") if judge_path is not None else None
+    for record in (fit_series, judge):  # a flipped current is "unexplained" otherwise
+        if record is not None:
+            check_sign(record)
     fit_cfg = replace(cfg, methods=(cfg.best,))
     if "curve_branches" not in (cfg.raw.get("fit") or {}):
         # the base of a diagnosis is the plain 2RC: the diffusion pair and the Butler-Volmer
@@ -646,8 +643,6 @@ def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _qu
                  "[fit] curve_branches = true fits them into the base)")
     models, raw, inputs, _ = fit_all(fit_cfg, progress)
     base = models[cfg.best]
-    fit_series = read_series(cfg, cycle_path, "cycle")
-    judge = read_series(cfg, judge_path, "judge") if judge_path is not None else None
     refits = {}
     if cfg.best == "curve" and not cfg.over_temperature:
         refits["current_dependent_resistance"] = lambda: _refit_with_current_dependence(

@@ -37,6 +37,12 @@ def validation_rows(result) -> list[tuple]:
     return rows
 
 
+def figure(value: float, spec: str, none: str = "-") -> str:
+    """``value`` formatted by ``spec``, or ``none`` where it has no value (NaN: e.g. the
+    MAE above 10 % SOC of a cycle that never gets there), never "nan"."""
+    return format(value, spec) if math.isfinite(value) else format(none, f">{spec.split('.')[0]}")
+
+
 def validation_table(result) -> str:
     rows = validation_rows(result)
     width = max([16] + [len(r[1]) for r in rows])
@@ -49,8 +55,8 @@ def validation_table(result) -> str:
         t = ""
         if with_t:
             t = " " + (f"{f'{tr[0]:.1f}..{tr[1]:.1f}':>13}" if tr else f"{'-':>13}")
-        lines.append(f"{m:<7} {c:<{width}} {mae:8.2f} {rmse:8.2f} {mx:8.1f} {mae10:15.2f}"
-                     f"{t}{star}")
+        lines.append(f"{m:<7} {c:<{width}} {mae:8.2f} {rmse:8.2f} {mx:8.1f} "
+                     f"{figure(mae10, '15.2f')}{t}{star}")
     lines.append(f"(* = model.json, method '{result.best}')")
     return "\n".join(lines)
 
@@ -83,6 +89,7 @@ def build_json(result) -> dict:
             tr = _t_range(v)
             entry["cycles"][name] = dict(
                 v.overall.as_dict(), soc0=v.soc0, soc0_how=v.soc0_how,
+                soc_above_10=v.soc_above_10.as_dict(),
                 warnings=list(v.warnings), voltage_lag_samples=v.voltage_lag_samples,
                 **usage.get(name, {}),
                 temperature_c=None if tr is None else {"min": tr[0], "max": tr[1]})

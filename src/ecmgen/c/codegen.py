@@ -111,7 +111,8 @@ class _Arrays:
             return self.by_content[key]
         self.by_content[key] = name
         self.items.append({"name": name, "n": len(key), "comment": comment,
-                           "body": _body(key, self.fmt, self.per_line)})
+                           "body": _body(key, self.fmt, self.per_line),
+                           "values": np.asarray(values).reshape(-1)})
         return name
 
     @property

@@ -20,14 +20,15 @@ C, compiler and flags. Same model, options and cycle -> the same bytes.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from . import cref
 from .codegen import CSpec, _context, _env, file_names
+from .fingerprint import c_statements, fingerprint
 from .names import c_names
+from .probes import Segment, probe_segments
 
 CYCLE_STEPS = 3000          # steps of the cycle's start kept (a drive cycle's first minutes)
 TOL_V_F32 = 1e-4            # float: a contracted or reordered build may differ by this much
@@ -38,17 +39,6 @@ def vector_names(prefix: str, numeric: str) -> dict[str, str]:
     stem = c_names(prefix, numeric)["source"][:-2]
     return {"vectors": f"{stem}_vectors.h", "test": f"{stem}_test.c",
             "pytest": f"test_{stem}_equivalence.py"}
-
-
-@dataclass(frozen=True)
-class Segment:
-    """SI inputs from one init: soc0, current (A), dt (s; None at fixed dt), temperature."""
-
-    soc0: float
-    current_a: np.ndarray
-    dt_s: np.ndarray | None
-    temperature_c: np.ndarray
-    efc: float = 0.0          # the age set after init (a model with an ageing law), cycles
 
 
 def edge_segment(spec: CSpec) -> Segment:
@@ -153,9 +143,12 @@ def render_vectors(spec: CSpec, segments: list[Segment]) -> dict[str, str]:
         f"{spec.tool_version}",
         f" * from model sha256 {spec.model_sha256}. DO NOT EDIT.",
         f" * Segments (each from {nm['init']}(soc0)): the first steps of a measured cycle (or, "
-        "from ecmgen codegen, a drive of pulses and rests), then an edge-case set",
+        "from ecmgen codegen, a drive of pulses and rests), an edge-case set",
         " * (currents past the limit, temperatures past the tables" +
-        (", dt 0, long and negative)." if spec.variable_dt else ").") +
+        (", dt 0, long and negative)" if spec.variable_dt else ")") + ", then probes that read "
+        "every table entry",
+        " * (ecmgen.c.probes: the middle of every SOC, temperature and age segment of every "
+        "table)." +
         (f" Each segment sets its age with {nm['set_age']}() after init (the"
          "\n * cycle fresh, then aged; the edge-case set past the ageing law's last breakpoint)."
          if spec.age is not None else ""),
@@ -165,6 +158,8 @@ def render_vectors(spec: CSpec, segments: list[Segment]) -> dict[str, str]:
         f"#define {M}_VEC_STEPS {cat['i'].size}u",
         f"#define {M}_VEC_SEGMENTS {len(parts)}u",
         f"#define {M}_VEC_BIT_EXACT 1   /* the reference and a conforming build agree bit for bit */",
+        f"#define {M}_VEC_TABLES 0x{fingerprint(spec):08x}u   /* FNV-1a of the model's tables and "
+        "constants (ecmgen.c.fingerprint) */",
     ]
     if not spec.fixed:
         lines += [f"#define {M}_VEC_TOL_V {TOL_V_F32!r}f     /* accepted |dv| of a build that is "
@@ -184,6 +179,7 @@ def render_vectors(spec: CSpec, segments: list[Segment]) -> dict[str, str]:
     ctx = _context(spec)
     ctx["files"] = dict(file_names(spec.prefix, spec.numeric), **names)
     ctx["vp"] = vp
+    ctx["fp_lines"] = c_statements(spec)
     env = _env()
     return {names["vectors"]: text, names["test"]: env.get_template("ecm_test.c.j2").render(ctx),
             names["pytest"]: env.get_template("test_equivalence.py.j2").render(ctx)}
@@ -191,7 +187,8 @@ def render_vectors(spec: CSpec, segments: list[Segment]) -> dict[str, str]:
 
 def write_golden(spec: CSpec, out_dir, series=None, soc0: float = 1.0) -> list[Path]:
     """The vectors and the test program into ``out_dir``: the cycle ``series`` (a TimeSeries;
-    None: :func:`drive_segment`) from ``soc0``, then the edge-case set."""
+    None: :func:`drive_segment`) from ``soc0``, the edge-case set, then the probes of
+    :mod:`ecmgen.c.probes`."""
     first = cycle_segment(spec, series, soc0) if series is not None else drive_segment(spec)
     segments = [first, edge_segment(spec)]
     if spec.age is not None:     # the cycle again, aged; the edge cases past the law's end
@@ -202,7 +199,7 @@ def write_golden(spec: CSpec, out_dir, series=None, soc0: float = 1.0) -> list[P
         law = np.asarray(spec.age["grid"].x, dtype=np.float64) / (256.0 if spec.fixed else 1.0)
         segments = [first, replace(first, efc=aged_efc(law)),
                     replace(segments[1], efc=2.0 * float(law[-1]))]
-    return write_texts(out_dir, render_vectors(spec, segments))
+    return write_texts(out_dir, render_vectors(spec, segments + probe_segments(spec)))
 
 
 def write_texts(out_dir, texts: dict[str, str]) -> list[Path]:

@@ -71,22 +71,52 @@ def _compile_and_run(vec: Path, csrc: Path | None, cc: list[str], cflags: list[s
                 *map(str, sources), "-o", str(exe)]
         try:
             proc = subprocess.run(args, capture_output=True, text=True, timeout=timeout)
-        except FileNotFoundError:
-            raise InputError(cc[0], "compiler not found (give --cc)") from None
+        except OSError as exc:
+            raise InputError(cc[0], f"compiler not found or not runnable ({exc.strerror}); "
+                                    "give --cc") from None
         if proc.returncode != 0:
             err = next((ln for ln in proc.stderr.splitlines() if "error" in ln),
                        proc.stderr.strip().splitlines()[0] if proc.stderr.strip() else "")
             return Verdict(stem, False, f"{stem}: FAIL: does not compile: {err.strip()[:300]}")
         try:
             res = subprocess.run([*run, str(exe)], capture_output=True, text=True, timeout=timeout)
-        except FileNotFoundError:
-            raise InputError(run[0], "--run command not found") from None
+        except OSError as exc:
+            raise InputError(run[0], f"--run command not found or not runnable "
+                                     f"({exc.strerror})") from None
         except subprocess.TimeoutExpired:
             return Verdict(stem, False, f"{stem}: FAIL: did not finish within {timeout:g} s")
-    line = next((ln for ln in res.stdout.splitlines() if re.match(rf"{re.escape(stem)}: ", ln)),
-                f"{stem}: {'PASS' if res.returncode == 0 else 'FAIL'}: exit status "
-                f"{res.returncode}")
-    return Verdict(stem, res.returncode == 0 and ": FAIL" not in line, line)
+    return _judge(stem, _vector_steps(vec), res.returncode, res.stdout)
+
+
+def _vector_steps(vec: Path) -> int | None:
+    """The step count a vectors header declares (``#define <M>_VEC_STEPS 3064u``)."""
+    m = re.search(r"^#define \w+_VEC_STEPS (\d+)u?\s*$", vec.read_text(errors="replace"), re.M)
+    return None if m is None else int(m.group(1))
+
+
+def _judge(stem: str, steps: int | None, status: int, stdout: str) -> Verdict:
+    """A pass needs exit status 0 *and* the program's own PASS line with every step of the
+    vectors run: a --run that never ran it (``true``, ``echo``) or a copy that exits early
+    (an init calling exit(0)) prints no such line."""
+    line = next((ln for ln in stdout.splitlines() if ln.startswith(f"{stem}: ")), None)
+    if line is None:
+        return Verdict(stem, False, f"{stem}: FAIL: no result line from the test program "
+                                    f"(exit status {status}): it did not run, or stopped early")
+    m = re.match(rf"{re.escape(stem)}: (PASS|FAIL): (\d+) steps", line)
+    if m is None or steps is None or int(m.group(2)) != steps:
+        ran = "no step count" if m is None else f"{m.group(2)} steps"
+        return Verdict(stem, False, f"{line} [FAIL: {ran} where the vectors have {steps}]")
+    if m.group(1) == "PASS" and status != 0:
+        return Verdict(stem, False, f"{line} [FAIL: exit status {status}]")
+    return Verdict(stem, m.group(1) == "PASS" and status == 0, line)
+
+
+def _split(option: str, text: str) -> list[str]:
+    """A command line as a shell would split it; unbalanced quotes are bad input."""
+    try:
+        return shlex.split(text)
+    except ValueError as exc:
+        raise InputError(option, f"cannot be split into words ({exc}): {text!r}") from None
 
 
 def verify(where, csrc=None, cc: str | None = None, cflags: str | None = None,
@@ -101,7 +131,9 @@ def verify(where, csrc=None, cc: str | None = None, cflags: str | None = None,
         # one folder of sources, several numerics: check those whose source is there
         vectors = [v for v in vectors if (csrc_p / f"{v.name[:-len('_vectors.h')]}.c").is_file()] \
             or vectors
-    cc_cmd = shlex.split(cc) if cc else [shutil.which("cc") or "cc"]
-    flags = shlex.split(cflags if cflags is not None else DEFAULT_CFLAGS)
-    run_cmd = shlex.split(run) if run else []
+    cc_cmd = _split("--cc", cc) if cc else [shutil.which("cc") or "cc"]
+    flags = _split("--cflags", cflags if cflags is not None else DEFAULT_CFLAGS)
+    run_cmd = _split("--run", run) if run else []
+    if not cc_cmd:
+        raise InputError("--cc", "is empty: give a compiler")
     return [_compile_and_run(v, csrc_p, cc_cmd, flags, run_cmd, timeout) for v in vectors]

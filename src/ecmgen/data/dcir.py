@@ -22,6 +22,7 @@ import numpy as np
 from ..errors import InputError, reading
 from ..files import write_atomic
 from .measure import TimeSeries
+from .sign import check_sign
 
 DEFAULT_TIMES_S = (0.1, 1.0, 3.0, 6.0, 10.0)
 
@@ -234,6 +235,7 @@ def find_pulses(series: TimeSeries, capacity_ah: float, *, soc0: float,
         raise InputError(series.source, f"no pulses found (current steps above {thr:.3g} A "
                                         f"after at least {min_rest_s:g} s of rest, lasting at "
                                         f"most {max_pulse_s:g} s): not a pulse test?")
+    check_sign(series, "pulse test")         # before the SOC span it would throw off
     check_soc_span(series, pulses, "pulse", soc0, capacity_ah)
     return flag_cut_short(series, pulses)
 
@@ -313,10 +315,11 @@ def extract_dcir(series: TimeSeries, pulses: list[Pulse],
                  times_s=DEFAULT_TIMES_S) -> DcirTable:
     """R(t) = (v(t) - v_rest) / (i(t) - i_rest) at each requested time into each pulse.
 
-    The first time takes the first on-sample (the step's instant response on the
-    logger's grid), and so does every later time that comes before it (on a logger
-    slower than the times); later times take the on-sample nearest in time, if within half a
-    sampling interval and not the first sample, R0's (else NaN). Every time that is
+    A time at or before the first on-sample (the step's instant response on the logger's
+    grid) takes that sample (on a logger slower than the times); the others, the first
+    time among them (``--times 1 3 6 10``: R(1 s), not the first sample's), take the
+    on-sample nearest in time, if within half a sampling interval and not one an earlier
+    time took (else NaN). Every time that is
     replaced, or left without a value, in any pulse is said in a note. Pulses flagged
     ``cut_short`` are left out and noted."""
     times = np.asarray(times_s, dtype=np.float64)
@@ -334,17 +337,18 @@ def extract_dcir(series: TimeSeries, pulses: list[Pulse],
         r = np.full(times.size, np.nan)
         dv = v[p.start:p.stop] - v[p.rest_index]
         di = i[p.start:p.stop] - i[p.rest_index]
-        r[0] = dv[0] / di[0]
         first_dt.append(t_on[0])
         dt_local = np.median(np.diff(t_on)) if t_on.size > 1 else np.inf
-        used = {0}  # the first sample is R0's; a slow logger cannot give R(1 s) from it too
-        for j in range(1, times.size):
+        used: set[int] = set()  # a sample gives one time: a slow logger's first is not R(1 s) too
+        for j in range(times.size):
             k = int(np.argmin(np.abs(t_on - times[j])))
-            if times[j] < t_on[0] - min(0.5 * dt_local, 0.25 * times[j]) - 1e-6:
-                r[j] = r[0]             # before the first sample: that sample's R, said
-                replaced[j] += 1
-            elif k not in used and abs(t_on[k] - times[j]) <= min(0.5 * dt_local, 0.25 * times[j]) + 1e-6:
-                r[j] = dv[k] / di[k]
+            tol = min(0.5 * dt_local, 0.25 * times[j]) + 1e-6
+            if times[j] < t_on[0] - tol or (j == 0 and k == 0):
+                r[j] = dv[0] / di[0]    # at or before the first sample: that sample's R
+                replaced[j] += j > 0    # (the first time: the slow-logger note below)
+                used.add(0)
+            elif k not in used and abs(t_on[k] - times[j]) <= tol:
+                r[j] = dv[k] / di[k]    # the first time too: R(1 s) is not the 0.1 s sample's
                 used.add(k)
             else:
                 missed[j] += 1

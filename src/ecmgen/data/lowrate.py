@@ -26,6 +26,7 @@ import numpy as np
 
 from ..errors import InputError
 from .measure import TimeSeries
+from .sign import check_sign
 
 MERGE_GAP_S = 300.0          # a pause this short inside a branch does not end it
 COMPLETE_FRACTION = 0.8      # of the largest branch's charge: a complete branch
@@ -68,7 +69,13 @@ def split_low_rate(series: TimeSeries, capacity_ah: float) -> LowRateTest:
     sign = np.where(i > thr, 1, np.where(i < -thr, -1, 0))
     moving = np.flatnonzero(sign != 0)
     if moving.size == 0:
+        peak = float(np.nanmax(np.abs(i))) if i.size else 0.0
+        if peak > 0:            # a current, below C/500 of the capacity given
+            raise InputError(series.source, f"low-rate OCV test: its largest current, "
+                                            f"{peak:.4g} A, is below C/500 of cell.capacity_ah "
+                                            f"= {capacity_ah:g} Ah: is the capacity in Ah?")
         raise InputError(series.source, "low-rate OCV test has no current")
+    check_sign(series, "low-rate OCV test", slow=True)
     c_rate = float(np.abs(i[moving]).max()) / capacity_ah
     if c_rate > MAX_C_RATE:
         raise InputError(series.source, f"current reaches {c_rate:.2f} C: not a low-rate OCV "

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import itertools
 import re
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
 
@@ -19,8 +19,13 @@ from ..errors import InputError, reading
 from ..files import write_atomic
 from .counters import cumulative_charge, gap_note, integrate_current
 from .csvtext import CsvRows, blocks, csv_encoding
+from .native import read_native, is_native
+from .columns import (  # noqa: F401 (re-exported)
+    CANONICAL_HEADER, CHARGE_UNITS_AH, CSV_LAYOUTS, CURRENT_SIGNS, CURRENT_UNITS_A,
+    MAT_LAYOUT, TIME_UNITS_S, VOLTAGE_UNITS_V, ColumnMap, _is_mat)
 from .timing import LAG_MARGIN, VoltageLag, voltage_lag  # noqa: F401 (re-exported)
-from .plausible import check_current, check_temperature, check_voltage, implausible_ends
+from .plausible import (MAX_C_RATE, MAX_CURRENT_A, TEMPERATURE_RANGE_C, VOLTAGE_RANGE_V,
+                        check_current, check_temperature, check_voltage, implausible_ends)
 
 
 @dataclass(frozen=True)
@@ -87,216 +92,6 @@ class TimeSeries:
         return integrate_current(self.time_s, self.current_a)
 
 
-# --------------------------------------------------------------------------- column maps
-
-TIME_UNITS_S = {"s": 1.0, "min": 60.0, "h": 3600.0}
-CURRENT_UNITS_A = {"A": 1.0, "mA": 1e-3}
-VOLTAGE_UNITS_V = {"V": 1.0, "mV": 1e-3}
-CHARGE_UNITS_AH = {"Ah": 1.0, "mAh": 1e-3}
-# current_sign: both names of each convention; the first of each pair is the one used inside
-CURRENT_SIGNS = {"charge_positive": "charge_positive", "discharge_negative": "charge_positive",
-                 "discharge_positive": "discharge_positive",
-                 "charge_negative": "discharge_positive"}
-
-# Canonical CSV column order; the names are also TimeSeries' field names.
-CANONICAL_HEADER = ("time_s", "current_a", "voltage_v", "temperature_c", "charge_ah")
-
-_UNIT_CHOICES = {"time_unit": TIME_UNITS_S, "current_unit": CURRENT_UNITS_A,
-                 "voltage_unit": VOLTAGE_UNITS_V, "charge_unit": CHARGE_UNITS_AH,
-                 "current_sign": CURRENT_SIGNS}
-_NAME_KEYS = ("time", "current", "voltage", "temperature", "charge", "discharge")
-_REQUIRED_KEYS = ("time", "current", "voltage")
-
-
-@dataclass(frozen=True)
-class ColumnMap:
-    """Which columns (CSV header names or 1-based positions, .mat field names) hold what,
-    in which units.
-
-    time, current, voltage  required: a column name, or its position (1 = first column)
-    temperature             optional column (degC)
-    charge                  optional charge counter (Ah): cumulative, or restarting per
-                            step or cycle; counts up on charge after ``current_sign`` is
-                            applied to it too; with ``discharge``: the charge counter
-    discharge               optional discharge counter beside ``charge``, counting up
-                            on discharge (Arbin's Discharge_Capacity, Plett's disAh)
-    time_unit     "s" | "min" | "h"
-    current_unit  "A" | "mA"
-    voltage_unit  "V" | "mV"
-    charge_unit   "Ah" | "mAh"
-    current_sign  "charge_positive" = "discharge_negative" (ecmgen's own convention;
-                  Arbin, CALCE, Digatron .mat) or "discharge_positive" = "charge_negative"
-                  (current AND charge are negated on reading); stored as the first name
-    header        False: the CSV has no header line, every line is data and the columns
-                  are given by position
-    """
-
-    time: str | int = "time_s"
-    current: str | int = "current_a"
-    voltage: str | int = "voltage_v"
-    temperature: str | int | None = None
-    charge: str | int | None = None
-    discharge: str | int | None = None
-    time_unit: str = "s"
-    current_unit: str = "A"
-    voltage_unit: str = "V"
-    charge_unit: str = "Ah"
-    current_sign: str = "charge_positive"
-    header: bool = True
-
-    def __post_init__(self):
-        problem = self._problem()
-        if problem:
-            raise InputError(None, problem)
-        object.__setattr__(self, "current_sign", CURRENT_SIGNS[self.current_sign])
-
-    def _problem(self) -> str | None:
-        if not isinstance(self.header, bool):
-            return f"header must be true or false, got {self.header!r}"
-        for key in _NAME_KEYS:
-            value = getattr(self, key)
-            if value is None and key not in _REQUIRED_KEYS:
-                continue
-            if isinstance(value, int) and not isinstance(value, bool):
-                if value < 1:
-                    return (f"{key} = {value}: a column position counts from 1 (or give "
-                            f"the column name)")
-            elif not isinstance(value, str) or not value.strip():
-                return (f"{key} must be a non-empty column name or a 1-based column "
-                        f"position, got {value!r}")
-            elif not self.header:
-                return (f"{key} = {value!r}: with header = false the columns are given by "
-                        f"position ({key} = 1 for the first column)")
-        if self.discharge is not None and self.charge is None:
-            return "discharge (a discharge counter) needs charge (its charge counter) too"
-        for key, choices in _UNIT_CHOICES.items():
-            value = getattr(self, key)
-            if value not in choices:
-                allowed = ", ".join(repr(c) for c in choices)
-                return f"{key} = {value!r} is not one of {allowed}"
-        return None
-
-    @classmethod
-    def from_toml(cls, table: Any, path: str | Path | None,
-                  section: str = "[data.columns]") -> "ColumnMap":
-        """Build from a parsed TOML table such as
-        ``{time="Test_Time(s)", current="Current(A)", voltage="Voltage(V)", current_unit="mA"}``.
-
-        Any unknown key, missing required key or bad value is an InputError naming ``path``
-        (the config file) and ``section``.
-        """
-        if not isinstance(table, dict):
-            raise InputError(path, f"{section} must be a table, got {type(table).__name__}")
-        allowed = [f.name for f in fields(cls)]
-        unknown = [k for k in table if k not in allowed]
-        if unknown:
-            raise InputError(path, f"{section}: unknown key {unknown[0]!r} "
-                                   f"(allowed: {', '.join(allowed)})")
-        missing = [k for k in _REQUIRED_KEYS if k not in table]
-        if missing:
-            raise InputError(path, f"{section}: missing key {missing[0]!r} "
-                                   f"(the name of the {missing[0]} column)")
-        try:
-            return cls(**table)
-        except InputError as exc:
-            raise InputError(path, f"{section}: {exc.message}") from None
-
-    from_table = from_toml  # alias: the pipeline passes the parsed [data.columns] table
-
-    @classmethod
-    def for_file(cls, table: dict | None, roles: tuple[str, ...], config_path,
-                 file: str | Path) -> "ColumnMap | None":
-        """The mapping of one file of a config, from its parsed ``[data.columns]`` table.
-
-        The global keys (``[data.columns]`` itself) apply to every CSV file; the first of
-        ``roles`` (e.g. ``("extra_cycles", "cycle")``) with its own
-        ``[data.columns.<role>]`` table extends them, key by key, and applies to a .mat
-        file too (whose fields the global CSV names would not match). None: no mapping,
-        the file's layout is recognised by its names."""
-        table = table or {}
-        common = {k: v for k, v in table.items() if not isinstance(v, dict)}
-        role = next((r for r in roles if isinstance(table.get(r), dict)), None)
-        if role is not None:
-            section = f"[data.columns.{role}]" + (" with [data.columns]" if common else "")
-            return cls.from_toml({**common, **table[role]}, config_path, section)
-        if common and not (Path(file).is_file() and _is_mat(Path(file))):
-            return cls.from_toml(common, config_path)
-        return None
-
-    def by_position(self) -> bool:
-        """True when every column of the map is given by its position."""
-        return all(isinstance(v, int) for v in self.names().values())
-
-    def names(self) -> dict[str, str | int]:
-        """role -> column name (or 1-based position), for the columns this map uses."""
-        return {k: getattr(self, k) for k in _NAME_KEYS if getattr(self, k) is not None}
-
-
-@dataclass(frozen=True)
-class _Layout:
-    """A known set of column names: required names in ``columns``, optional ones picked if
-    present. ``name`` says what the names look like, not which machine wrote the file
-    (other cyclers' exports, e.g. Bitrode, can use the same names)."""
-
-    name: str
-    columns: ColumnMap
-    temperature: tuple[str, ...] = ()
-    charge: tuple[str, ...] = ()
-    discharge: tuple[str, ...] = ()     # with charge: the split counters, both needed
-    counters_required: bool = False     # generic names: the layout is its counters' too
-
-    def describe(self) -> str:
-        c = self.columns
-        return f"{self.name} ({c.time}, {c.current}, {c.voltage})"
-
-    def resolve(self, found: list[str]) -> ColumnMap | None:
-        if not all(n in found for n in (self.columns.time, self.columns.current,
-                                         self.columns.voltage)):
-            return None
-        if self.counters_required and not all(
-                any(n in found for n in names) for names in (self.charge, self.discharge)):
-            return None
-        temp = next((n for n in self.temperature if n in found), None)
-        charge = next((n for n in self.charge if n in found), None)
-        discharge = next((n for n in self.discharge if n in found), None)
-        if self.discharge and (charge is None or discharge is None):
-            charge = discharge = None
-        return ColumnMap(self.columns.time, self.columns.current, self.columns.voltage,
-                         temp, charge, discharge, current_sign=self.columns.current_sign)
-
-    def present(self, found: list[str]) -> int:
-        return sum(n in found for n in (self.columns.time, self.columns.current,
-                                        self.columns.voltage))
-
-
-# CSV layouts tried in order when no mapping is given. Arbin (and the CALCE exports, which
-# come from Arbin testers) log current negative on discharge, i.e. already charge-positive;
-# a file with these names is read that way, whichever cycler wrote it (the note says so).
-# Their Charge/Discharge_Capacity counters (restarting every cycle) are joined into one
-# (ecmgen.data.counters). Bitrode's exports log discharge negative too, with an Ah counter
-# that restarts at every step.
-CSV_LAYOUTS = (
-    _Layout("ecmgen's own columns", ColumnMap("time_s", "current_a", "voltage_v"),
-            ("temperature_c",), ("charge_ah",)),
-    _Layout("Arbin/CALCE-style columns", ColumnMap("Test_Time(s)", "Current(A)", "Voltage(V)"),
-            ("Temperature (C)_1",), ("Charge_Capacity(Ah)",), ("Discharge_Capacity(Ah)",)),
-    _Layout("Bitrode-style columns", ColumnMap("Time(s)", "Current(A)", "Voltage(V)"),
-            (), ("Capacity(Ah)",)),
-    # Plett's ESC toolbox CSVs log discharge POSITIVE; their names are generic, so only
-    # with both counters, which would refuse a wrong sign (_check_charge_sign)
-    _Layout("Plett ESC-toolbox-style columns (discharge positive)",
-            ColumnMap("time", "current", "voltage", current_sign="discharge_positive"),
-            (), ("chgAh",), ("disAh",), counters_required=True),
-    # CALCE low-rate OCV export: a single step, so Step_Time(s) is the only clock.
-    _Layout("Arbin/CALCE-style single-step columns",
-            ColumnMap("Step_Time(s)", "Current(A)", "Voltage(V)"), ("Temperature (C)_1",)),
-)
-
-# Panasonic 18650PF (Digatron) `meas` struct: current and Ah are negative on discharge.
-MAT_LAYOUT = _Layout("Panasonic/Digatron-style meas struct",
-                     ColumnMap("Time", "Current", "Voltage"), ("Battery_Temp_degC",), ("Ah",))
-
-
 # --------------------------------------------------------------------------- reading
 
 @dataclass
@@ -333,18 +128,13 @@ def _read_timeseries(path: str | Path, columns: ColumnMap | None = None, *,
         raise InputError(path, "no such file")
     if path.is_dir():
         raise InputError(path, "is a directory, not a measurement file")
-    if _is_mat(path):
+    if is_native(path):
+        raw, colmap = _read_native(path, columns)
+    elif _is_mat(path):
         raw, colmap = _read_mat(path, columns)
     else:
         raw, colmap = _read_csv(path, columns)
     return _finish(path, raw, colmap, capacity_ah)
-
-
-def _is_mat(path: Path) -> bool:
-    if path.suffix.lower() == ".mat":
-        return True
-    with open(path, "rb") as fh:
-        return fh.read(6) == b"MATLAB"
 
 
 def _choose_layout(path: Path, found: list[str], kind: str, layouts) -> tuple[ColumnMap, str]:
@@ -382,7 +172,8 @@ def _check_named(path: Path, colmap: ColumnMap, found: list[str], kind: str) -> 
         if isinstance(name, int):
             if kind == "field":
                 raise InputError(path, f"{role} = {name}: column positions apply to CSV "
-                                       f"files; a .mat file's fields are named")
+                                       f"files; a .mat or a cycler's own file names its "
+                                       f"fields")
             if name > len(found):
                 raise InputError(path, f"{role} = {name} in [data.columns], but the file "
                                        f"has {len(found)} columns")
@@ -421,20 +212,50 @@ def _headerless(path: Path, row: list[str], line: int, text_columns: bool = Fals
                             f"(e.g. time = 1, current = 2, voltage = 3)")
 
 
-def _read_csv(path: Path, columns: ColumnMap | None) -> tuple[_Raw, ColumnMap]:
+HEAD_ROWS = 100     # the rows a column map is checked on before a file is read whole
+
+
+def check_columns(path: str | Path, columns: ColumnMap | None, *,
+                  capacity_ah: float | None = None) -> None:
+    """The column map of a measurement file checked before a long run reads it whole
+    (InputError as reading would raise it): a CSV on its header and first HEAD_ROWS rows
+    (the names and positions, the header line or none, numbers in the mapped cells;
+    voltage, current and temperature in a cell's range, else the file is read whole to
+    tell a column or a unit mapped wrongly from a logger-off run the reading drops); a
+    .mat or cycler file on its names, where a map is given for it."""
+    with reading(path):
+        path = Path(path)
+        if is_native(path) or _is_mat(path):
+            if columns is not None:
+                (_read_native if is_native(path) else _read_mat)(path, columns)
+            return
+        raw, colmap = _read_csv(path, columns, max_rows=HEAD_ROWS)
+        values = _in_units(raw.values, colmap, [])
+        lo, hi = VOLTAGE_RANGE_V
+        temps = values.get("temperature", np.zeros(1))
+        peak = MAX_C_RATE * capacity_ah if capacity_ah is not None else MAX_CURRENT_A
+        if np.any((values["voltage"] < lo) | (values["voltage"] > hi)) or \
+                np.any(np.abs(values["current"]) > peak) or \
+                np.any((temps < TEMPERATURE_RANGE_C[0]) | (temps > TEMPERATURE_RANGE_C[1])):
+            _finish(path, *_read_csv(path, columns), capacity_ah)
+
+
+def _read_csv(path: Path, columns: ColumnMap | None, max_rows: int | None = None
+              ) -> tuple[_Raw, ColumnMap]:
     encoding = csv_encoding(path)
     try:
-        return _read_csv_as(path, columns, encoding)
+        return _read_csv_as(path, columns, encoding, max_rows)
     except UnicodeDecodeError:
         if encoding != "utf-8-sig":
             raise InputError(path, "starts as UTF-16 text (its BOM) but is not") from None
-        return _read_csv_as(path, columns, "latin-1")   # a Windows code page ("°C")
+        return _read_csv_as(path, columns, "latin-1", max_rows)   # a Windows code page ("°C")
 
 
-def _read_csv_as(path: Path, columns: ColumnMap | None, encoding: str
-                 ) -> tuple[_Raw, ColumnMap]:
+def _read_csv_as(path: Path, columns: ColumnMap | None, encoding: str,
+                 max_rows: int | None = None) -> tuple[_Raw, ColumnMap]:
     """The CSV's mapped columns as float64, converted a block of rows at a time (the
-    text is never in memory whole: ecmgen.data.csvtext)."""
+    text is never in memory whole: ecmgen.data.csvtext); its first ``max_rows`` only
+    where given."""
     source = CsvRows(path, encoding)
     rows = iter(source)
     has_header = columns is None or columns.header
@@ -459,6 +280,13 @@ def _read_csv_as(path: Path, columns: ColumnMap | None, encoding: str
         # a cycler's export holds text in columns of its own (Bitrode's "No", a mode
         # "CHRG"): only the mapped columns must hold numbers
         if not _numbers_only(_mapped_cells(columns, row)):
+            text = [(role, k) for role, k in columns.names().items()
+                    if k <= len(row) and row[k - 1].strip() and not _is_number(row[k - 1])]
+            if 0 < len(text) < len(columns.names()):    # numbers elsewhere: a text column
+                role, k = text[0]
+                raise InputError(path, f"{role} = {k}: line {line} holds "
+                                       f"{row[k - 1].strip()[:40]!r} in column {k}, not a "
+                                       f"number (a text column?)")
             raise InputError(path, f"header = false in [data.columns], but line {line} "
                                    f"holds names ({', '.join(c.strip() for c in row[:4])}"
                                    f"{', ...' if len(row) > 4 else ''}): a header line?")
@@ -486,7 +314,8 @@ def _read_csv_as(path: Path, columns: ColumnMap | None, encoding: str
     parts: dict[str, list[np.ndarray]] = {role: [] for role in position}
     line_parts: list[np.ndarray] = []
     done = 0
-    for block in blocks(itertools.chain(pending, rows)):
+    data_rows = itertools.islice(itertools.chain(pending, rows), max_rows)
+    for block in blocks(data_rows):
         lines = np.fromiter((ln for ln, _ in block), dtype=np.int64, count=len(block))
         cells_of = [r for _, r in block]
         _check_width(path, cells_of, lines, len(header), against, source.delimiter)
@@ -621,6 +450,24 @@ def _read_mat(path: Path, columns: ColumnMap | None) -> tuple[_Raw, ColumnMap]:
 
     labels = {role: _label("field", name) for role, name in colmap.names().items()}
     return _Raw("field", labels, values, where, notes), colmap
+
+
+def _read_native(path: Path, columns: ColumnMap | None) -> tuple[_Raw, ColumnMap]:
+    """A cycler's own file through its reader (ecmgen.data.native): its named columns,
+    read by the reader's column map, or by the user's with the optional columns it leaves
+    unset (temperature, the charge counters) as the reader found them."""
+    record = read_native(path)
+    colmap = ColumnMap(**record.columns)
+    if columns is not None:
+        found = {k: v for k, v in record.columns.items()
+                 if k in ("temperature",) and columns.temperature is None or
+                 k in ("charge", "discharge", "charge_unit") and columns.charge is None}
+        colmap = replace(columns, **found)
+    _check_named(path, colmap, list(record.fields), "field")
+    values = {role: record.fields[name] for role, name in colmap.names().items()}
+    labels = {role: _label("field", name) for role, name in colmap.names().items()}
+    notes = [f"read as {record.what}", *record.notes]
+    return _Raw("field", labels, values, lambda i: f"row {i + 1}", notes), colmap
 
 
 # --------------------------------------------------------------------------- checks

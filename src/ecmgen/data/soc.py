@@ -360,6 +360,30 @@ def _relaxed_voltage(series: TimeSeries, end: int) -> float | None:
     return float(m[2] + d2 * d2 / (d1 - d2))
 
 
+def settled_opening(series: TimeSeries, capacity_ah: float, rest_a: float, ocv_top_v: float,
+                    min_rest_s: float = 300.0) -> bool:
+    """Whether the record opens where its voltage tells the SOC without a model: with a
+    charge ending in a constant-voltage phase, or one of at least CV_CHARGE_SHARE of the
+    capacity that ends at or above ``ocv_top_v`` (a full charge), or with a rest of at
+    least ``min_rest_s`` whose voltage has stopped moving (:func:`_unrelaxed`). A record
+    cut from a drive (under load, in a stop of a few seconds, mid-relaxation) does not."""
+    if opening_cv_charge(series, capacity_ah, rest_a) is not None:
+        return True
+    i, t, v = series.current_a, series.time_s, series.voltage_v
+    moving = np.flatnonzero(np.abs(i) > rest_a)
+    if moving.size == 0:
+        return True
+    first = int(moving[0])
+    if i[first] > 0:
+        b = _charge_end(series, first, rest_a, 60.0)
+        q = series.coulomb_ah()
+        return bool(q[b - 1] - q[first] >= CV_CHARGE_SHARE * capacity_ah
+                    and v[b - 1] >= ocv_top_v)
+    if first == 0 or t[first - 1] - t[0] < min_rest_s:
+        return False
+    return _unrelaxed(series, first - 1) is None
+
+
 def record_start_soc(ocv, capacity_ah: float, series: TimeSeries, rest_a: float,
                      min_rest_s: float = 60.0, fit_rest_s: float = 300.0
                      ) -> tuple[float, str]:

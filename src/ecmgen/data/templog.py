@@ -6,7 +6,8 @@ name (a name holding "time"; one holding "temp", or degC / °C), times in second
 same clock as the record's own time column. Its values are interpolated linearly onto the
 record's samples and held at its ends (said in a note) where the record runs beyond it.
 
-Refused, one line each: a log without a time column (a thermocouple logger's export of
+Refused, one line each: a log that spans less than half the record's time (its end values
+would stand for most of it), a log without a time column (a thermocouple logger's export of
 values only, as the Leaf's: samples with no time stamps cannot be placed on the record,
 and their rate is not known to be the cycler's), a log that does not overlap the record's
 time at all (another clock: Unix time against time from the test's start), and a log of
@@ -22,6 +23,12 @@ import numpy as np
 from ..errors import InputError, reading
 from .csvtext import CsvRows, csv_encoding
 from .measure import TimeSeries
+
+
+# a log must span at least half the record's time: the rest is held at the log's end
+# values, which stand in for a temperature it never saw (a drive cycle warms the cell
+# 5-7 K, the shared Panasonic records); past half, the held values are most of the record
+MIN_COVER = 0.5
 
 
 def _column(names: list[str], words: tuple[str, ...]) -> int | None:
@@ -73,6 +80,14 @@ def with_temperature_log(series: TimeSeries, path: Path) -> TimeSeries:
         raise InputError(path, f"its times ({t_log[0]:g} .. {t_log[-1]:g} s) do not overlap "
                                f"those of {Path(series.source).name} ({t[0]:g} .. {t[-1]:g} "
                                "s): not the same clock?")
+    cover = (min(t_log[-1], t[-1]) - max(t_log[0], t[0])) / (t[-1] - t[0]) \
+        if t[-1] > t[0] else 1.0
+    if cover < MIN_COVER:
+        raise InputError(path, f"its times ({t_log[0]:g} .. {t_log[-1]:g} s) cover "
+                               f"{100.0 * cover:.1f} % of {Path(series.source).name} "
+                               f"({t[0]:g} .. {t[-1]:g} s); its end values would stand for "
+                               f"the cell's temperature over the rest (at least "
+                               f"{100.0 * MIN_COVER:g} % needed): the log of another test?")
     note = f"cell temperature from {path.name} (a time-stamped log, interpolated)"
     outside = (t < t_log[0]) | (t > t_log[-1])
     if outside.any():

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..config import EstimatorConfig
 from ..data.measure import TimeSeries
+from ..data.sign import check_sign
 from ..errors import InputError
 from ..model.model import EcmModel
 from ..model.simulate import sample_temperatures
@@ -131,6 +132,7 @@ def estimate_record(model: EcmModel, series: TimeSeries, soc0_guess: float,
     if not (math.isfinite(current_offset_a) and math.isfinite(current_gain)
             and current_gain > 0):
         raise InputError(None, "the current offset must be finite and the gain positive")
+    check_sign(series)          # a flipped current drifts the filter off without a word
     if series.temperature_c is None and temperature_c is not None:
         series = replace(series, temperature_c=np.full(series.time_s.size,
                                                        float(temperature_c)))

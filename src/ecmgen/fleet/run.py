@@ -34,7 +34,7 @@ from typing import Callable
 
 from ..errors import InputError
 from ..files import write_atomic
-from ..outputs import check_output_folder
+from ..outputs import check_output_folder, refuse_inputs, resolved
 from .manifest import Row, read_manifest
 from .task import Options, Outcome, run_row
 
@@ -42,6 +42,7 @@ DEFAULT_SOC = (0.2, 0.5, 0.8)
 DEFAULT_TEMPERATURES_C = (25.0,)
 CONNECT_TIMEOUT_S = 20.0
 INSTALL_HINT = "pip install 'ecmgen[fleet]' (dask.distributed and pyarrow)"
+FLEET_FILES = ("failures.csv", "fleet.csv", "fleet.parquet", "ageing.csv")   # written into out
 
 
 def _quiet(_msg: str) -> None:
@@ -86,8 +87,11 @@ def run_fleet(manifest: str | Path, out: str | Path, *, scheduler: str | None = 
     """Build every row of ``manifest`` into ``out`` (see the module doc)."""
     t0 = time.perf_counter()
     rows = read_manifest(manifest)
-    out = Path(out).resolve()
-    check_output_folder(out, {Path(manifest).resolve(), *(r.config for r in rows)})
+    out = resolved(out)
+    inputs = {Path(manifest).resolve(), *(r.config for r in rows)}
+    check_output_folder(out, inputs)
+    for name in FLEET_FILES:        # e.g. the manifest given as study/fleet.csv, --out study
+        refuse_inputs(out / name, inputs)
     _check_points(soc_points, temperatures_c, workers)
     if parquet:
         _need("pyarrow")

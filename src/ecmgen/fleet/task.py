@@ -89,23 +89,29 @@ def run_row(row: Row, out: Path, options: Options) -> Outcome:
             warnings.simplefilter("ignore")
             status = _build_if_changed(row, folder, options)
     except InputError as exc:
-        return _failed(row, t0, str(exc), "input")
+        return _failed(row, t0, str(exc), "input", folder)
     except Exception as exc:            # noqa: BLE001 - one row never stops the fleet
         where = user_file_of(exc)
         if where is None and isinstance(exc, OSError) and exc.filename is not None:
             where = exc.filename
         if where is not None:
-            return _failed(row, t0, f"{where}: {describe(exc)}", "input")
+            return _failed(row, t0, f"{where}: {describe(exc)}", "input", folder)
         last = traceback.extract_tb(exc.__traceback__)[-1]
         text = " ".join(str(exc).split())
         return _failed(row, t0, f"ecmgen fault: {type(exc).__name__}: {text} (at "
-                                f"{Path(last.filename).name}:{last.lineno})", "internal")
+                                f"{Path(last.filename).name}:{last.lineno})", "internal", folder)
     return Outcome(row.cell, row.checkup, status, time.perf_counter() - t0[0],
                    time.process_time() - t0[1], peak_rss_mb=_peak_rss_mb(),
                    worker=_worker_name())
 
 
-def _failed(row: Row, t0: tuple[float, float], error: str, kind: str) -> Outcome:
+def _failed(row: Row, t0: tuple[float, float], error: str, kind: str,
+            folder: Path | None = None) -> Outcome:
+    if folder is not None and folder.is_dir():
+        # the row's earlier results (built from other inputs) would pass for this one's
+        from ..outputs import remove_outputs
+
+        remove_outputs(folder, {Path(row.config).resolve()})
     return Outcome(row.cell, row.checkup, "failed", time.perf_counter() - t0[0],
                    time.process_time() - t0[1], error=" ".join(error.split()), kind=kind,
                    peak_rss_mb=_peak_rss_mb(), worker=_worker_name())

@@ -506,12 +506,29 @@ def load_model(path: str | Path) -> EcmModel:
 def _load_model(path: str | Path) -> EcmModel:
     path = Path(path)
     try:
-        raw = json.loads(path.read_text())
+        raw = json.loads(path.read_text(), object_pairs_hook=_unique_keys)
     except FileNotFoundError:
         raise InputError(path, "no such file") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise InputError(path, f"not valid JSON ({exc})") from None
+    except _DuplicateKey as exc:
+        raise InputError(path, f"the key \"{exc}\" appears twice in one object (JSON keeps "
+                               "the last silently; which one is meant?)") from None
     return model_from_json_dict(raw, path)
+
+
+class _DuplicateKey(Exception):
+    pass
+
+
+def _unique_keys(pairs: list) -> dict:
+    """json's object hook: a key given twice is an error, not the last one winning."""
+    out: dict = {}
+    for k, v in pairs:
+        if k in out:
+            raise _DuplicateKey(k)
+        out[k] = v
+    return out
 
 
 def model_from_json_dict(raw: Any, path=None) -> EcmModel:
