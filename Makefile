@@ -34,6 +34,7 @@ bench: $(STAMP)
 	-$(PY) bench/bench_diagnose.py
 	-$(PY) bench/diagnose_suite.py
 	-$(PY) bench/real_cells.py
+	-$(PY) bench/bench_speed.py --check
 
 clean:
 	rm -rf $(VENV) $(DEMO_OUT) $(FLEET_OUT) build *.egg-info src/*.egg-info .pytest_cache

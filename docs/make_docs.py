@@ -7,8 +7,9 @@ pictures in docs/img/, each from a build of the example (or of a variant of its 
 NAME: demo (the demo build, also the pictures), surface-off (the demo without the surface
 SOC), one-temperature (the 25 degC example, with its OCV from the rests and from the C/20
 test), estimator (the SOC filter on the demo's model), accuracy-matrix (the committed
-baseline of bench/accuracy_matrix.py as it is: no build; its --update rewrites it). About a
-minute a build on 2 cores."""
+baseline of bench/accuracy_matrix.py as it is: no build; its --update rewrites it), speed
+(the committed baseline of bench/bench_speed.py, likewise). About a minute a build on 2
+cores."""
 
 from __future__ import annotations
 
@@ -150,19 +151,31 @@ def estimator(tmp: Path) -> str:
     return "\n".join(lines) + "\n"
 
 
-def accuracy_matrix(_tmp: Path) -> str:
-    """The committed baseline of the accuracy matrix as its table."""
+def _bench(name: str):
+    """bench/NAME.py as a module."""
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location("accuracy_matrix",
-                                                  REPO / "bench" / "accuracy_matrix.py")
-    bench = sys.modules["accuracy_matrix"] = importlib.util.module_from_spec(spec)
+    spec = importlib.util.spec_from_file_location(name, REPO / "bench" / f"{name}.py")
+    bench = sys.modules[name] = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
+    return bench
+
+
+def accuracy_matrix(_tmp: Path) -> str:
+    """The committed baseline of the accuracy matrix as its table."""
+    bench = _bench("accuracy_matrix")
     return bench.table(json.loads(bench.BASELINE.read_text())["configurations"])
 
 
+def speed(_tmp: Path) -> str:
+    """The committed baseline of bench/bench_speed.py as its table."""
+    bench = _bench("bench_speed")
+    doc = json.loads(bench.BASELINE.read_text())
+    return bench.table(doc["cases"], doc["ref"])
+
+
 BLOCKS = {"demo": demo, "surface-off": surface_off, "one-temperature": one_temperature,
-          "estimator": estimator, "accuracy-matrix": accuracy_matrix}
+          "estimator": estimator, "accuracy-matrix": accuracy_matrix, "speed": speed}
 
 
 def main(argv=None) -> int:

@@ -408,3 +408,61 @@ def test_a_third_pair_faster_than_the_diffusion_range_is_kept():
     assert fit.tau_diff_s == pytest.approx(150.0)
     assert any("faster than the diffusion range, kept" in n for n in fit.notes)
     assert fit.rms_error_v < two.rms_error_v
+
+
+def test_the_node_sets_side_by_side_give_the_fit_of_one_after_the_other(monkeypatch):
+    """The two OCV-offset node sets are fitted on threads sharing their response blocks:
+    the fit is bit for bit the one of one node set after the other, each with its own."""
+    import ecmgen.fit.curve as curve
+
+    truth = synthetic_nca_model(tau_fast_s=2.0, tau_slow_s=60.0)
+    series, soc0 = make_pulse_test(truth, soc_levels=(0.9, 0.7, 0.5, 0.3), c_rates=(1.0, 3.0),
+                                   noise_v=0.001, seed=1, log_moves=True)
+    pulses = find_pulses(series, truth.capacity_ah, soc0=soc0)
+
+    def fit():
+        return fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, diffusion=False)
+
+    side_by_side = fit()
+    monkeypatch.setattr(curve._cr, "THREADS_BYTES", -1)
+    monkeypatch.setattr(curve._cr, "share_responses", lambda prob, other: None)
+    alone = fit()
+    assert side_by_side.notes == alone.notes
+    for d in ("charge", "discharge"):
+        for k, v in side_by_side.rc_columns(d).items():
+            assert np.array_equal(v, alone.rc_columns(d)[k]), (d, k)
+
+
+def test_the_response_cache_keeps_the_recently_used_within_its_size():
+    from ecmgen.fit.curve_record import ResponseCache
+
+    cache = ResponseCache(max_bytes=3 * 800)
+    blocks = {k: np.full((10, 10), float(k)) for k in range(5)}      # 800 bytes each
+    for k in range(3):
+        cache.put(k, blocks[k])
+    assert cache.get(0) is blocks[0]        # 0 used last: 1 is the least recently used
+    cache.put(3, blocks[3])
+    assert cache.get(1) is None and cache.get(0) is blocks[0] and cache.get(3) is blocks[3]
+    assert cache.put(3, blocks[4]) is blocks[3]   # a block is the same whoever computes it
+
+
+def test_a_fit_again_with_the_first_fits_searches_is_the_fit_from_scratch():
+    """Offered its neighbours' time constants, a test is fitted again: taking the first
+    fit's time-constant searches (``searches``) gives bit for bit the fit that searches
+    again."""
+    truth = synthetic_nca_model(tau_fast_s=2.0, tau_slow_s=60.0)
+    series, soc0 = make_pulse_test(truth, soc_levels=(0.9, 0.7, 0.5, 0.3), c_rates=(1.0, 3.0),
+                                   noise_v=0.001, seed=2, log_moves=True)
+    pulses = find_pulses(series, truth.capacity_ah, soc0=soc0)
+
+    def fit(**kw):
+        return fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, diffusion=False,
+                                **kw)
+
+    first = fit()
+    offer = {"fast": first.tau_fast_s * 1.2, "slow": first.tau_slow_s * 0.8}
+    again, scratch = fit(neighbour_taus=offer, searches=first.searches), fit(neighbour_taus=offer)
+    assert again.notes == scratch.notes
+    for d in ("charge", "discharge"):
+        for k, v in scratch.rc_columns(d).items():
+            assert np.array_equal(v, again.rc_columns(d)[k]), (d, k)

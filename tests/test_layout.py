@@ -34,7 +34,7 @@ LEVELS = [
     {"estimate": ("ecmgen.estimate",)},
     {"c": ("ecmgen.c",), "diagnosis": ("ecmgen.diagnosis",)},
     {"plots": ("ecmgen.plots",), "report": ("ecmgen.report",)},
-    {"pipeline": ("ecmgen.pipeline",)},
+    {"pipeline": ("ecmgen.pipeline", "ecmgen.validation")},
     {"fleet": ("ecmgen.fleet",)},
     {"cli": ("ecmgen.cli",)},
 ]

@@ -242,7 +242,7 @@ def test_validate_reads_another_cyclers_csv_through_the_config(synthetic_project
 def test_build_notes_name_validation_cycles_as_the_table_does():
     """Two cycles called us06.mat (0degC/, n20degC/): a validation warning that opens with
     the base name is told apart by the build's cycle name."""
-    from ecmgen.pipeline import _named
+    from ecmgen.validation import named as _named
 
     w = "us06.mat: the voltage lags the current by 1 sample (0.1 s)"
     assert _named(w, "/data/n20degC/us06.mat", "n20degC/us06.mat").startswith("n20degC/us06.mat: ")

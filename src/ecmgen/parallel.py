@@ -1,7 +1,9 @@
 """Independent tasks of a build on a few processes, with the build's own rules kept.
 
 :class:`Workers` runs module-level functions either here, one after the other
-(``processes <= 1``), or on a pool of freshly started ("spawn") processes. Either way:
+(``processes <= 1``), or on a pool of worker processes, forked from a fork server that has
+loaded what the tasks import (where the platform has one; else freshly started, "spawn").
+Either way:
 
 - results come back in the order the tasks were given, and each task runs whole in one
   process, so the results do not depend on scheduling;
@@ -10,7 +12,7 @@
   messages through the caller's ``progress``, warnings re-issued here, so that the
   warning filters of the caller (the command line's, pytest's ``-W error``) apply;
 - an :class:`~ecmgen.errors.InputError` raised by a task is raised again here, as itself;
-- a spawned worker uses one BLAS thread (OPENBLAS/OMP/MKL_NUM_THREADS, unless set):
+- a worker uses one BLAS thread (OPENBLAS/OMP/MKL_NUM_THREADS, unless set):
   the processes already use the cores.
 
 The pool starts on the first task given to it (a build with one pulse test never starts
@@ -35,7 +37,7 @@ from typing import Any, Callable
 
 from .errors import InputError
 
-# one BLAS thread: set in spawned workers and by the command line before numpy loads. The
+# one BLAS thread: set in the workers and by the command line before numpy loads. The
 # fits make many small BLAS calls: threads for them buy no speed and, spinning on cores
 # other processes need, made four `ecmgen diagnose` side by side on two cores 7.9 times
 # slower (bench/bench_blas_threads.py, docs/results.md)
@@ -59,6 +61,20 @@ def run_collected(fn: Callable, args: tuple) -> tuple:
             status, value = "input", (exc.path, exc.message)
     found = [(str(w.message), w.category, w.filename, w.lineno) for w in caught]
     return status, value, messages, found
+
+
+def in_threads(fn: Callable, arg_tuples: list, threads: bool = True) -> list:
+    """``fn`` over every argument tuple, side by side on threads of this process (one
+    after the other without ``threads``); the results in order. For independent pieces of
+    work in numpy's linear algebra, which lets go of the interpreter lock (no second
+    process to start, nothing to pickle)."""
+    if len(arg_tuples) < 2 or not threads:
+        return [fn(*a) for a in arg_tuples]
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(len(arg_tuples)) as pool:
+        tasks = [pool.submit(fn, *a) for a in arg_tuples]
+        return [t.result() for t in tasks]
 
 
 class Task:
@@ -116,15 +132,15 @@ class Workers:
                 t._future.cancel()
 
     def _start(self) -> None:
-        import multiprocessing
         from concurrent.futures import ProcessPoolExecutor
 
         # workers are spawned as tasks arrive and read the environment when they start:
         # it holds until the pool is closed
         self._env = _worker_environment()
         self._env.__enter__()
-        self._pool = ProcessPoolExecutor(max_workers=self.processes,
-                                         mp_context=multiprocessing.get_context("spawn"))
+        self._pool = ProcessPoolExecutor(max_workers=self.processes, mp_context=_context(),
+                                         initializer=_adopt_environment,
+                                         initargs=(dict(os.environ),))
 
     def close(self) -> None:
         if self._pool is not None:
@@ -141,10 +157,38 @@ class Workers:
         self.close()
 
 
+# what every worker of a build imports: loaded once, in the fork server the workers are
+# forked from, instead of in each freshly started worker
+PRELOAD = ["ecmgen.pipeline", "ecmgen.validation", "ecmgen.fit.curve", "scipy.optimize",
+           "matplotlib.pyplot"]
+
+
+def _adopt_environment(env: dict) -> None:
+    """A worker's environment is this process's when the pool starts (CC, ECMGEN_CACHE, ..),
+    not the fork server's, which started with the first pool of the process."""
+    os.environ.clear()
+    os.environ.update(env)
+
+
+def _context():
+    """Workers forked from a fork server that has loaded PRELOAD (a clean, single-threaded
+    process: not this one, whose state a fork would copy), else freshly started ones."""
+    import multiprocessing
+
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("spawn")
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(PRELOAD)
+    return ctx
+
+
 @contextmanager
 def _worker_environment():
-    old = {k: os.environ.get(k) for k in ONE_BLAS_THREAD}
-    for k, v in ONE_BLAS_THREAD.items():
+    # the workers draw PNGs only: the headless backend from the start (the fork server
+    # loads pyplot before any worker sets it)
+    env = {**ONE_BLAS_THREAD, "MPLBACKEND": "Agg"}
+    old = {k: os.environ.get(k) for k in env}
+    for k, v in env.items():
         os.environ.setdefault(k, v)
     try:
         yield

@@ -28,12 +28,14 @@ from .data import ocv as ocv_mod
 from .data.ocv import OcvTable
 from .console import detail_of
 from .errors import InputError
-from .files import file_sha256, short_names, temperature_label
+from .files import file_sha256, temperature_label
 from .model.model import RC_FIELDS, EcmModel, InputRecord, RcTable
 from .model.tables import copied_directions, level_tables
-from .model.simulate import Validation, validate
+from .model.simulate import Validation
 from .outputs import check_output_folder, staged
 from .parallel import Workers
+from .validation import (plot_files, record_usage, submit_c, validate_all, validation_plots,
+                         validation_png_name)
 
 Progress = Callable[[str], None]
 
@@ -160,15 +162,16 @@ def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
 
 
 def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet,
-               neighbour_taus: dict | None = None) -> tuple[dict[str, EcmModel], dict]:
+               neighbour_taus: dict | None = None, searches: list | None = None
+               ) -> tuple[dict[str, EcmModel], dict]:
     """Fit every method of the config; returns the models and the raw fits (for plots).
     ``neighbour_taus``: the curve method's time constants from the tests on either side
-    in temperature (:func:`ecmgen.fit.curve.fit_pulse_curves`)."""
+    in temperature; ``searches``: those of its earlier fit of this test
+    (:func:`ecmgen.fit.curve.fit_pulse_curves`)."""
     from .fit.checks import flag_notes, point_fit_flags
     from .fit.ga import fit_ga
     from .fit.lm import fit_lm
     from .fit.points import five_point_rows
-    from .fit.smooth import smooth_point_fit
     from .model.spans import model_span_notes
 
     models: dict[str, EcmModel] = {}
@@ -176,6 +179,8 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet,
     common = _common(cfg, inputs)
     point_methods = [m for m in cfg.methods if m in ("ga", "lm")]
     if point_methods:
+        from .fit.smooth import smooth_point_fit      # scipy.optimize: only when used
+
         rows, n = five_point_rows(inputs.dcir, cfg.c_rate)
         raw["point_table"] = rows
         fits = {}
@@ -206,7 +211,7 @@ def fit_models(cfg: BuildConfig, inputs: Inputs, progress: Progress = _quiet,
         raw["point_fits"] = fits
     if "curve" in cfg.methods:
         models["curve"], raw["curve_fit"], raw["flags"]["curve"] = curve_model(
-            cfg, inputs, common, progress, neighbour_taus=neighbour_taus)
+            cfg, inputs, common, progress, neighbour_taus=neighbour_taus, searches=searches)
     return models, raw
 
 
@@ -218,7 +223,7 @@ def _common(cfg: BuildConfig, inputs: Inputs) -> dict:
 
 def curve_model(cfg: BuildConfig, inputs: Inputs, common: dict, progress: Progress = _quiet,
                 current_factor=None, tau_ranges: dict | None = None,
-                neighbour_taus: dict | None = None):
+                neighbour_taus: dict | None = None, searches: list | None = None):
     """The curve method's model of a prepared test: (model, its CurveFit, its flags).
     ``current_factor``: a current-dependent resistance the fit takes as given
     (:func:`ecmgen.fit.curve.fit_pulse_curves`; then no Butler-Volmer branch);
@@ -244,7 +249,7 @@ def curve_model(cfg: BuildConfig, inputs: Inputs, common: dict, progress: Progre
                           i0_a=bv.i0_a if bv else None, diffusion=branches, steps=inputs.steps,
                           relax_s=cfg.relax_s, direction_deadband_a=common["direction_deadband_a"],
                           blocks_both_ways=cfg.dynamic, current_factor=current_factor,
-                          neighbour_taus=neighbour_taus,
+                          neighbour_taus=neighbour_taus, searches=searches,
                           **{**(DYNAMIC_TAU_RANGES if cfg.dynamic else {}), **(tau_ranges or {})})
     flags = curve_fit_flags(cf, float(relax.max()) if relax.size else None)
     model = EcmModel(charge=RcTable(**cf.rc_columns("charge")),
@@ -300,16 +305,18 @@ def one_test_c(tests, inputs: Inputs | None) -> float | None:
 
 
 def fit_pulse_test(cfg: BuildConfig, k: int, plots: bool = False,
-                   neighbour_taus: dict | None = None, progress: Progress = _quiet) -> TestFit:
+                   neighbour_taus: dict | None = None, curve_plot: bool = True,
+                   searches: list | None = None, progress: Progress = _quiet) -> TestFit:
     """Read, extract and fit pulse test ``k`` of the config, every method of the config
-    (and draw its fit plots, as PNG bytes, with ``plots``); ``neighbour_taus``: see
-    :func:`fit_models`."""
+    (and draw its fit plots, as PNG bytes, with ``plots``: the whole-test fit's with
+    ``curve_plot``); ``neighbour_taus``, ``searches``: see :func:`fit_models` (the fit
+    again with them draws only the whole-test fit's plot)."""
     import time
 
     t0 = time.perf_counter()
     test = cfg.pulse_tests[k]
     try:
-        fit = _fit_pulse_test(cfg, test, progress, t0, neighbour_taus)
+        fit = _fit_pulse_test(cfg, test, progress, t0, neighbour_taus, searches)
     except InputError as exc:
         if exc.path is None:    # say which test it was
             raise InputError(test.file, exc.message) from None
@@ -320,15 +327,18 @@ def fit_pulse_test(cfg: BuildConfig, k: int, plots: bool = False,
 
         t1 = time.perf_counter()
         at = degrees(fit.temperature_c)
-        fit.pngs = fit_pngs(fit.raw, f"-{fit.label}", at=at)
-        fit.pngs[f"ocv-{fit.label}.png"] = ocv_png(fit.inputs, at=at)
+        raw = fit.raw if curve_plot else {k: v for k, v in fit.raw.items() if k != "curve_fit"}
+        fit.pngs = fit_pngs(raw, f"-{fit.label}", at=at)
+        if neighbour_taus is None:
+            fit.pngs[f"ocv-{fit.label}.png"] = ocv_png(fit.inputs, at=at)
         fit.timings["plots"] = time.perf_counter() - t1
     fit.seconds = time.perf_counter() - t0
     return fit
 
 
 def _fit_pulse_test(cfg: BuildConfig, test: PulseTest, progress: Progress, t0: float,
-                    neighbour_taus: dict | None = None) -> TestFit:
+                    neighbour_taus: dict | None = None, searches: list | None = None
+                    ) -> TestFit:
     import time
 
     sub = pulse_test_config(cfg, test)
@@ -349,7 +359,8 @@ def _fit_pulse_test(cfg: BuildConfig, test: PulseTest, progress: Progress, t0: f
     models, raw = {}, {}
     for m in cfg.methods:   # one at a time, for the timings
         t1 = time.perf_counter()
-        got, got_raw = fit_models(replace(sub, methods=(m,)), inputs, progress, neighbour_taus)
+        got, got_raw = fit_models(replace(sub, methods=(m,)), inputs, progress, neighbour_taus,
+                                  searches)
         models.update(got)
         for key, value in got_raw.items():
             if isinstance(value, dict) and isinstance(raw.get(key), dict):
@@ -378,7 +389,9 @@ def fit_pulse_tests(cfg: BuildConfig, progress: Progress = _quiet,
     n = len(cfg.pulse_tests)
     if workers.parallel:
         progress(f"fitting {n} pulse tests on {workers.processes} processes")
-    tasks = [workers.submit(fit_pulse_test, cfg, k, plots) for k in range(n)]
+    # the whole-test fit's plots are drawn once that fit is final (after its neighbours')
+    later = plots and "curve" in cfg.methods
+    tasks = [workers.submit(fit_pulse_test, cfg, k, plots, None, not later) for k in range(n)]
     detail = detail_of(progress)
     out = []
     try:
@@ -405,8 +418,15 @@ def _with_neighbour_taus(cfg: BuildConfig, fits: list[TestFit], workers: Workers
     offer = neighbour_time_constants([f.temperature_c for f in fits],
                                      [f.raw.get("curve_fit") for f in fits])
     curve_only = replace(cfg, methods=("curve",))
-    tasks = {k: workers.submit(fit_pulse_test, curve_only, k, plots, taus)
+    # the fit again takes the first fit's time-constant searches (the same test and settings)
+    tasks = {k: workers.submit(fit_pulse_test, curve_only, k, plots, taus, True,
+                               fits[k].raw["curve_fit"].searches)
              for k, taus in enumerate(offer) if taus is not None}
+    # the plots of the whole-test fits that stand, beside the fits again
+    plot_tasks = {k: workers.submit(curve_fit_png, f.raw["curve_fit"], f.label, f.temperature_c)
+                  for k, f in enumerate(fits) if plots and k not in tasks}
+    for k, task in plot_tasks.items():
+        fits[k].pngs.update(task.result())
     for k, task in tasks.items():
         label = f"pulse test {k + 1}"
         try:
@@ -423,6 +443,15 @@ def _with_neighbour_taus(cfg: BuildConfig, fits: list[TestFit], workers: Workers
         fit.timings["curve, neighbours' time constants"] = again.timings["curve"]
         fit.seconds += again.seconds
     return fits
+
+
+def curve_fit_png(curve_fit, label: str, temperature_c: float,
+                  progress: Progress = _quiet) -> dict[str, bytes]:
+    """The whole-test fit's plot of a pulse test: {curve-fit-<label>.png: PNG bytes}."""
+    from .plots import fit_pngs
+    from .plotting import degrees
+
+    return fit_pngs({"curve_fit": curve_fit}, f"-{label}", at=degrees(temperature_c))
 
 
 def fit_all(cfg: BuildConfig, progress: Progress = _quiet, *, workers: Workers | int = 2,
@@ -495,68 +524,6 @@ def with_surface_soc(cfg: BuildConfig, models: dict[str, EcmModel]) -> dict[str,
     return out
 
 
-def validate_cycle(cfg: BuildConfig, path: Path, role: str, label: str,
-                   models: dict[str, EcmModel], plot_best: str | None = None,
-                   progress: Progress = _quiet) -> tuple[dict[str, Validation], bytes | None]:
-    """Every model on one validation cycle (read once), and with ``plot_best`` (the
-    method of model.json) its validation plot as PNG bytes."""
-    progress(f"validating on {label}")
-    series = read_series(cfg, path, role)
-    if series.temperature_c is None and any(m.needs_temperature for m in models.values()):
-        raise InputError(path, "no cell temperature column: the model has tables over "
-                               "temperature and each validation cycle needs its cell "
-                               "temperature (a temperature_c column, a mapped one in "
-                               "[data.columns], or data.temperature_c)")
-    vals = {m: validate(model, series, cfg.soc0) for m, model in models.items()}
-    png = None
-    if plot_best is not None:
-        from .plots import validation_png
-
-        png = validation_png(vals, label, plot_best)
-    return vals, png
-
-
-def _named(warning: str, source: str | None, name: str) -> str:
-    """A validation warning that opens with the file's base name, named as the build's
-    table names the cycle (0degC/us06.mat and n20degC/us06.mat are both us06.mat)."""
-    base = Path(source).name if source else ""
-    return name + warning[len(base):] if base and warning.startswith(base + ":") else warning
-
-
-def _cycles(cfg: BuildConfig) -> list[tuple[Path, str, str]]:
-    paths = ([cfg.cycle] if cfg.cycle else []) + list(cfg.extra_cycles)
-    roles = (["cycle"] if cfg.cycle else []) + ["extra_cycles"] * len(cfg.extra_cycles)
-    return list(zip(paths, roles, short_names(paths))) if paths else []
-
-
-def validate_all(cfg: BuildConfig, models: dict[str, EcmModel], progress: Progress = _quiet,
-                 *, workers: Workers | None = None, plot_best: str | None = None):
-    """Each model on the config's validation cycle(s); ``soc0`` applies to every cycle.
-    A model over temperature runs on each cycle's own cell temperature column.
-
-    Returns {method: {cycle name: Validation}}; with ``plot_best`` also the validation
-    plots, ({...}, {cycle name: PNG bytes}). The cycles run on ``workers`` if given."""
-    workers = workers or Workers(1)
-    cycles = _cycles(cfg)
-    tasks = [workers.submit(validate_cycle, cfg, path, role, label, models, plot_best)
-             for path, role, label in cycles]
-    out: dict[str, dict[str, Validation]] = {m: {} for m in models}
-    pngs: dict[str, bytes] = {}
-    if len(cycles) > 1:
-        progress(f"validating on {len(cycles)} cycles")
-    try:
-        for (_, _, label), task in zip(cycles, tasks):
-            vals, png = task.result(detail_of(progress) if len(cycles) > 1 else progress)
-            for m, v in vals.items():
-                out[m][label] = v
-            if png is not None:
-                pngs[label] = png
-    except BaseException:
-        workers.cancel(tasks)
-        raise
-    return (out, pngs) if plot_best is not None else out
-
-
 def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
           plots: bool = True, c_code: bool = True, workers: int = 2,
           strict: bool = False) -> BuildResult:
@@ -593,22 +560,25 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
 
             raise InputError(cfg.path, "build --strict: "
                                        + quality_words(cfg.best, result.quality[cfg.best]))
-        param_tasks = {}
+        plot_tasks = {}
         if plots:
             from .plots import parameters_png
 
             measured = sorted(t.temperature_c for t in tests) if tests else \
                 ([one_test_c(tests, inputs)] if cfg.activation_k else None)
-            param_tasks = {m: pool.submit(parameters_png, model, measured)
-                           for m, model in models.items()}
-        validated = validate_all(cfg, models, progress, workers=pool,
-                                 plot_best=cfg.best if plots else None)
-        result.validations, cycle_pngs = validated if plots else (validated, {})
+            plot_tasks = {f"parameters-{m}.png": pool.submit(parameters_png, model, measured)
+                          for m, model in models.items()}
+        result.validations = validate_all(cfg, models, progress, workers=pool)
         result.fit_flags = raw.get("flags", {})
-        _usage(result)
-        lap("validate" + (" + plots" if plots else ""))
+        record_usage(result, one_test_c(tests, inputs))
+        lap("validate")
 
         with staged(out_dir, given) as (staging, files):
+            # the C check of the best model on one worker, the validation plots beside it
+            c_task = submit_c(pool, cfg, result, staging) if c_code and cfg.c_numeric else None
+            if plots:
+                plot_tasks.update((validation_png_name(label), task) for label, task in
+                                  validation_plots(pool, result.validations, cfg.best).items())
             if tests:
                 for t in tests:
                     t.inputs.dcir.write_csv(staging / f"dcir-{t.label}.csv")
@@ -618,13 +588,12 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
                 model.save(staging / f"model-{m}.json")
             models[cfg.best].save(staging / "model.json")
             lap("write")
-            if c_code and cfg.c_numeric:
-                result.c_report = _write_c(cfg, result, staging, progress)
+            if c_task is not None:
+                result.c_report = c_task.result(progress)
                 lap("c")
             if plots:
                 progress("writing plots")
-                for name, png in _plot_files(raw, inputs, tests, param_tasks, cycle_pngs,
-                                             progress).items():
+                for name, png in plot_files(raw, inputs, tests, plot_tasks, progress).items():
                     (staging / name).write_bytes(png)
                 lap("plots")
             from .report import write_build_report
@@ -636,78 +605,10 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
     return result
 
 
-def _plot_files(raw: dict, inputs: Inputs, tests, param_tasks: dict, cycle_pngs: dict,
-                progress: Progress) -> dict[str, bytes]:
-    """Every plot of a build by file name: the fit plots and OCV of the pulse test (of
-    each test, drawn where it was fitted), the parameters per method, one validation per
-    cycle."""
-    from .plots import fit_pngs, ocv_png, pulse_test_degrees
-
-    at = pulse_test_degrees(inputs)
-    pngs = dict(fit_pngs(raw, at=at), **{"ocv.png": ocv_png(inputs, at=at)}) if not tests else {}
-    for t in tests:
-        pngs.update(t.pngs)
-    for m, task in param_tasks.items():
-        pngs[f"parameters-{m}.png"] = task.result(progress)
-    for label, png in cycle_pngs.items():
-        stem = label.replace("/", "-").rsplit(".", 1)[0]
-        pngs[f"validation-{stem}.png"] = png
-    return pngs
-
-
 def _quality(models: dict[str, EcmModel], flags: dict) -> dict:
     from .fit.quality import model_quality
 
     return {m: model_quality(model, flags.get(m, ())) for m, model in models.items()}
-
-
-def _row_spans(result: BuildResult, method: str) -> list | None:
-    """Per pulse test (a temperature row of a model over temperature): the SOC its OCV
-    and its RC tables were measured at; None with one test."""
-    from .model.spans import table_spans
-
-    rows = []
-    for t in result.tests:
-        if method not in t.models or not np.isfinite(t.temperature_c):
-            return None
-        spans = table_spans(t.models[method])
-        report = t.inputs.ocv_report
-        if report is not None and report.curves:
-            spans["ocv"] = [min(c.span[0] for c in report.curves),
-                            max(c.span[1] for c in report.curves)]
-        rows.append((float(t.temperature_c), spans))
-    return rows if len(rows) > 1 else None
-
-
-def _usage(result: BuildResult) -> None:
-    """Fit flags, and the SOC each validation ran through against the measured spans."""
-    from .model.spans import temperature_note, usage, usage_notes
-
-    test_c = one_test_c(result.tests, result.inputs)
-    report = result.inputs.ocv_report
-    ocv_span = None
-    if report is not None and report.curves:
-        ocv_span = (min(c.span[0] for c in report.curves), max(c.span[1] for c in report.curves))
-    for m, vals in result.validations.items():
-        result.usage[m] = {}
-        rows = _row_spans(result, m)
-        for name, v in vals.items():
-            use = usage(result.models[m], v, ocv_span, rows)
-            result.usage[m][name] = use
-            if m == result.best:
-                result.notes.extend(_named(w, v.source, name) for w in v.warnings)
-                result.notes.extend(usage_notes(result.models[m], name, use, ocv_span))
-                note = temperature_note(result.models[m], name, v, test_c)
-                result.notes.extend([note] if note else [])
-
-
-def _write_c(cfg: BuildConfig, result: BuildResult, staging: Path, progress: Progress):
-    """Generate C for the best model (if the code generator is installed) and check it."""
-    try:
-        from .c.check import build_c_outputs
-    except ImportError:
-        return None
-    return build_c_outputs(cfg, result, staging, progress)
 
 
 def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,

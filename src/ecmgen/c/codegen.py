@@ -37,6 +37,7 @@ references is :mod:`ecmgen.c.cbuild`; the build's C stage is :mod:`ecmgen.c.chec
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -418,7 +419,10 @@ def _fx_scalars(spec: CSpec, arrays: "_Arrays") -> list[tuple[str, str, str]]:
     return out
 
 
+@functools.lru_cache(maxsize=None)
 def _env():
+    """The templates' environment: one per process, so that each template is compiled once
+    (a build renders some for every numeric and again for its golden vectors)."""
     import jinja2
 
     return jinja2.Environment(loader=jinja2.FileSystemLoader(str(templates_dir())),

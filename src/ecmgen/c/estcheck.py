@@ -63,14 +63,29 @@ def estimator_equivalence(model, cm, time_s, current_a, voltage_v, soc0: float,
                           temperature_c=None) -> dict:
     """The C estimator over a record against its float32 reference (bit for bit: every
     predicted voltage, state and covariance entry) and its SOC against the float64 filter."""
+    ref = reference_check(cm, time_s, current_a, voltage_v, soc0, temperature_c)
+    soc64 = python_filter_soc(model, np.asarray(time_s, dtype=np.float64), current_a,
+                              voltage_v, soc0, cm.estimator.settings, temperature_c)
+    return equivalence_figures(ref, soc64)
+
+
+def reference_check(cm, time_s, current_a, voltage_v, soc0: float, temperature_c=None) -> dict:
+    """The C estimator over a record against its float32 reference: {"steps",
+    "bit_exact_vs_reference", "soc" (the C filter's)}."""
     time_s = np.asarray(time_s, dtype=np.float64)
     dt = cref.dt_from_time(time_s)
     got = run_estimator_c(cm, current_a, dt, voltage_v, soc0, temperature_c)
     ref = simulate_estimator_f32(cm.spec, cm.estimator, current_a, dt, voltage_v, soc0,
                                  temperature_c)
-    soc64 = python_filter_soc(model, time_s, current_a, voltage_v, soc0,
-                              cm.estimator.settings, temperature_c)
-    d = np.abs(got.soc.astype(np.float64) - soc64)
     return {"steps": int(time_s.size), "bit_exact_vs_reference": bool(bits_equal(got, ref)),
+            "soc": got.soc}
+
+
+def equivalence_figures(reference: dict, soc64: np.ndarray) -> dict:
+    """The estimator's figures from :func:`reference_check` and the float64 filter's SOC."""
+    soc = reference["soc"]
+    d = np.abs(soc.astype(np.float64) - soc64)
+    return {"steps": reference["steps"],
+            "bit_exact_vs_reference": reference["bit_exact_vs_reference"],
             "max_abs_soc_diff_vs_python": float(d.max()) if d.size else 0.0,
-            "soc_end": float(got.soc[-1]) if d.size else None}
+            "soc_end": float(soc[-1]) if d.size else None}

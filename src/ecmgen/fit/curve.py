@@ -100,10 +100,12 @@ from ..data.measure import TimeSeries
 from ..data.ocv import OcvTable
 from ..data.steps import merge_soc_steps
 from ..errors import InputError
+from ..parallel import in_threads
 from .curve_levels import (CV_TIE, both_ways, choose_penalty, data_tau_ranges,
                            level_fit_windows, level_nodes, level_windows, log_penalty,
                            log_references, node_error, ocv_node_sets, pulse_sampling_s, r0_holds,
-                           second_difference, taus_on_bound, tied_slow_pairs)
+                           r0_spans, second_difference, taus_on_bound, tied_slow_pairs)
+from . import curve_record as _cr
 from .curve_record import Record, W_SPAN_S, hats, pulse_record, rc_response, side_by_side
 from .lsq import log_grid, nelder_mead, solve_bounded
 
@@ -161,6 +163,7 @@ class CurveFit:
     windows: tuple = ()
     tau_ranges: dict | None = None   # {"fast": (lo, hi), "slow": ..., "diff": ...}, s
     rest_used_s: float | None = None  # the longest rest after a current change with rows
+    searches: list | None = None     # per OCV-offset node set, its time-constant searches
 
     def table(self, direction: str) -> DirectionFit:
         return self.charge if direction == "charge" else self.discharge
@@ -251,7 +254,7 @@ class _Problem:
         self.cv_sse = float("inf")      # held-out error leaving one level out (the fit's)
         # the SOC level (index) each row belongs to, -1 between levels (leave-one-out)
         self.level = np.full(self.rows.size, -1) if levels is None else levels[self.rows]
-        self._cache: dict = {}
+        self._cache, self._taus, self.searches = _cr.ResponseCache(), _cr.RevisitedTaus(), {}
 
     def _pair_mask(self, d: str) -> np.ndarray:
         """The rows driving direction ``d``'s slow and diffusion columns."""
@@ -266,17 +269,16 @@ class _Problem:
     def block(self, kind: str, tau: float, full: bool = False) -> np.ndarray:
         """The unit responses of branch ``kind`` at ``tau``: weighted rows (cached; the
         searches revisit time constants), or every kept sample (``full``)."""
-        key = (kind, round(float(np.log(tau)), 9))
-        if not full and key in self._cache:
-            return self._cache[key]
+        if not full:
+            tau = self._taus.tau(kind, tau)
+            cached = self._cache.get((kind, tau))
+            if cached is not None:
+                return cached
         u = {"fast": self.u_fast, "slow": self.u_slow, "diff": self.u_diff}[kind]
         x = rc_response(self.rec, tau, u)
         if full:
             return x
-        if len(self._cache) > 96:
-            self._cache.clear()
-        out = self._cache[key] = np.asfortranarray((x.T[:, self.rows] * self.w).T)
-        return out
+        return self._cache.put((kind, tau), np.multiply(x[self.rows], self.w[:, None]))
 
     def width(self, kind: str) -> int:
         """Columns of a branch block: its resistances, then one free restart state per gap."""
@@ -304,22 +306,30 @@ class _Problem:
         + a tiny ridge (columns no row sees, e.g. with a short relax_s, would be singular).
         A run with references in ``log_ref`` has its penalty on ln r instead, linearised
         about them (:func:`log_penalty`); the third term is then its constant part."""
-        lam = self.penalty if penalty is None else penalty
-        m, q, k = gram.copy(), g.copy(), 0.0
+        return self.regularised_many(gram, g, lay, [self.penalty if penalty is None
+                                                    else penalty])[0]
+
+    def regularised_many(self, gram: np.ndarray, g: np.ndarray, lay: dict, penalties) -> list:
+        """:meth:`regularised` at each weight of ``penalties`` (its terms worked out once)."""
         scale = np.sqrt(np.maximum(np.diag(gram), 0.0))
+        runs = []
         for a, n, d in lay["smooth"]:
-            sl = slice(a, a + n)
-            c = lam * float(np.mean(scale[sl])) ** 2
             ref = self.log_ref.get(a)
-            if ref is None:
-                m[sl, sl] += c * self.dtd[d]
-            else:
-                pm, pq, pk = log_penalty(self.dd[d], ref)
+            terms = (self.dtd[d], None, 0.0) if ref is None else log_penalty(self.dd[d], ref)
+            runs.append((slice(a, a + n), float(np.mean(scale[a:a + n])) ** 2, *terms))
+        ridge = 1e-12 * float(np.mean(np.diag(gram))) + 1e-300
+        out = []
+        for lam in penalties:
+            m, q, k = gram.copy(), g.copy(), 0.0
+            for sl, s2, pm, pq, pk in runs:
+                c = lam * s2
                 m[sl, sl] += c * pm
-                q[sl] += c * pq
-                k += c * pk
-        m[np.diag_indices_from(m)] += 1e-12 * float(np.mean(np.diag(gram))) + 1e-300
-        return m, q, k
+                if pq is not None:
+                    q[sl] += c * pq
+                    k += c * pk
+            m[np.diag_indices_from(m)] += ridge
+            out.append((m, q, k))
+        return out
 
     def solve(self, gram: np.ndarray, g: np.ndarray, lay: dict, hold_r0: bool = False
               ) -> tuple[np.ndarray, float]:
@@ -354,10 +364,13 @@ def _search(prob: _Problem, ranges: dict, progress=None):
     number of evaluations, notes)."""
     kinds = list(ranges)
     grids = {k: log_grid(*ranges[k]) for k in kinds}
-    blocks = [prob.r0w] + [prob.block(k, tau) for k in kinds for tau in grids[k]]
-    z = side_by_side(blocks)
+    # every grid block side by side, each made as it is copied in (no block list beside it)
+    z = side_by_side((prob.block(k, tau) if k else prob.r0w for k, tau in
+                      [(None, None)] + [(k, tau) for k in kinds for tau in grids[k]]),
+                     [prob.r0w.shape[1]] + [prob.width(k) for k in kinds for _ in grids[k]])
     gram = z.T @ z
     g = z.T @ prob.yw
+    del z
     width = {k: prob.width(k) for k in kinds}
     lay = prob.layout(kinds)
     start, off = {}, prob.r0w.shape[1]
@@ -440,7 +453,8 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
                      soc_nodes: np.ndarray = SOC_NODES,
                      direction_deadband_a: float | None = None, progress=None,
                      blocks_both_ways: bool = False, current_factor=None,
-                     neighbour_taus: dict | None = None) -> CurveFit:
+                     neighbour_taus: dict | None = None, searches: list | None = None
+                     ) -> CurveFit:
     """Fit one pulse test as a whole (module docstring): the curve method.
 
     series, pulses   the pulse test and its pulses (:func:`ecmgen.data.dcir.find_pulses`;
@@ -465,6 +479,8 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
                      either side ({"fast": s, "slow": s, "diff": s}; one model over
                      temperature): kept in place of the test's own where they predict a
                      left-out level better (:func:`_neighbour_choice`)
+    searches         the ``searches`` of an earlier fit of the same test with the same
+                     settings: its time-constant searches are taken, not run again
     """
     if i0_a is not None and current_factor is not None:
         raise ValueError("give i0_a or current_factor, not both")
@@ -501,13 +517,14 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
                                 None if blocks_both_ways else
                                 max(p.duration_s for p in complete))
     notes.extend(n)
-    spans = _r0_spans(complete, directions)
+    spans = r0_spans(complete, directions, R0_MIN_RATES)
     tied, n = ({}, []) if blocks_both_ways else tied_slow_pairs(complete, series.time_s)
     notes.extend(n)
+    searches = [] if searches is None else searches
     prob, got, n = _fit_problem(rec, complete, directions, capacity_ah, i0_a, spans, ranges,
                                 series, progress, may_split=not blocks_both_ways,
                                 current_factor=current_factor, tied=tied,
-                                neighbour_taus=neighbour_taus)
+                                neighbour_taus=neighbour_taus, searches=searches)
     notes.extend(n)
     taus, x, cost, n_eval, search_notes, ranges = got
     notes.extend(search_notes)
@@ -538,12 +555,12 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
                     float(taus["diff"]) if diffusion else None, i0_a, rms,
                     int(prob.rows.size), tuple(notes),
                     level_fit_windows(series, blocks, rec, fitted), dict(ranges),
-                    float(rec.rest_used_s))
+                    float(rec.rest_used_s), searches)
 
 
 def _fit_problem(rec: Record, complete, directions, capacity_ah: float, i0_a, spans: dict,
                  ranges: dict, series: TimeSeries, progress=None, may_split: bool = True,
-                 current_factor=None, tied=None, neighbour_taus=None):
+                 current_factor=None, tied=None, neighbour_taus=None, searches=None):
     """The linear problem of the record and its fit (:func:`_fit_time_constants`), with the
     OCV offsets at the levels or also half-way between them (a SOC move passes where the
     OCV table is interpolated between the rests, and its curvature there must not go into
@@ -560,15 +577,22 @@ def _fit_problem(rec: Record, complete, directions, capacity_ah: float, i0_a, sp
     # C-rates at a level) to tell it from r0 i
     split = may_split and all(len({p.c_rate for p in complete if p.direction == d}) >= 2
                               for d in directions)
-    fits = []
+    probs = []
     for nodes_ocv in ocv_node_sets(ocv_nodes):
         prob = _Problem(rec, bases, nodes_ocv, i0_a, spans, levels, split_ocv=split,
                         soc_span=span, current_factor=current_factor, tied=tied)
         if prob.rows.size < 4 * (prob.jd + prob.n_ocv):
             raise InputError(series.source, f"only {prob.rows.size} samples to fit the curve "
                                             "method on")
-        fits.append((prob, _fit_time_constants(prob, ranges, progress if not fits else None,
-                                                 neighbour_taus)))
+        if probs:
+            _cr.share_responses(prob, probs[0])
+        prob.searches = _cr.node_set_searches(searches, len(probs))
+        probs.append(prob)
+    # each node set's fit is its own: side by side on threads (as one after the other)
+    # where two searches' grid designs at once take little memory
+    fits = list(zip(probs, in_threads(_fit_time_constants, [
+        (prob, ranges, progress if k == 0 else None, neighbour_taus)
+        for k, prob in enumerate(probs)], _cr.grid_bytes(probs[0], ranges) <= _cr.THREADS_BYTES)))
     if len(fits) == 1:
         return fits[0][0], fits[0][1], []
     (p0, f0), (p1, f1) = fits
@@ -680,7 +704,7 @@ def _fit_time_constants(prob: _Problem, ranges: dict, progress=None, neighbour_t
     Panasonic tests: tau_slow 33 / 85 / 40 / 23 s at 25.7 / 0.6 / -9.9 / -19.9 degC with the
     search repeated, 36 / 35 / 14 / 19 s without; demo cycles mean MAE 29.3 vs 27.3 mV,
     leave one temperature out 66.3 vs 56.9 mV)."""
-    taus, x, cost, n_eval, notes = _search(prob, ranges, progress)
+    taus, x, cost, n_eval, notes = _cr.remembered(_search, prob, ranges, progress)
     kinds = list(ranges)
     z, lam, prob.cv_sse = _held_out(prob, kinds, taus)
     if lam != prob.penalty:
@@ -718,7 +742,7 @@ def _diffusion_on_bound(prob: _Problem, ranges: dict, taus: dict, fit: tuple, no
     with_diff = (taus, fit[0], fit[1], prob.penalty, prob.cv_sse)
     two = {k: v for k, v in ranges.items() if k != "diff"}
     prob.penalty = PENALTY
-    taus2, _, _, n_eval, more = _search(prob, two)
+    taus2, _, _, n_eval, more = _cr.remembered(_search, prob, two)
     z, lam, cv = _held_out(prob, list(two), taus2)
     where = f"{taus['diff']:.3g} s, on its bound ({lo:.3g} .. {hi:.3g} s)"
     r_diff = fit[0][prob.layout(list(ranges))["start"]["diff"]:][:prob.ndir]
@@ -758,24 +782,3 @@ def _smooth_in_log(prob: _Problem, kinds, taus: dict, fit: tuple):
         return fit
     prob.penalty = lam
     return _solve_at(prob, kinds, taus, z)
-
-
-def _r0_spans(complete, directions) -> dict:
-    """Per direction: (lo, hi), the SOC range of the pulses of the levels whose complete
-    pulses span at least ``need`` C-rates (R0_MIN_RATES, or as many as the best level has
-    if fewer), (low, high), that of all complete pulses, and ``need``."""
-    from .points import soc_levels
-
-    socs = np.array([p.soc for p in complete])
-    dirs = np.array([p.direction for p in complete])
-    rates = np.array([p.c_rate for p in complete])
-    out = {}
-    for d in directions:
-        levels = [g for g in soc_levels(socs, dirs) if dirs[g[0]] == d]
-        n = [np.unique(rates[g]).size for g in levels]
-        need = min(R0_MIN_RATES, max(n))
-        pinned = np.concatenate([g for g, k in zip(levels, n) if k >= need])
-        every = np.concatenate(levels)
-        out[d] = (float(socs[pinned].min()), float(socs[pinned].max()),
-                  float(socs[every].min()), float(socs[every].max()), need)
-    return out

@@ -13,7 +13,8 @@ import numpy as np
 from ..data.dcir import Pulse
 from ..data.measure import TimeSeries, charging_direction
 from .curve_record import hats
-from .lsq import GRID_RATIO, solve_bounded
+from .curve_cv import held_out_errors
+from .lsq import GRID_RATIO
 from .points import SOC_LEVEL_GAP, soc_levels
 
 # candidate weights of the second-difference penalty (relative to the column scale); up to
@@ -113,24 +114,8 @@ def choose_penalty(prob, z: np.ndarray, lay: dict, penalties=PENALTIES) -> tuple
     levels = [r for r in levels if r.size]
     if len(levels) < 3:
         return prob.penalty, {}
-    gram = z.T @ z
-    g = z.T @ prob.yw
-    free = lay["free"]
-    folds = []
-    for r in levels:
-        zk, yk = z[r], prob.yw[r]
-        folds.append((zk, yk, gram - zk.T @ zk, g - zk.T @ yk))
-    errors = {}
-    for lam in penalties:
-        e = 0.0
-        for zk, yk, gk, qk in folds:
-            x = solve_bounded(*prob.regularised(gk, qk, lay, lam)[:2], free)
-            res = yk - zk @ x
-            f = zk[:, free]
-            if f.size:
-                res = res - f @ np.linalg.lstsq(f, res, rcond=None)[0]
-            e += float(res @ res)
-        errors[float(lam)] = e
+    errors = dict(zip((float(lam) for lam in penalties),
+                      (float(e) for e in held_out_errors(prob, z, lay, penalties, levels))))
     best = min(errors.values())
     lam = max(k for k, v in errors.items() if v <= (1.0 + CV_TIE) * best)
     return lam, errors
@@ -289,3 +274,22 @@ def node_error(rec, prob, resid, nodes, mask, default):
     tot = w2.sum(axis=0)
     e2 = (w2 * (resid[prob.rows] ** 2)[:, None]).sum(axis=0)
     return np.where(tot > 0, np.sqrt(e2 / np.maximum(tot, 1e-300)), default)
+
+
+def r0_spans(complete, directions, min_rates: int) -> dict:
+    """Per direction: (lo, hi), the SOC range of the pulses of the levels whose complete
+    pulses span at least ``need`` C-rates (``min_rates``, or as many as the best level has
+    if fewer), (low, high), that of all complete pulses, and ``need``."""
+    socs = np.array([p.soc for p in complete])
+    dirs = np.array([p.direction for p in complete])
+    rates = np.array([p.c_rate for p in complete])
+    out = {}
+    for d in directions:
+        levels = [g for g in soc_levels(socs, dirs) if dirs[g[0]] == d]
+        n = [np.unique(rates[g]).size for g in levels]
+        need = min(min_rates, max(n))
+        pinned = np.concatenate([g for g, k in zip(levels, n) if k >= need])
+        every = np.concatenate(levels)
+        out[d] = (float(socs[pinned].min()), float(socs[pinned].max()),
+                  float(socs[every].min()), float(socs[every].max()), need)
+    return out

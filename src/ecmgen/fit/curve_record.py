@@ -3,6 +3,8 @@ rows, their weights, the folded rests, and the RC unit responses on that record.
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -11,8 +13,13 @@ from scipy.linalg import lapack
 from ..data.measure import TimeSeries, charging_direction
 from ..data.ocv import OcvTable
 from ..data.steps import pulse_test_gaps
+from .lsq import log_grid
 
 W_SPAN_S = (1.0, 300.0)    # a row's weight is sqrt(the seconds it stands for), within these
+# the two OCV-offset node sets are fitted side by side (threads) where a search's grid design
+# is at most this large: two at once of the A123 dynamic test's (98 MB) would set the
+# build's peak memory
+THREADS_BYTES = 64 * 2 ** 20
 
 
 @dataclass(frozen=True)
@@ -90,13 +97,20 @@ def pulse_record(series: TimeSeries, soc0: float, ocv: OcvTable, capacity_ah: fl
                    float(np.max(since[row & rest], initial=0.0)))
 
 
-def side_by_side(blocks) -> np.ndarray:
-    """The blocks side by side in one Fortran-ordered array (no transposing copy)."""
-    out = np.empty((blocks[0].shape[0], sum(b.shape[1] for b in blocks)), order="F")
+def side_by_side(blocks, widths=None) -> np.ndarray:
+    """The blocks side by side in one Fortran-ordered array (no transposing copy). With
+    their ``widths`` given, ``blocks`` may be an iterator that makes each block as it is
+    copied in (no block list beside the array)."""
+    if widths is None:
+        blocks = list(blocks)
+        widths = [b.shape[1] for b in blocks]
+    out = None
     at = 0
-    for b in blocks:
-        out[:, at:at + b.shape[1]] = b
-        at += b.shape[1]
+    for b, width in zip(blocks, widths):
+        if out is None:
+            out = np.empty((b.shape[0], sum(widths)), order="F")
+        out[:, at:at + width] = b
+        at += width
     return out
 
 
@@ -130,3 +144,105 @@ def rc_response(rec: Record, tau: float, u: np.ndarray) -> np.ndarray:
     return x
 
 
+class ResponseCache:
+    """The weighted unit-response blocks of a record by (branch, ln tau): the searches
+    revisit time constants. The least recently used go beyond ``max_bytes``; shared by the
+    problems of one record with the same rows, weights and inputs (the OCV offsets' two node
+    sets) and safe across threads (a block is the same whoever computes it)."""
+
+    def __init__(self, max_bytes: int = 64 * 2 ** 20):
+        self.max_bytes = max_bytes
+        self._blocks: OrderedDict = OrderedDict()
+        self._bytes = 0
+        self._lock = threading.Lock()
+
+    def get(self, key):
+        with self._lock:
+            block = self._blocks.get(key)
+            if block is not None:
+                self._blocks.move_to_end(key)
+            return block
+
+    def put(self, key, block: np.ndarray) -> np.ndarray:
+        with self._lock:
+            if key in self._blocks:
+                return self._blocks[key]
+            self._blocks[key] = block
+            self._bytes += block.nbytes
+            while self._bytes > self.max_bytes and len(self._blocks) > 1:
+                self._bytes -= self._blocks.popitem(last=False)[1].nbytes
+            return block
+
+
+class RevisitedTaus:
+    """The time constant a problem's response block is made at: of those whose ln tau
+    rounds to the same 9 decimals, the first met since the book was last cleared (beyond
+    97 entries). The searches meet a time constant again a rounding away (a grid point
+    reached from the simplex, exp(ln tau)); the fit has always taken the block first made
+    for it, and this keeps that, whatever the blocks' own cache (:class:`ResponseCache`,
+    by the exact tau) holds."""
+
+    def __init__(self):
+        self._taus: dict = {}
+
+    def state(self) -> dict:
+        return dict(self._taus)
+
+    def restore(self, state: dict) -> None:
+        self._taus = dict(state)
+
+    def tau(self, kind: str, tau: float) -> float:
+        key = (kind, round(float(np.log(tau)), 9))
+        first = self._taus.get(key)
+        if first is None:
+            if len(self._taus) > 96:
+                self._taus.clear()
+            first = self._taus[key] = float(tau)
+        return first
+
+
+def node_set_searches(searches: list, k: int) -> dict:
+    """The time-constant searches of OCV-offset node set ``k`` in ``searches`` (one dict
+    per node set; a new one added for a node set met the first time)."""
+    while len(searches) <= k:
+        searches.append({})
+    return searches[k]
+
+
+def remembered(search, prob, ranges: dict, progress=None):
+    """``search(prob, ranges, progress)``, or what it gave for these ranges before
+    (``prob.searches``: the same test fitted again, offered its neighbours' time constants,
+    searches as it did the first time). Only a problem's first search is kept and taken,
+    with the time constants it met (:class:`RevisitedTaus`): what follows then meets the
+    same blocks as after the search itself. Returns a copy."""
+    key = tuple((k, tuple(float(v) for v in r)) for k, r in ranges.items())
+    first = not prob._taus.state()
+    got = prob.searches.get(key) if first else None
+    if got is not None:
+        result, met = got
+        prob._taus.restore(met)
+    else:
+        result = search(prob, ranges, progress)
+        if first:
+            prob.searches[key] = (result, prob._taus.state())
+    taus, x, cost, n_eval, notes = result
+    return dict(taus), np.array(x, copy=True), cost, n_eval, list(notes)
+
+
+def share_responses(prob, other) -> None:
+    """``prob`` (a whole-test fit's problem, :class:`ecmgen.fit.curve._Problem`) takes
+    ``other``'s inputs and response blocks where they are its own too: the same record,
+    rows, weights and inputs (the other OCV-offset node set)."""
+    same = prob.rec is other.rec and all(
+        np.array_equal(getattr(prob, k), getattr(other, k))
+        for k in ("rows", "w", "u_fast", "u_slow", "u_diff"))
+    if same:
+        prob.u_fast, prob.u_slow, prob.u_diff = other.u_fast, other.u_slow, other.u_diff
+        prob._cache = other._cache
+
+
+def grid_bytes(prob, ranges: dict) -> int:
+    """The size of a problem's time-constant search grid design (every grid block side by
+    side, :func:`ecmgen.fit.curve._search`)."""
+    cols = prob.r0w.shape[1] + sum(prob.width(k) * log_grid(*ranges[k]).size for k in ranges)
+    return 8 * prob.rows.size * cols

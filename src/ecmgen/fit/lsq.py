@@ -30,6 +30,43 @@ def solve_bounded(m: np.ndarray, q: np.ndarray, free: np.ndarray | None = None) 
     return x
 
 
+def solve_bounded_many(systems: list, free: np.ndarray) -> np.ndarray:
+    """:func:`solve_bounded` of several (M, q) whose free rows are the same (M[free, :] and
+    q[free]; the penalties of the smoothing weights sit on bounded unknowns only): the free
+    unknowns are eliminated once, the reduced systems solved side by side, and only those
+    whose solution is not already >= 0 go through Lawson-Hanson. Each result is exactly
+    :func:`solve_bounded`'s. Returns (n_systems, n)."""
+    m0, q0 = systems[0]
+    f, c = np.flatnonzero(free), np.flatnonzero(~free)
+    if not f.size or not c.size or any(not np.array_equal(m[f], m0[f]) or
+                                       not np.array_equal(q[f], q0[f]) for m, q in systems[1:]):
+        return np.stack([solve_bounded(m, q, free) for m, q in systems])
+    a = m0[np.ix_(f, f)]
+    a = a + np.eye(f.size) * (1e-12 * max(float(np.max(np.diag(a))), 0.0) + 1e-300)
+    b = m0[np.ix_(f, c)]
+    try:
+        ai_b = np.linalg.solve(a, np.column_stack([b, q0[f]]))
+    except np.linalg.LinAlgError:
+        return np.stack([solve_bounded(m, q, free) for m, q in systems])
+    bt_ai_b = b.T @ ai_b[:, :-1]
+    bt_ai_q = b.T @ ai_b[:, -1]
+    reds, rhss = [], []
+    for m, q in systems:
+        red = m[np.ix_(c, c)] - bt_ai_b
+        reds.append(0.5 * (red + red.T))
+        rhss.append(q[c] - bt_ai_q)
+    try:
+        first = np.linalg.solve(np.stack(reds), np.stack(rhss)[:, :, None])[:, :, 0]
+    except np.linalg.LinAlgError:
+        first = None
+    out = np.zeros((len(systems), q0.size))
+    for k, (red, rhs) in enumerate(zip(reds, rhss)):
+        xc = first[k] if first is not None and np.all(first[k] >= 0) else nnls_gram(red, rhs)
+        out[k, c] = xc
+        out[k, f] = ai_b[:, -1] - ai_b[:, :-1] @ xc
+    return out
+
+
 def nnls_gram(m: np.ndarray, q: np.ndarray, max_iter: int | None = None) -> np.ndarray:
     """min 1/2 x'Mx - q'x subject to x >= 0 (M symmetric positive definite): Lawson-Hanson
     active set on the normal equations, started from the positive part of the
