@@ -77,3 +77,49 @@ def test_the_command_line_runs_one_blas_thread_unless_told():
     res = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
                          env={**env, "OPENBLAS_NUM_THREADS": "3"})
     assert res.stdout.split() == ["3", "1"]
+
+
+def test_the_library_holds_blas_to_one_thread_while_it_works():
+    """A notebook loads numpy (with its BLAS threads) before ecmgen: the fits, the
+    diagnosis and the filter hold BLAS to one thread while they run and give the caller's
+    setting back after, also when they fail."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    probe = """
+import json, numpy, ecmgen
+from threadpoolctl import threadpool_info, threadpool_limits
+from ecmgen.parallel import one_blas_thread
+
+def blas():
+    return sorted({i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"})
+
+seen = []
+@one_blas_thread
+def inner():
+    seen.append(blas())
+@one_blas_thread
+def outer(fail):
+    inner()
+    seen.append(blas())
+    if fail:
+        raise ValueError
+with threadpool_limits(2, user_api="blas"):
+    outer(False)
+    try:
+        outer(True)
+    except ValueError:
+        pass
+    seen.append(blas())
+names = ("build", "fit_ga", "fit_lm", "fit_pulse_curves", "diagnose", "estimate_record",
+         "run_filter")
+print(json.dumps({"seen": seen,
+                  "wrapped": all(hasattr(getattr(ecmgen, n), "__wrapped__") for n in names)}))
+"""
+    env = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
+    res = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True,
+                         text=True)
+    assert res.returncode == 0, res.stderr
+    assert json.loads(res.stdout) == {"seen": [[1], [1], [1], [1], [2]], "wrapped": True}

@@ -33,7 +33,7 @@ from .model.model import RC_FIELDS, EcmModel, InputRecord, RcTable
 from .model.tables import copied_directions, level_tables
 from .model.simulate import Validation
 from .outputs import check_output_folder, staged
-from .parallel import Workers
+from .parallel import Workers, one_blas_thread
 from .validation import (plot_files, record_usage, submit_c, validate_all, validation_plots,
                          validation_png_name)
 
@@ -454,6 +454,7 @@ def curve_fit_png(curve_fit, label: str, temperature_c: float,
     return fit_pngs({"curve_fit": curve_fit}, f"-{label}", at=degrees(temperature_c))
 
 
+@one_blas_thread
 def fit_all(cfg: BuildConfig, progress: Progress = _quiet, *, workers: Workers | int = 2,
             plots: bool = False):
     """Every method's model of the config: (models, raw fits, inputs, tests), every
@@ -524,6 +525,7 @@ def with_surface_soc(cfg: BuildConfig, models: dict[str, EcmModel]) -> dict[str,
     return out
 
 
+@one_blas_thread
 def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
           plots: bool = True, c_code: bool = True, workers: int = 2,
           strict: bool = False) -> BuildResult:

@@ -49,6 +49,7 @@ from ..model.effects import KELVIN
 from ..model.model import EcmModel
 from ..model.rc import rc_recurrence
 from ..model.simulate import SimResult, initial_soc, simulate
+from ..parallel import one_blas_thread
 from .problems import _Problem, _Spec, _fit, _fixed, _neutral, _specs
 
 
@@ -414,6 +415,7 @@ def _judged_samples(soc: np.ndarray, soc_min: float) -> tuple[np.ndarray, int]:
     return keep, int(soc.size - keep.size)
 
 
+@one_blas_thread
 def diagnose(base_model: EcmModel, fit_series: TimeSeries,
              judge_series: TimeSeries | None = None, soc0: float | None = None,
              judge_soc0: float | None = None, *, split: float = 0.6,

@@ -20,6 +20,7 @@ from ..data.sign import check_sign
 from ..errors import InputError
 from ..model.model import EcmModel
 from ..model.simulate import sample_temperatures
+from ..parallel import one_blas_thread
 from .ekf import Ekf
 from .process import StepModel
 
@@ -90,6 +91,7 @@ def coulomb_count(model: EcmModel, time_s, current_a, soc0: float) -> np.ndarray
     return soc0 + np.cumsum(np.asarray(current_a, dtype=np.float64) * dt) * step.soc_per_as
 
 
+@one_blas_thread
 def run_filter(model: EcmModel, time_s, current_a, voltage_v, soc0: float,
                cfg: EstimatorConfig | None = None, temperature_c=None) -> Estimate:
     """Run the configured filter over a record: ``current_a`` is the current the filter
@@ -119,6 +121,7 @@ def run_filter(model: EcmModel, time_s, current_a, voltage_v, soc0: float,
     return Estimate(time_s, states[:, 0].copy(), sigma, v_pred, states, sm.layout.names)
 
 
+@one_blas_thread
 def estimate_record(model: EcmModel, series: TimeSeries, soc0_guess: float,
                     soc0: float = 1.0, cfg: EstimatorConfig | None = None, *,
                     current_offset_a: float = 0.0, current_gain: float = 1.0,

@@ -100,7 +100,7 @@ from ..data.measure import TimeSeries
 from ..data.ocv import OcvTable
 from ..data.steps import merge_soc_steps
 from ..errors import InputError
-from ..parallel import in_threads
+from ..parallel import in_threads, one_blas_thread
 from .curve_levels import (CV_TIE, both_ways, choose_penalty, data_tau_ranges,
                            level_fit_windows, level_nodes, level_windows, log_penalty,
                            log_references, node_error, ocv_node_sets, pulse_sampling_s, r0_holds,
@@ -443,6 +443,7 @@ def _search(prob: _Problem, ranges: dict, progress=None):
 
 
 # ------------------------------------------------------------------------------ the fit
+@one_blas_thread
 def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
                      capacity_ah: float, *, i0_a: float | None = None,
                      steps: TimeSeries | None = None, diffusion: bool = True,

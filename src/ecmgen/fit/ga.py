@@ -12,6 +12,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from ..parallel import one_blas_thread
 from .points import (_LOG_GAP, Bounds, PointFit, Progress, _bounds_for, _clip_params, _phi,
                      _prepare, _result)
 
@@ -137,6 +138,7 @@ _GA = dict(eta_c=2.0, p_sbx=0.5, line_ext=0.5, p_mut=0.5, sigma0=0.2, sigma_half
            decades=5.0, floor=1e-3)
 
 
+@one_blas_thread
 def fit_ga(t_s, r_ohm, *, bounds: Bounds | None = None, seed: int = 0, population: int = 48,
            max_generations: int = 2000, stall_generations: int = 50,
            function_tolerance: float = 1e-6, progress: Progress | None = None) -> PointFit:

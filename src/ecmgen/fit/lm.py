@@ -10,6 +10,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from ..parallel import one_blas_thread
 from .points import (_LOG_GAP, Bounds, PointFit, Progress, _Data, _bounds_for, _clip_params,
                      _eq5, _prepare, _result)
 
@@ -285,6 +286,7 @@ _GRID = 12
 _N_STARTS = 4
 
 
+@one_blas_thread
 def fit_lm(t_s, r_ohm, *, bounds: Bounds | None = None, x0: PointFit | None = None,
            max_iterations: int = 200, progress: Progress | None = None) -> PointFit:
     """Levenberg-Marquardt fit of every cell at once (paper Eqs. 6-8).
