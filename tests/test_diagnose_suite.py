@@ -16,8 +16,8 @@ from conftest import REPO
 
 SUITE = REPO.parent / "shared" / "diagnose-suite"
 CELLS = sorted(p.parent.name for p in SUITE.glob("*/truth.json"))
-# named wrong today: c12 (an extra RC of 391 s that the base's slow pair takes up: held-out
-# error 1.7 mV against 1.15 mV of noise)
+# named wrong today (strict known misses): c12 (an extra RC of 391 s that the base's slow
+# pair takes up: held-out error 1.7 mV against 1.15 mV of noise; nothing named)
 KNOWN_MISSES = {"c12"}
 
 
@@ -30,7 +30,9 @@ def _bench():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("cell", CELLS or ["(none)"])
+@pytest.mark.parametrize("cell", [
+    pytest.param(c, marks=pytest.mark.xfail(strict=True, reason="named wrong today"))
+    if c in KNOWN_MISSES else c for c in CELLS] or ["(none)"])
 def test_diagnose_suite_cell(cell):
     if not CELLS:
         pytest.skip(f"diagnose suite not found at {SUITE}")
@@ -40,6 +42,6 @@ def test_diagnose_suite_cell(cell):
     assert row["non_positive"] == 0, row
     if truth == "none":
         assert row["named"] == [] and not row["unexplained"], row
-    elif cell not in KNOWN_MISSES:
+    else:
         assert row["named"][:1] == [truth], row
         assert row["drop"] >= 0.4, row
