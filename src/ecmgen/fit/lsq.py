@@ -14,10 +14,7 @@ def solve_bounded(m: np.ndarray, q: np.ndarray, free: np.ndarray | None = None) 
     if free is None or not free.any():
         return nnls_gram(m, q)
     f, c = np.flatnonzero(free), np.flatnonzero(~free)
-    a = m[np.ix_(f, f)]
-    # a state that no row sees (it decayed before the next row) has a zero column: 0
-    a = a + np.eye(f.size) * (1e-12 * max(float(np.max(np.diag(a))), 0.0) + 1e-300)
-    b = m[np.ix_(f, c)]
+    a, b = _free_blocks(m, f, c)
     try:
         ai_b = np.linalg.solve(a, np.column_stack([b, q[f]]))
     except np.linalg.LinAlgError:
@@ -28,6 +25,14 @@ def solve_bounded(m: np.ndarray, q: np.ndarray, free: np.ndarray | None = None) 
     x[c] = xc
     x[f] = ai_b[:, -1] - ai_b[:, :-1] @ xc
     return x
+
+
+def _free_blocks(m: np.ndarray, f: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """M's free-free block (a state that no row sees, decayed before the next row, has a
+    zero column: its diagonal lifted by a hair so it solves to 0) and its free-bounded one."""
+    a = m[np.ix_(f, f)]
+    a = a + np.eye(f.size) * (1e-12 * max(float(np.max(np.diag(a))), 0.0) + 1e-300)
+    return a, m[np.ix_(f, c)]
 
 
 def solve_bounded_many(systems: list, free: np.ndarray) -> np.ndarray:
@@ -41,9 +46,7 @@ def solve_bounded_many(systems: list, free: np.ndarray) -> np.ndarray:
     if not f.size or not c.size or any(not np.array_equal(m[f], m0[f]) or
                                        not np.array_equal(q[f], q0[f]) for m, q in systems[1:]):
         return np.stack([solve_bounded(m, q, free) for m, q in systems])
-    a = m0[np.ix_(f, f)]
-    a = a + np.eye(f.size) * (1e-12 * max(float(np.max(np.diag(a))), 0.0) + 1e-300)
-    b = m0[np.ix_(f, c)]
+    a, b = _free_blocks(m0, f, c)
     try:
         ai_b = np.linalg.solve(a, np.column_stack([b, q0[f]]))
     except np.linalg.LinAlgError:
