@@ -288,7 +288,7 @@ def window_start_soc(model: EcmModel, series: TimeSeries,
         return _window_residual(model, part, temps, soc0)[0]
 
     grid = np.linspace(0.0, 1.0, 51)
-    costs = [misfit(s) for s in grid]
+    costs = np.array([misfit(s) for s in grid])
     k = int(np.argmin(costs))
     lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)]
     for _ in range(30):                       # golden section about the grid's best
@@ -298,16 +298,18 @@ def window_start_soc(model: EcmModel, series: TimeSeries,
         else:
             lo = m1
     soc0 = float(np.clip(0.5 * (lo + hi), 0.0, 1.0))
-    if misfit(float(grid[k])) < misfit(soc0):
-        soc0 = float(grid[k])
     cost, rms = _window_residual(model, part, temps, soc0)
+    if costs[k] < cost:
+        soc0 = float(grid[k])
+        cost, rms = _window_residual(model, part, temps, soc0)
     t0 = None if temps is None else float(temps[0])
     slope = float(np.interp(soc0, *_ocv_slope(model, t0)))
     # the larger of two: the residual over the OCV's slope (what a model error that size
     # moves), and the profile's half width (how far the start SOC moves, the RC voltages
     # refitted, before the weighted misfit grows by one: a short window or one under load
     # says little however well it is fitted)
-    sigma = max(rms / max(slope, 1e-3), _profile_half_width(misfit, soc0, cost + 1.0))
+    sigma = max(rms / max(slope, 1e-3),
+                _profile_half_width(misfit, grid, costs, soc0, cost + 1.0))
     how = (f"the voltage over its first {t[n - 1] - t[0]:.0f} s against the model (it opens "
            f"unsettled: under load, or in a rest too short to read), each RC pair's starting "
            f"voltage fitted with it: {soc0:.3f} +- {sigma:.3f} (residual {rms * 1e3:.1f} mV RMS "
@@ -317,16 +319,19 @@ def window_start_soc(model: EcmModel, series: TimeSeries,
     return StartSoc(soc0, float(sigma), False, how)
 
 
-def _profile_half_width(misfit, soc0: float, limit: float) -> float:
+def _profile_half_width(misfit, grid: np.ndarray, costs: np.ndarray, soc0: float,
+                        limit: float, steps: int = 16) -> float:
     """Half the width of the SOC interval about ``soc0`` where ``misfit`` stays below
-    ``limit`` (each side found by bisection; a side that never reaches it ends at 0 or 1)."""
+    ``limit``: on each side the nearest grid point above it (its cost known) brackets the
+    edge, found by bisection; a side with none ends at 0 or 1."""
     widths = []
-    for end in (0.0, 1.0):
-        near, far = soc0, end
-        if misfit(far) <= limit:
-            widths.append(abs(far - soc0))
+    for side in (-1.0, 1.0):
+        beyond = grid[(side * (grid - soc0) > 0) & (costs > limit)]
+        if beyond.size == 0:
+            widths.append(soc0 if side < 0 else 1.0 - soc0)
             continue
-        for _ in range(20):
+        near, far = soc0, float(beyond[-1] if side < 0 else beyond[0])
+        for _ in range(steps):
             mid = 0.5 * (near + far)
             near, far = (mid, far) if misfit(mid) <= limit else (near, mid)
         widths.append(abs(0.5 * (near + far) - soc0))
