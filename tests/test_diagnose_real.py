@@ -43,7 +43,7 @@ def test_lfp_names_hysteresis():
     r = diagnose(base, cycle, soc0=soc0)
     print(r.to_json_dict())
     assert r.effects[:1] == ("hysteresis",)
-    assert r.mae_after_v < 0.6 * r.mae_before_v
+    assert r.mae_after_v < 0.6 * r.mae_before_v      # the spec's 40 % held-out drop
     h = r.model.effects[0]
     assert h.m_v > 0.01                               # tens of mV, as LFP shows
     assert h.ocv_table_state > 0.5                    # the OCV table is the charge branch
@@ -64,7 +64,8 @@ def test_plett_a123_names_hysteresis_from_its_dynamic_test(tmp_path):
     cfg = load_config(REPO / "examples" / "a123-dynamic" / "config.toml")
     r, _, _ = run_diagnose(cfg, tmp_path / "out", plots=False)
     assert r.effects[:1] == ("hysteresis",), r.to_json_dict()["verdict"]
-    assert r.mae_after_v < 0.5 * r.mae_before_v
+    # the spec's diagnose target: the held-out MAE falls by at least 40 %
+    assert r.mae_after_v < 0.6 * r.mae_before_v
     assert r.model.effects[0].m_v > 0.005              # mV-scale LFP hysteresis
     _a123_started_on_the_plateau(r.model, cfg)
 
@@ -90,6 +91,7 @@ def _a123_started_on_the_plateau(model, cfg):
                               current_offset_a=model.capacity_ah / 100.0, current_gain=1.01)
         e = run.estimate.soc - run.soc_ref
         late = run.estimate.time_s - run.estimate.time_s[0] >= 3600.0
+        # the estimator spec's A123 target: within 3 % after 3 600 s
         assert np.max(np.abs(e[late])) < 0.03, guess
         assert np.all(np.abs(e) <= 3.0 * run.estimate.soc_sigma + 1e-9), guess
 
@@ -121,7 +123,7 @@ def test_panasonic_us06_judged_on_hwfet():
     assert r.mae_before_v > 0.02                     # the 10 s-pulse model: ~25 mV
     assert r.effects, "nothing found"
     assert "extra_rc" in r.effects                   # minutes-long polarisation
-    assert r.mae_after_v <= 0.01
+    assert r.mae_after_v <= 0.015                    # the spec: HWFET-a within 15 mV
     # the end of HWFET below 10 % SOC is not judged; validate gives the same number there
     assert "above 10 % SOC" in r.split
     assert validate(r.model, hwfet).soc_above_10.mae_v == pytest.approx(r.mae_after_v,
