@@ -5,6 +5,7 @@ its own sigma."""
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import replace
 
@@ -252,27 +253,52 @@ def _noisy_truth(model, n, seed):
     return t, i, temp, v, sim.soc
 
 
+# The estimator spec's figures: |error| <= 3 sigma on >= 95 % of samples, and max |error|
+# after the first 600 s <= 3 %.
+SPEC_SIGMAS, SPEC_SHARE, SPEC_AFTER_S, SPEC_MAX = 3.0, 0.95, 600.0, 0.03
+
+
+@functools.lru_cache(maxsize=None)
+def _tracked(filter_, start_polarization_c=0.0):
+    """The known-truth cell's profile filtered from the guess 0.6 (truth 0.95): time,
+    estimate, true SOC."""
+    model = _model("surface" if filter_.endswith("surface") else ())
+    kind = filter_.split("-")[0]
+    n = 8000 if kind == "ekf" else 3000
+    t, i, temp, v, soc_true = _noisy_truth(model, n, seed=11)
+    cfg = EstimatorConfig(filter=kind, current_noise_a=0.05,
+                          start_polarization_c=start_polarization_c)
+    return t, run_filter(model, t, i, v, 0.6, cfg, temp), soc_true
+
+
 @pytest.mark.parametrize("filter_", ["ekf", "ukf", "ekf-surface"])
 def test_known_truth_cell_is_tracked_within_its_sigma(filter_):
-    model = _model("surface" if filter_.endswith("surface") else ())
-    filter_ = filter_.split("-")[0]
-    n = 8000 if filter_ == "ekf" else 3000
-    t, i, temp, v, soc_true = _noisy_truth(model, n, seed=11)
+    t, est, soc_true = _tracked(filter_)
     assert 0.2 < soc_true.min() < 0.5
-    cfg = EstimatorConfig(filter=filter_, current_noise_a=0.05)
-    est = run_filter(model, t, i, v, 0.6, cfg, temp)
     err = est.soc - soc_true
-    late = slice(10, None)
-    inside = np.abs(err[late]) <= 2.0 * est.soc_sigma[late]
-    assert inside.mean() > 0.9, (inside.mean(), np.abs(err[late]).max())
-    assert np.abs(err[late]).max() < 0.05
-    assert abs(err[0]) < 0.1           # the rested first sample tells the SOC at once
+    inside = np.abs(err) <= SPEC_SIGMAS * est.soc_sigma
+    assert inside.mean() >= SPEC_SHARE, (inside.mean(), np.abs(err).max())
+    # the rested first sample tells the SOC at once: within its 3 sigma, which is already
+    # narrower than the guess's error
+    assert abs(err[0]) <= SPEC_SIGMAS * est.soc_sigma[0] < abs(0.6 - soc_true[0]), \
+        (err[0], est.soc_sigma[0])
     # started anywhere (start_polarization_c > 0), one sample does not set the SOC: the
     # first, with dt = 0, carries no information; the sigma covers the error as it closes
-    est = run_filter(model, t, i, v, 0.6, replace(cfg, start_polarization_c=0.5), temp)
+    t, est, soc_true = _tracked(filter_, 0.5)
     err = est.soc - soc_true
-    assert est.soc[0] == 0.6 and np.abs(err[300:]).max() < 0.05
-    assert np.mean(np.abs(err) <= 3.0 * est.soc_sigma) > 0.95
+    assert est.soc[0] == 0.6 and np.abs(err[t >= SPEC_AFTER_S]).max() <= SPEC_MAX
+    assert np.mean(np.abs(err) <= SPEC_SIGMAS * est.soc_sigma) >= SPEC_SHARE
+
+
+@pytest.mark.parametrize("filter_", [
+    "ekf", "ekf-surface",
+    pytest.param("ukf", marks=pytest.mark.xfail(strict=True, reason=(
+        "known miss: from the rested start at SOC 0.95 the UKF opens at 1.0 and is still "
+        "3.03 % off at 600 s")))])
+def test_known_truth_rested_start_meets_the_spec_after_600_s(filter_):
+    t, est, soc_true = _tracked(filter_)
+    worst = np.abs(est.soc - soc_true)[t >= SPEC_AFTER_S].max()
+    assert worst <= SPEC_MAX, worst
 
 
 def test_cholesky():
@@ -321,7 +347,9 @@ def test_cli_estimate_writes_the_csv_and_json(cycle_files):
     doc = json.loads(res.stdout)
     keys = {"soc_rmse", "soc_mae", "soc_max_abs", "soc_max_abs_after_600s", "converge_s"}
     assert keys <= set(doc) and keys == set(doc["coulomb_counting"])
-    assert doc["soc_max_abs_after_600s"] < 0.02 < doc["coulomb_counting"]["soc_rmse"]
+    # the spec's 3 % after 600 s, and better than coulomb counting from the same guess
+    cc = doc["coulomb_counting"]
+    assert doc["soc_max_abs_after_600s"] <= SPEC_MAX < cc["soc_max_abs_after_600s"], doc
     lines = out.read_text().splitlines()
     assert lines[0] == "time_s,soc,soc_sigma,voltage_pred_v,soc_ref"
     assert len(lines) == 1201
@@ -459,8 +487,10 @@ def test_real_cycle_targets(folder, name):
     series = read_timeseries(path, capacity_ah=model.capacity_ah)
     run = estimate_record(model, series, 0.8, 1.0, current_offset_a=0.029, current_gain=1.01)
     assert run.filter.soc_rmse <= 0.01, run.filter
-    assert run.filter.soc_max_abs_after_600s <= 0.03, run.filter
-    assert run.coulomb_counting.soc_rmse > 0.15
+    assert run.filter.soc_max_abs_after_600s <= SPEC_MAX, run.filter
+    # coulomb counting keeps the 0.2 start error, less at most what the 1 % gain (of the
+    # <= 0.8 SOC these cycles discharge) and the 29 mA offset (over their < 3 h) can move
+    assert run.coulomb_counting.soc_rmse > 0.2 - 0.01 * 0.8 - 0.029 * 3 / 2.9
     exact = estimate_record(model, series, 1.0, 1.0)
     assert exact.filter.soc_max_abs <= 0.01, exact.filter
     # honest sigma: the error is within 3 sigma nearly everywhere
