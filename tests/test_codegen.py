@@ -378,7 +378,14 @@ def test_build_c_outputs_for_the_pipeline(tmp_path, synthetic_model):
         assert set(block) == {"float", "fixed"}
         for n, r in block.items():
             assert r["bit_exact_vs_reference"] and r["cycle"] == "cycle.csv"
-            assert abs(r["mae_v"] - 0.002) < 2e-4 and r["max_abs_diff_vs_python_v"] < 1e-4
+            # the C against the Python model within the spec's tolerances (|dMAE|, max |dv|:
+            # float 0.05 / 0.5 mV, fixed 0.5 / 2 mV); on the record's own time stamps the
+            # Python model's MAE is the 2 mV offset (at a fixed 0.1 s step it is not)
+            d_mae, d_max = {"float": (0.05e-3, 0.5e-3), "fixed": (0.5e-3, 2e-3)}[n]
+            assert abs(r["mae_v"] - r["python_mae_v"]) <= d_mae, r
+            assert r["max_abs_diff_vs_python_v"] <= d_max, r
+            if dt_s is None:
+                assert r["python_mae_v"] == pytest.approx(0.002, abs=1e-12), r
             nm = file_names("pk", n)
             assert r["dir"] == f"c/{n}" and f"c/{n}/{nm['source']}" in r["files"]
             rep = (out / "c" / n / nm["report"]).read_text()

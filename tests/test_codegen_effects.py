@@ -353,5 +353,6 @@ def test_build_c_outputs_for_a_model_with_effects(tmp_path):
     block = build_c_outputs(cfg, result, tmp_path)
     for n, r in block.items():
         assert r["bit_exact_vs_reference"], n
-        assert abs(r["mae_v"] - 0.002) < 2e-4 and r["max_abs_diff_vs_python_v"] < TOL[n][1]
+        # the 2 mV offset, to the spec's |dMAE| and max |dv|
+        assert abs(r["mae_v"] - 0.002) <= TOL[n][0] and r["max_abs_diff_vs_python_v"] <= TOL[n][1]
         assert f"c/{n}/{file_names('pk', n)['runtime'][-1]}" in r["files"]

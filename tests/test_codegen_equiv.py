@@ -47,7 +47,7 @@ def test_synthetic_bit_exact_and_close(synthetic_model, numeric, dt_s):
     assert np.array_equal(run, cm.trace_native(i_n, dt_n, s0).v)
     r = cbuild.compare(synthetic_model, cm, t, cur, 0.85, measured_v=None)
     assert r["bit_exact_vs_reference"] and r["max_abs_diff_vs_reference_v"] == 0.0
-    assert r["max_abs_diff_vs_python_v"] < TOL[numeric][1] / 10
+    assert r["max_abs_diff_vs_python_v"] <= TOL[numeric][1]
 
 
 def test_starting_direction_and_deadband(synthetic_model):
@@ -197,9 +197,9 @@ def test_c_equivalence_block_shape(synthetic_model):
     v = simulate(synthetic_model, t, cur, 0.7).voltage_v + 0.001
     res = cbuild.c_equivalence(synthetic_model, TimeSeries(t, cur, v), 0.7)
     assert set(res) == {"float", "fixed"}
-    for r in res.values():
+    for n, r in res.items():
         assert {"mae_v", "max_abs_diff_vs_python_v"} <= set(r)
-        assert abs(r["mae_v"] - 0.001) < 1e-4
+        assert abs(r["mae_v"] - 0.001) <= TOL[n][0]     # the 1 mV offset, to the spec's |dMAE|
         assert all(np.isfinite(x) for x in r.values() if isinstance(x, float))
 
 

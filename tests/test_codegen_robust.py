@@ -151,7 +151,8 @@ def test_currents_beyond_limit_equal_python_on_the_saturated_current():
         t = np.arange(cur.size) * 0.01
         v = cm.simulate(cur, cref.dt_from_time(t), 0.5)
         v64 = cbuild.python_voltage(_model(), t, np.clip(cur, -lim, lim), 0.5)
-        assert np.max(np.abs(v - v64)) < 2e-3, numeric
+        # the spec's max |dv| against the float64 model: float 0.5 mV, fixed 2 mV
+        assert np.max(np.abs(v - v64)) <= (0.5e-3 if numeric == "float" else 2e-3), numeric
 
 
 # --- sanitizer build ---------------------------------------------------------------------
