@@ -214,7 +214,7 @@ def test_c_estimator_takes_it_and_the_python_filter_too(tmp_path):
                         str(csv), "--soc0", "0.95", "--soc0-guess", "0.75", "--json"],
                        capture_output=True, text=True, cwd=tmp_path)
     assert r.returncode == 0, r.stderr
-    assert json.loads(r.stdout)["soc_max_abs_after_600s"] < 0.02
+    assert json.loads(r.stdout)["soc_max_abs_after_600s"] <= 0.03    # the spec's 3 % after 600 s
 
 
 def test_config_key(tmp_path):
