@@ -258,7 +258,7 @@ def _noisy_truth(model, n, seed):
 SPEC_SIGMAS, SPEC_SHARE, SPEC_AFTER_S, SPEC_MAX = 3.0, 0.95, 600.0, 0.03
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _tracked(filter_, start_polarization_c=0.0):
     """The known-truth cell's profile filtered from the guess 0.6 (truth 0.95): time,
     estimate, true SOC."""
