@@ -387,8 +387,10 @@ def test_cli_estimate_window_starts_mid_record(cycle_files):
 
     assert doc["start"] == "anywhere"
     assert {k: doc["settings"][k] for k in START_ANYWHERE} == START_ANYWHERE
+    # a window from the record's first sample: this record opens under load (3 A), so a
+    # start anywhere too, though --soc0 tells the SOC
     for args, start, pol in ((("--start", "rested"), "rested", 0.0),
-                             (("--window-s", "0", "1100"), "rested", 0.0),
+                             (("--window-s", "0", "1100"), "anywhere", 0.5),
                              (("--window-s", "0", "1100", "--start", "anywhere"), "anywhere",
                               0.5)):
         res = _cli("estimate", cycle_files / "model.json", cycle_files / "cycle.csv",
@@ -501,10 +503,12 @@ def test_real_cycle_targets(folder, name):
 def test_cli_estimate_judges_the_start_from_the_record(cycle_files):
     """Without --soc0 the start SOC comes from the record; one that opens under load (this
     cycle's first sample draws 3 A) gets the filter of a start anywhere, never the rested
-    one silently; --start rested still wins."""
+    one silently, also when --soc0 tells the start SOC (it says nothing of whether the
+    first voltage is the OCV); --start rested still wins."""
     import json
 
-    for args, start in (((), "anywhere"), (("--start", "rested"), "rested")):
+    for args, start in (((), "anywhere"), (("--soc0", "0.9"), "anywhere"),
+                        (("--start", "rested"), "rested")):
         res = _cli("estimate", cycle_files / "model.json", cycle_files / "cycle.csv",
                    "--json", *args)
         assert res.returncode == 0, res.stderr

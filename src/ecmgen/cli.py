@@ -278,7 +278,7 @@ def cmd_estimate(args) -> int:
     from .estimate.run import estimate_csv_text, estimate_json, estimate_record
     from .files import write_atomic
     from .model.model import load_model
-    from .model.simulate import start_estimate
+    from .model.simulate import opens_settled, start_estimate
 
     out = None
     if args.out:
@@ -315,6 +315,9 @@ def cmd_estimate(args) -> int:
         if start is None and not found.settled and not set_keys & {"start",
                                                                    "start_polarization_c"}:
             start = "anywhere"          # it opens under load or mid-relaxation: not rested
+    elif start is None and not set_keys & {"start", "start_polarization_c"}:
+        if not opens_settled(model, series, args.temperature_c):   # told the SOC only
+            start = "anywhere"
     if args.window_s is not None:
         first_t = float(series.time_s[0])
         series, soc0 = _window_start(model, series, soc0, args.window_s)
@@ -622,7 +625,7 @@ def parser() -> argparse.ArgumentParser:
                    help="how the record starts: rested (its first voltage read as the OCV) "
                         "or anywhere (under load or mid-relaxation: the start-anywhere "
                         "settings where [estimator] sets none); default: the config's, "
-                        "anywhere when --window-s cuts the record")
+                        "anywhere when the record (or --window-s) opens unsettled")
     e.add_argument("--out", help="write time_s,soc,soc_sigma,voltage_pred_v,soc_ref here")
     e.add_argument("--json", action="store_true")
     e.add_argument("--quiet", action="store_true", help="(no progress is shown anyway)")

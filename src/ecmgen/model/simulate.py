@@ -258,17 +258,35 @@ def start_estimate(model: EcmModel, series: TimeSeries) -> StartSoc:
     uses its OCV at the record's first temperature). Any other opening -- under load, in a
     stop of a few seconds, mid-relaxation -- is read from the voltage over its first
     START_WINDOW_S against the model (:func:`window_start_soc`), with its uncertainty."""
-    from ..data.soc import record_start_soc, settled_opening
+    from ..data.soc import record_start_soc
+
+    settled, ocv, rest_a = _opening(model, series)
+    if settled:
+        soc0, how = record_start_soc(ocv, model.capacity_ah, series, rest_a)
+        return StartSoc(float(soc0), 0.0, True, how)
+    return window_start_soc(model, series)
+
+
+def opens_settled(model: EcmModel, series: TimeSeries, temperature_c=None) -> bool:
+    """Whether the record opens settled for ``model`` (as :func:`start_estimate` judges
+    it; ``temperature_c`` where the record has no temperature column), without reading
+    the start SOC: a filter told the start SOC still needs to know whether the first
+    voltage is the OCV."""
+    if series.temperature_c is None and temperature_c is not None:
+        series = replace(series, temperature_c=np.full(series.time_s.size, temperature_c))
+    return _opening(model, series)[0]
+
+
+def _opening(model: EcmModel, series: TimeSeries):
+    """(settled, the OCV at the record's first temperature, the rest current)."""
+    from ..data.soc import settled_opening
 
     rest_a = max(model.direction_deadband_a, model.capacity_ah / 100.0)
     temps = sample_temperatures(model, series.time_s.size, series.temperature_c,
                                 series.source)
     ocv = model.ocv.at_temperature(None if temps is None or model.ocv.n_temperatures == 1
                                    else float(temps[0]))
-    if settled_opening(series, model.capacity_ah, rest_a, float(ocv.ocv_v[-1])):
-        soc0, how = record_start_soc(ocv, model.capacity_ah, series, rest_a)
-        return StartSoc(float(soc0), 0.0, True, how)
-    return window_start_soc(model, series)
+    return settled_opening(series, model.capacity_ah, rest_a, float(ocv.ocv_v[-1])), ocv, rest_a
 
 
 def window_start_soc(model: EcmModel, series: TimeSeries,
