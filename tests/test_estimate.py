@@ -290,11 +290,7 @@ def test_known_truth_cell_is_tracked_within_its_sigma(filter_):
     assert np.mean(np.abs(err) <= SPEC_SIGMAS * est.soc_sigma) >= SPEC_SHARE
 
 
-@pytest.mark.parametrize("filter_", [
-    "ekf", "ekf-surface",
-    pytest.param("ukf", marks=pytest.mark.xfail(strict=True, reason=(
-        "known miss: from the rested start at SOC 0.95 the UKF opens at 1.0 and is still "
-        "3.03 % off at 600 s")))])
+@pytest.mark.parametrize("filter_", ["ekf", "ekf-surface", "ukf"])
 def test_known_truth_rested_start_meets_the_spec_after_600_s(filter_):
     t, est, soc_true = _tracked(filter_)
     worst = np.abs(est.soc - soc_true)[t >= SPEC_AFTER_S].max()
