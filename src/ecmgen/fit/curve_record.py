@@ -174,6 +174,59 @@ class ResponseCache:
             return block
 
 
+class NormalEquations:
+    """(Z'Z, Z'y) of a problem's weighted design Z = [r0 columns | a block per branch] at
+    given time constants, by (branches, time constants met): the fit forms them again at
+    the time constants the search ended at (the solve with r0 held, leaving a level out,
+    the penalty on ln r). Without Z given, Z is made in one buffer per set of branches
+    whose r0 columns are copied once and whose blocks only when their time constant
+    changed. The same Z, the same products: the fit's figures do not depend on which
+    path made them. The least recently used go beyond ``max_bytes``."""
+
+    def __init__(self, max_bytes: int = 16 * 2 ** 20):
+        self.max_bytes = max_bytes
+        self._done: OrderedDict = OrderedDict()
+        self._bytes = 0
+        self._buffers: dict = {}       # branches -> (Z, the time constant of each block)
+
+    def get(self, prob, kinds, met, z: np.ndarray | None = None):
+        key = (tuple(kinds), tuple(met))
+        got = self._done.get(key)
+        if got is not None:
+            self._done.move_to_end(key)
+            return got
+        if z is None:
+            z = self._fill(prob, key)
+        got = (z.T @ z, z.T @ prob.yw)
+        self._done[key] = got
+        self._bytes += got[0].nbytes + got[1].nbytes
+        while self._bytes > self.max_bytes and len(self._done) > 1:
+            old = self._done.popitem(last=False)[1]
+            self._bytes -= old[0].nbytes + old[1].nbytes
+        return got
+
+    def drop_buffers(self) -> None:
+        """Let go of the design buffers (a search's evaluations are done)."""
+        self._buffers.clear()
+
+    def _fill(self, prob, key) -> np.ndarray:
+        kinds, met = key
+        widths = [prob.width(k) for k in kinds]
+        if kinds not in self._buffers:
+            z = np.empty((prob.rows.size, prob.r0w.shape[1] + sum(widths)), order="F")
+            z[:, :prob.r0w.shape[1]] = prob.r0w
+            self._buffers[kinds] = (z, [None] * len(kinds))
+        z, held = self._buffers[kinds]
+        at = prob.r0w.shape[1]
+        for n, (k, tau, width) in enumerate(zip(kinds, met, widths)):
+            if held[n] != tau:
+                held[n] = None             # a block half copied is no block
+                z[:, at:at + width] = prob.block_met(k, tau)
+                held[n] = tau
+            at += width
+        return z
+
+
 class RevisitedTaus:
     """The time constant a problem's response block is made at: of those whose ln tau
     rounds to the same 9 decimals, the first met since the book was last cleared (beyond
