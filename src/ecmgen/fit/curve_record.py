@@ -131,17 +131,24 @@ def hats(soc: np.ndarray, nodes: np.ndarray) -> np.ndarray:
 def rc_response(rec: Record, tau: float, u: np.ndarray) -> np.ndarray:
     """x_k = exp(-(gap_k + dt_k)/tau) x_{k-1} + (1 - exp(-dt_k/tau)) u_k for every column
     of u (n, m), plus one column per restart r: a unit state from sample r on (x_r = 1,
-    decaying). A unit-lower-bidiagonal solve (LAPACK tbtrs), exact and compiled."""
-    n = rec.t.size
+    decaying). A unit-lower-bidiagonal solve (LAPACK tbtrs), exact and compiled; a restart
+    column, with no input after its unit, is the running product of the decays, which is
+    what the solve works out there too (each x_{k-1} decay_k rounded once, no input)."""
+    n, m = rec.t.size, u.shape[1]
+    decay = np.exp(-(rec.gap[1:] + rec.dt[1:]) / tau)
     ab = np.zeros((2, n))
-    ab[1, :-1] = -np.exp(-(rec.gap[1:] + rec.dt[1:]) / tau)
-    b = np.zeros((n, u.shape[1] + rec.restart.size), order="F")
-    np.multiply(u, -np.expm1(-rec.dt / tau)[:, None], out=b[:, :u.shape[1]])
-    b[rec.restart, u.shape[1] + np.arange(rec.restart.size)] = 1.0
-    x, info = lapack.dtbtrs(ab, b, uplo="L", diag="U", overwrite_b=1)
+    ab[1, :-1] = -decay
+    out = np.zeros((n, m + rec.restart.size), order="F")
+    np.multiply(u, -np.expm1(-rec.dt / tau)[:, None], out=out[:, :m])
+    x, info = lapack.dtbtrs(ab, out[:, :m], uplo="L", diag="U", overwrite_b=1)
     if info != 0:  # pragma: no cover - unit diagonal: never singular
         raise RuntimeError(f"dtbtrs info {info}")
-    return x
+    if not np.shares_memory(x, out):  # pragma: no cover - solved in place where it can
+        out[:, :m] = x
+    for j, r in enumerate(rec.restart):
+        out[r, m + j] = 1.0
+        np.multiply.accumulate(decay[r:], out=out[r + 1:, m + j])
+    return out
 
 
 class ResponseCache:
