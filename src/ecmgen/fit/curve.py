@@ -65,7 +65,8 @@ Time constants: the unit responses are computed once per value on a log grid per
 (fast, slow, diffusion; ratio 2.2) and every grid combination is a small solve on blocks of
 one Gram matrix. Nelder-Mead in log tau (exact evaluations) then refines from the grid's
 best point and, when it lies elsewhere, from the grid's best point when slow dynamics are
-favoured (``SLOW_START``). The slow and diffusion pairs together stand for a spread of
+favoured (``SLOW_START``,
+:mod:`ecmgen.fit.curve_search`). The slow and diffusion pairs together stand for a spread of
 diffusion times, and a pulse test can have two local minima that fit it nearly equally well
 (the -10 degC Panasonic test: tau_slow 13 s / 27 s, 0.03 .. 0.8 % apart in the objective
 depending on details of the fit); of local minima within ``TIE`` (1 %: residuals this
@@ -107,14 +108,12 @@ from .curve_levels import (CV_TIE, both_ways, choose_penalty, data_tau_ranges,
                            r0_spans, second_difference, taus_on_bound, tied_slow_pairs)
 from . import curve_record as _cr
 from .curve_record import Record, W_SPAN_S, hats, pulse_record, rc_response, side_by_side
-from .lsq import log_grid, nelder_mead, solve_bounded
+from .curve_search import search as _search
+from .lsq import solve_bounded
 
 SOC_NODES = np.round(np.linspace(0.0, 1.0, 21), 10)
 DIRECTIONS = ("charge", "discharge")
 PENALTY = 1e-3             # second-difference penalty, relative to each block's column scale
-TIE = 1e-2                 # local minima within this (relative objective) are equally good
-SLOW_START = 0.02          # grid start favouring slow dynamics: objective tilt per ln(tau)
-NM_EVALS = 60              # exact evaluations per local refinement
 # rows this far (SOC) beyond the pulses' own SOC still count; nodes this far beyond the
 # levels' mid-pulse SOC are identified
 SPAN_MARGIN = 0.01
@@ -255,6 +254,7 @@ class _Problem:
         # the SOC level (index) each row belongs to, -1 between levels (leave-one-out)
         self.level = np.full(self.rows.size, -1) if levels is None else levels[self.rows]
         self._cache, self._taus, self.searches = _cr.ResponseCache(), _cr.RevisitedTaus(), {}
+        self._normal = _cr.NormalEquations()
 
     def _pair_mask(self, d: str) -> np.ndarray:
         """The rows driving direction ``d``'s slow and diffusion columns."""
@@ -269,16 +269,36 @@ class _Problem:
     def block(self, kind: str, tau: float, full: bool = False) -> np.ndarray:
         """The unit responses of branch ``kind`` at ``tau``: weighted rows (cached; the
         searches revisit time constants), or every kept sample (``full``)."""
-        if not full:
-            tau = self._taus.tau(kind, tau)
-            cached = self._cache.get((kind, tau))
-            if cached is not None:
-                return cached
-        u = {"fast": self.u_fast, "slow": self.u_slow, "diff": self.u_diff}[kind]
-        x = rc_response(self.rec, tau, u)
         if full:
-            return x
-        return self._cache.put((kind, tau), np.multiply(x[self.rows], self.w[:, None]))
+            return rc_response(self.rec, tau, self._inputs(kind))
+        return self.block_met(kind, self._taus.tau(kind, tau))
+
+    def _inputs(self, kind: str) -> np.ndarray:
+        return {"fast": self.u_fast, "slow": self.u_slow, "diff": self.u_diff}[kind]
+
+    def block_met(self, kind: str, tau: float) -> np.ndarray:
+        """:meth:`block` at a time constant already met (:meth:`taus_met`)."""
+        cached = self._cache.get((kind, tau))
+        if cached is not None:
+            return cached
+        x = np.take(rc_response(self.rec, tau, self._inputs(kind)), self.rows, axis=0)
+        return self._cache.put((kind, tau), np.multiply(x, self.w[:, None], out=x))
+
+    def taus_met(self, kinds, taus) -> tuple:
+        """The time constants the blocks of ``kinds`` at ``taus`` are made at (the first
+        met a rounding away, :class:`ecmgen.fit.curve_record.RevisitedTaus`), in order."""
+        return tuple(self._taus.tau(k, t) for k, t in zip(kinds, taus))
+
+    def design(self, kinds, met) -> np.ndarray:
+        """The weighted design [r0 columns | a block per branch] at time constants met."""
+        return side_by_side([self.r0w] + [self.block_met(k, t) for k, t in zip(kinds, met)])
+
+    def normal(self, kinds, met, z: np.ndarray | None = None):
+        """(Z'Z, Z'y) of :meth:`design` (``z``, if already made)."""
+        return self._normal.get(self, kinds, met, z)
+
+    def drop_design_buffers(self) -> None:
+        self._normal.drop_buffers()
 
     def width(self, kind: str) -> int:
         """Columns of a branch block: its resistances, then one free restart state per gap."""
@@ -354,92 +374,6 @@ def _after_charge(i: np.ndarray) -> np.ndarray:
     k = np.where(i != 0.0, np.arange(i.size), -1)
     np.maximum.accumulate(k, out=k)
     return np.where(k >= 0, i[np.maximum(k, 0)] > 0, False)
-
-
-# ---------------------------------------------------------------- the time constants
-def _search(prob: _Problem, ranges: dict, progress=None):
-    """The time constants (module docstring): grid over cached unit responses, local
-    refinement from the grid's best point and from the best point favouring slow dynamics,
-    then the tie-break between the local minima found. Returns (taus dict, x, objective,
-    number of evaluations, notes)."""
-    kinds = list(ranges)
-    grids = {k: log_grid(*ranges[k]) for k in kinds}
-    # every grid block side by side, each made as it is copied in (no block list beside it)
-    z = side_by_side((prob.block(k, tau) if k else prob.r0w for k, tau in
-                      [(None, None)] + [(k, tau) for k in kinds for tau in grids[k]]),
-                     [prob.r0w.shape[1]] + [prob.width(k) for k in kinds for _ in grids[k]])
-    gram = z.T @ z
-    g = z.T @ prob.yw
-    del z
-    width = {k: prob.width(k) for k in kinds}
-    lay = prob.layout(kinds)
-    start, off = {}, prob.r0w.shape[1]
-    for k in kinds:
-        start[k] = off
-        off += width[k] * grids[k].size
-    base = np.arange(prob.r0w.shape[1])
-    evals: dict = {}
-    for ix in np.ndindex(*(grids[k].size for k in kinds)):
-        logt = np.log([grids[k][ix[n]] for n, k in enumerate(kinds)])
-        if np.any(np.diff(logt) <= 0):
-            continue
-        c = np.concatenate([base] + [start[k] + ix[n] * width[k] + np.arange(width[k])
-                                     for n, k in enumerate(kinds)])
-        evals[tuple(np.round(logt, 9))] = prob.solve(gram[np.ix_(c, c)], g[c], lay)
-    if not evals:
-        raise ValueError("the time-constant ranges leave no tau_fast < tau_slow < tau_diff")
-    if progress:
-        progress(1, 3)
-
-    def exact(logt):
-        key = tuple(np.round(logt, 9))
-        if key not in evals:
-            taus = np.exp(logt)
-            if np.any(np.diff(logt) <= 0):
-                evals[key] = (None, np.inf)
-            else:
-                zz = side_by_side([prob.r0w] + [prob.block(k, t) for k, t in zip(kinds, taus)])
-                evals[key] = prob.solve(zz.T @ zz, zz.T @ prob.yw, lay)
-        return key, evals[key][1]
-
-    lo = np.log([ranges[k][0] for k in kinds])
-    hi = np.log([ranges[k][1] for k in kinds])
-    step = np.array([np.log(grids[k][1] / grids[k][0]) for k in kinds])
-
-    def refine(here):
-        """Nelder-Mead in log tau from a grid point (simplex of one grid step)."""
-        best = nelder_mead(lambda z: exact(np.clip(z, lo, hi))[1], here, step, NM_EVALS,
-                           xtol=0.002, ftol=1e-5)
-        return exact(np.clip(best, lo, hi))[0]
-
-    grid_keys = list(evals)
-    c_ref = min(evals[k][1] for k in grid_keys)
-    best = min(grid_keys, key=lambda k: evals[k][1])
-    # the grid's best when slow dynamics are favoured (a start for the search only)
-    slow = min(grid_keys, key=lambda k: evals[k][1] / c_ref - SLOW_START * sum(k[1:]))
-    found = [refine(np.array(best))]
-    if np.any(np.abs(np.array(slow) - np.array(found[0])) > 1.01 * step):
-        found.append(refine(np.array(slow)))          # a start outside the first's basin
-    found = sorted(set(found), key=lambda k: evals[k][1])
-    if progress:
-        progress(2, 3)
-    # tie-break: of local minima within TIE of the best, the slowest (see module docstring)
-    c_best = evals[found[0]][1]
-    close = [k for k in found if evals[k][1] <= (1.0 + TIE) * c_best]
-    key = max(close, key=lambda k: sum(k[1:]))
-    notes = []
-    if len(found) > 1:
-        other = [k for k in found if k != key][0]
-        d = 100.0 * (evals[other][1] / evals[key][1] - 1.0)
-        notes.append("curve: two local minima of the fit, tau_slow "
-                     f"{np.exp(key[1]):.3g} s / {np.exp(other[1]):.3g} s "
-                     f"(objective {'+' if d >= 0 else ''}{d:.2f} % for the second): "
-                     f"{'the slower one is kept (within ' + f'{100 * TIE:g} %)' if key != found[0] else 'the better one is kept'}")
-    x, cost = evals[key]
-    if prob.r0_held.size:      # the chosen time constants' fit with r0 held
-        zz = side_by_side([prob.r0w] + [prob.block(k, t) for k, t in zip(kinds, np.exp(key))])
-        x, cost = prob.solve(zz.T @ zz, zz.T @ prob.yw, lay, hold_r0=True)
-    return dict(zip(kinds, np.exp(np.array(key)))), x, cost, len(evals), notes
 
 
 # ------------------------------------------------------------------------------ the fit
@@ -644,20 +578,27 @@ def _direction_fits(prob: _Problem, x: np.ndarray, kinds, nodes: np.ndarray, spa
 
 
 
-def _solve_at(prob: _Problem, kinds, taus: dict, z: np.ndarray | None = None):
-    """The resistances at given time constants (r0 held as after the search); ``z``: their
-    weighted design columns, if already built."""
-    if z is None:
-        z = side_by_side([prob.r0w] + [prob.block(k, taus[k]) for k in kinds])
-    return prob.solve(z.T @ z, z.T @ prob.yw, prob.layout(kinds), hold_r0=True)
+def _solve_at(prob: _Problem, kinds, taus: dict, made: tuple | None = None):
+    """The resistances at given time constants (r0 held as after the search); ``made``:
+    their weighted design columns and time constants met (:func:`_design`), if made."""
+    z, met = made if made is not None else (None, prob.taus_met(kinds, [taus[k] for k in kinds]))
+    return prob.solve(*prob.normal(kinds, met, z), prob.layout(kinds), hold_r0=True)
 
 
-def _held_out(prob: _Problem, kinds, taus: dict) -> tuple[np.ndarray, float, float]:
-    """At ``taus``: the weighted design columns, the smoothing weight chosen by leaving one
-    level out and the held-out error at it (inf with too few levels to leave one out)."""
-    z = side_by_side([prob.r0w] + [prob.block(k, taus[k]) for k in kinds])
-    lam, errors = choose_penalty(prob, z, prob.layout(kinds))
-    return z, lam, errors.get(lam, float("inf")) if errors else float("inf")
+def _design(prob: _Problem, kinds, taus: dict) -> tuple:
+    """(the weighted design columns at ``taus``, the time constants met, Z'Z and Z'y)."""
+    met = prob.taus_met(kinds, [taus[k] for k in kinds])
+    z = prob.design(kinds, met)
+    return z, met, prob.normal(kinds, met, z)
+
+
+def _held_out(prob: _Problem, kinds, taus: dict) -> tuple[tuple, float, float]:
+    """At ``taus``: the weighted design columns and time constants met, the smoothing
+    weight chosen by leaving one level out and the held-out error at it (inf with too few
+    levels to leave one out)."""
+    z, met, normal = _design(prob, kinds, taus)
+    lam, errors = choose_penalty(prob, z, prob.layout(kinds), normal=normal)
+    return (z, met), lam, errors.get(lam, float("inf")) if errors else float("inf")
 
 
 def _neighbour_choice(prob: _Problem, ranges: dict, taus: dict, fit: tuple, other: dict,
@@ -772,14 +713,14 @@ def _smooth_in_log(prob: _Problem, kinds, taus: dict, fit: tuple):
     SOC rise exponentially towards empty and in the cold: a penalty on r flattens the
     steep end and bends the table at its knee. The choice between the OCV correction's
     node sets stays with the penalty on r, so that it does not depend on r0's hold."""
-    z = side_by_side([prob.r0w] + [prob.block(k, taus[k]) for k in kinds])
+    z, met, normal = _design(prob, kinds, taus)
     lay = prob.layout(kinds)
     linear = prob.penalty
-    before = choose_penalty(prob, z, lay, (linear,))[1].get(linear, float("inf"))
+    before = choose_penalty(prob, z, lay, (linear,), normal)[1].get(linear, float("inf"))
     prob.log_ref = log_references(fit[0], lay["smooth"])
-    lam, errors = choose_penalty(prob, z, lay)
+    lam, errors = choose_penalty(prob, z, lay, normal=normal)
     if not errors or errors[lam] >= before:
         prob.log_ref, prob.penalty = {}, linear
         return fit
     prob.penalty = lam
-    return _solve_at(prob, kinds, taus, z)
+    return _solve_at(prob, kinds, taus, (z, met))

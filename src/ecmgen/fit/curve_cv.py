@@ -14,12 +14,12 @@ import numpy as np
 from .lsq import solve_bounded_many
 
 
-def held_out_errors(prob, z: np.ndarray, lay: dict, penalties, levels: list) -> np.ndarray:
+def held_out_errors(prob, z: np.ndarray, lay: dict, penalties, levels: list,
+                    normal: tuple | None = None) -> np.ndarray:
     """For each weight of ``penalties``, the sum over ``levels`` (row indices of each level)
     of the left-out rows' squared residual after refitting only the free columns there,
-    each fold fitted on the other rows at that weight."""
-    gram = z.T @ z
-    g = z.T @ prob.yw
+    each fold fitted on the other rows at that weight. ``normal``: (z'z, z'y), if known."""
+    gram, g = normal if normal is not None else (z.T @ z, z.T @ prob.yw)
     free = lay["free"]
     errors = np.zeros(len(penalties))
     for r in levels:

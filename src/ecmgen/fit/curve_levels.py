@@ -105,17 +105,20 @@ def data_tau_ranges(ranges: dict, sampling_s: float, relaxation_s: float,
     return out, notes
 
 
-def choose_penalty(prob, z: np.ndarray, lay: dict, penalties=PENALTIES) -> tuple[float, dict]:
+def choose_penalty(prob, z: np.ndarray, lay: dict, penalties=PENALTIES, normal=None
+                   ) -> tuple[float, dict]:
     """The smoothing weight by leaving one SOC level out: for each candidate weight and
     level, fit on the other rows and measure the left-out level's rows after refitting only
-    the free nuisance columns there (the OCV correction, restart states). Returns the weight
-    (the largest within CV_TIE of the best) and {weight: held-out SSE}."""
+    the free nuisance columns there (the OCV correction, restart states); ``normal``: (z'z,
+    z'y), if known. Returns the weight (the largest within CV_TIE of the best) and
+    {weight: held-out SSE}."""
     levels = [np.flatnonzero(prob.level == k) for k in range(int(prob.level.max()) + 1)]
     levels = [r for r in levels if r.size]
     if len(levels) < 3:
         return prob.penalty, {}
     errors = dict(zip((float(lam) for lam in penalties),
-                      (float(e) for e in held_out_errors(prob, z, lay, penalties, levels))))
+                      (float(e) for e in held_out_errors(prob, z, lay, penalties, levels,
+                                                                normal))))
     best = min(errors.values())
     lam = max(k for k, v in errors.items() if v <= (1.0 + CV_TIE) * best)
     return lam, errors

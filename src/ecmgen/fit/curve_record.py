@@ -131,17 +131,24 @@ def hats(soc: np.ndarray, nodes: np.ndarray) -> np.ndarray:
 def rc_response(rec: Record, tau: float, u: np.ndarray) -> np.ndarray:
     """x_k = exp(-(gap_k + dt_k)/tau) x_{k-1} + (1 - exp(-dt_k/tau)) u_k for every column
     of u (n, m), plus one column per restart r: a unit state from sample r on (x_r = 1,
-    decaying). A unit-lower-bidiagonal solve (LAPACK tbtrs), exact and compiled."""
-    n = rec.t.size
+    decaying). A unit-lower-bidiagonal solve (LAPACK tbtrs), exact and compiled; a restart
+    column, with no input after its unit, is the running product of the decays, which is
+    what the solve works out there too (each x_{k-1} decay_k rounded once, no input)."""
+    n, m = rec.t.size, u.shape[1]
+    decay = np.exp(-(rec.gap[1:] + rec.dt[1:]) / tau)
     ab = np.zeros((2, n))
-    ab[1, :-1] = -np.exp(-(rec.gap[1:] + rec.dt[1:]) / tau)
-    b = np.zeros((n, u.shape[1] + rec.restart.size), order="F")
-    np.multiply(u, -np.expm1(-rec.dt / tau)[:, None], out=b[:, :u.shape[1]])
-    b[rec.restart, u.shape[1] + np.arange(rec.restart.size)] = 1.0
-    x, info = lapack.dtbtrs(ab, b, uplo="L", diag="U", overwrite_b=1)
+    ab[1, :-1] = -decay
+    out = np.zeros((n, m + rec.restart.size), order="F")
+    np.multiply(u, -np.expm1(-rec.dt / tau)[:, None], out=out[:, :m])
+    x, info = lapack.dtbtrs(ab, out[:, :m], uplo="L", diag="U", overwrite_b=1)
     if info != 0:  # pragma: no cover - unit diagonal: never singular
         raise RuntimeError(f"dtbtrs info {info}")
-    return x
+    if not np.shares_memory(x, out):  # pragma: no cover - solved in place where it can
+        out[:, :m] = x
+    for j, r in enumerate(rec.restart):
+        out[r, m + j] = 1.0
+        np.multiply.accumulate(decay[r:], out=out[r + 1:, m + j])
+    return out
 
 
 class ResponseCache:
@@ -172,6 +179,59 @@ class ResponseCache:
             while self._bytes > self.max_bytes and len(self._blocks) > 1:
                 self._bytes -= self._blocks.popitem(last=False)[1].nbytes
             return block
+
+
+class NormalEquations:
+    """(Z'Z, Z'y) of a problem's weighted design Z = [r0 columns | a block per branch] at
+    given time constants, by (branches, time constants met): the fit forms them again at
+    the time constants the search ended at (the solve with r0 held, leaving a level out,
+    the penalty on ln r). Without Z given, Z is made in one buffer per set of branches
+    whose r0 columns are copied once and whose blocks only when their time constant
+    changed. The same Z, the same products: the fit's figures do not depend on which
+    path made them. The least recently used go beyond ``max_bytes``."""
+
+    def __init__(self, max_bytes: int = 16 * 2 ** 20):
+        self.max_bytes = max_bytes
+        self._done: OrderedDict = OrderedDict()
+        self._bytes = 0
+        self._buffers: dict = {}       # branches -> (Z, the time constant of each block)
+
+    def get(self, prob, kinds, met, z: np.ndarray | None = None):
+        key = (tuple(kinds), tuple(met))
+        got = self._done.get(key)
+        if got is not None:
+            self._done.move_to_end(key)
+            return got
+        if z is None:
+            z = self._fill(prob, key)
+        got = (z.T @ z, z.T @ prob.yw)
+        self._done[key] = got
+        self._bytes += got[0].nbytes + got[1].nbytes
+        while self._bytes > self.max_bytes and len(self._done) > 1:
+            old = self._done.popitem(last=False)[1]
+            self._bytes -= old[0].nbytes + old[1].nbytes
+        return got
+
+    def drop_buffers(self) -> None:
+        """Let go of the design buffers (a search's evaluations are done)."""
+        self._buffers.clear()
+
+    def _fill(self, prob, key) -> np.ndarray:
+        kinds, met = key
+        widths = [prob.width(k) for k in kinds]
+        if kinds not in self._buffers:
+            z = np.empty((prob.rows.size, prob.r0w.shape[1] + sum(widths)), order="F")
+            z[:, :prob.r0w.shape[1]] = prob.r0w
+            self._buffers[kinds] = (z, [None] * len(kinds))
+        z, held = self._buffers[kinds]
+        at = prob.r0w.shape[1]
+        for n, (k, tau, width) in enumerate(zip(kinds, met, widths)):
+            if held[n] != tau:
+                held[n] = None             # a block half copied is no block
+                z[:, at:at + width] = prob.block_met(k, tau)
+                held[n] = tau
+            at += width
+        return z
 
 
 class RevisitedTaus:

@@ -109,9 +109,9 @@ class _Direction:
             smooth[:, q, :, q] = root[q] * self.d2
         return jac
 
-    def residuals(self, xs, lam, weights):
+    def residuals(self, xs, lam, weights, smooth_of=None):
         """:meth:`residual` of several x at once: xs (F, 4n), lam a weight or one per x
-        (F,), weights (F, n) -> (F, rows)."""
+        (F,), weights (F, n) -> (F, rows). ``smooth_of``: lam's :class:`_SmoothTerms`."""
         f, n = xs.shape[0], self.n
         p = np.exp(xs.reshape(f, n, 4))
         tf, ts, rf, rs = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
@@ -121,15 +121,17 @@ class _Direction:
         data = ((fit - self.d) / self.scale[:, None] * self.mask * weights[..., None])
         r0 = _r0(self.ra, self.t0, tf, ts, rf, rs)
         barrier = _BARRIER * np.minimum(r0, 0.0) / self.scale
-        root = np.sqrt(self._weights_each(lam, f))[:, None, :]
+        root = (smooth_of.root(lam) if smooth_of is not None
+                else np.sqrt(self._weights_each(lam, f))[:, None, :])
         smooth = root * (self.d2 @ xs.reshape(f, n, 4))
         return np.concatenate([data.reshape(f, -1), barrier, smooth.reshape(f, -1)], axis=1)
 
-    def normal_equations(self, xs, lam, weights):
+    def normal_equations(self, xs, lam, weights, smooth_of=None):
         """The gradient J'r and the Gauss-Newton matrix J'J of :meth:`residuals` at several
         x at once ((F, 4n), (F, 4n, 4n)). A level's data and R0 rows depend on its own four
         parameters only, and the smoothness rows are linear in x: J'J is a 4 x 4 block per
-        level plus the constant D2'D2 of each parameter's weight, built as such."""
+        level plus the constant D2'D2 of each parameter's weight, built as such
+        (``smooth_of``: lam's :class:`_SmoothTerms`, that constant made once)."""
         f, n, n_t = xs.shape[0], self.n, self.d.shape[1]
         p = np.exp(xs.reshape(f, n, 4))
         tf, ts, rf, rs = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
@@ -151,13 +153,17 @@ class _Direction:
         res = np.concatenate([(fit - self.d) * w, (_BARRIER * np.minimum(r0, 0.0)
                                                     / self.scale)[..., None]], axis=2)
         # the smoothness rows: residual sqrt(w) D2 x, so J'r = S x and J'J = S
-        h = np.einsum("ab,fq,qr->faqbr", self.d2.T @ self.d2, self._weights_each(lam, f),
-                      np.eye(4))
+        h = smooth_of.hessian(lam) if smooth_of is not None else self.smooth_hessian(lam, f)
         g = np.einsum("fij,fj->fi", h.reshape(f, 4 * n, 4 * n), xs) + \
             np.einsum("fkti,fkt->fki", local, res).reshape(f, 4 * n)
         k = np.arange(n)
         h[:, k, :, k, :] += np.moveaxis(np.einsum("fkti,fktj->fkij", local, local), 1, 0)
         return g, h.reshape(f, 4 * n, 4 * n)
+
+    def smooth_hessian(self, lam, f: int) -> np.ndarray:
+        """The smoothness rows' part of J'J, (F, n, 4, n, 4) for ``f`` problems."""
+        return np.einsum("ab,fq,qr->faqbr", self.d2.T @ self.d2, self._weights_each(lam, f),
+                         np.eye(4))
 
     def weights(self, lam: float) -> np.ndarray:
         """The smoothing weight of each parameter (tau_fast, tau_slow, r_fast, r_slow)."""
@@ -181,6 +187,23 @@ class _Direction:
         return float(e @ e)
 
 
+class _SmoothTerms:
+    """The terms of the smoothness rows that depend on the weight alone (part of J'J, the
+    residual's root weights), made once per distinct weight of a batch of problems and
+    handed out for any of them: the values each problem's own would have."""
+
+    def __init__(self, prob: _Direction, lam: np.ndarray):
+        self._lam = np.unique(lam)
+        self._hessian = prob.smooth_hessian(self._lam, self._lam.size)
+        self._root = np.sqrt(prob._weights_each(self._lam, self._lam.size))[:, None, :]
+
+    def hessian(self, lam: np.ndarray) -> np.ndarray:
+        return self._hessian[np.searchsorted(self._lam, lam)]
+
+    def root(self, lam: np.ndarray) -> np.ndarray:
+        return self._root[np.searchsorted(self._lam, lam)]
+
+
 def _descend(prob: _Direction, x0: np.ndarray, lam: np.ndarray, weights: np.ndarray,
              max_iter: int) -> np.ndarray:
     """Several problems of one direction at once (x0 (F, 4n), lam (F,), weights (F, n)):
@@ -188,8 +211,9 @@ def _descend(prob: _Direction, x0: np.ndarray, lam: np.ndarray, weights: np.ndar
     falling (relative 1e-12) or after ``max_iter`` steps. The cheap solver of the smoothing
     weight's choice; the tables themselves come from :meth:`_Direction.solve`."""
     lo, hi = prob.lo, prob.hi
+    terms = _SmoothTerms(prob, lam)
     x = np.clip(x0, lo + 1e-9, hi - 1e-9)
-    r = prob.residuals(x, lam, weights)
+    r = prob.residuals(x, lam, weights, terms)
     cost = np.einsum("fr,fr->f", r, r)
     del r
     mu = np.full(x.shape[0], 1e-3)
@@ -199,7 +223,7 @@ def _descend(prob: _Direction, x0: np.ndarray, lam: np.ndarray, weights: np.ndar
         ix = np.flatnonzero(going)
         if not ix.size:
             break
-        g, h = prob.normal_equations(x[ix], lam[ix], weights[ix])
+        g, h = prob.normal_equations(x[ix], lam[ix], weights[ix], terms)
         # a variable on a bound that the gradient pushes out stays there
         held = ((x[ix] <= lo) & (g > 0)) | ((x[ix] >= hi) & (g < 0))
         h = np.where(held[:, :, None] | held[:, None, :], 0.0, h)
@@ -211,7 +235,7 @@ def _descend(prob: _Direction, x0: np.ndarray, lam: np.ndarray, weights: np.ndar
             t = np.flatnonzero(todo)
             a = h[t] + np.where(eye, (mu[ix[t]][:, None] * scale[t] + held[t])[:, None, :], 0.0)
             xn = np.clip(x[ix[t]] + np.linalg.solve(a, rhs[t][..., None])[..., 0], lo, hi)
-            rn = prob.residuals(xn, lam[ix[t]], weights[ix[t]])
+            rn = prob.residuals(xn, lam[ix[t]], weights[ix[t]], terms)
             cn = np.einsum("fr,fr->f", rn, rn)
             ok = cn < cost[ix[t]]
             step = np.max(np.abs(xn - x[ix[t]]), axis=1)
