@@ -199,7 +199,8 @@ def test_a_running_cluster_by_its_address(tmp_path, monkeypatch, capsys):
 
     study = tmp_path / "study"
     manifest = write_study(make_study(cells=1, checkups=2, seed=3), study, with_cycle=False)
-    with LocalCluster(n_workers=1, processes=False, dashboard_address=None) as cluster:
+    with LocalCluster(n_workers=1, processes=False,
+                      dashboard_address=run.LOCAL_HTTP) as cluster:
         assert main(["fleet", str(manifest), "--out", str(tmp_path / "out"), "-q",
                      "--scheduler", cluster.scheduler_address, "--no-plots"]) == 0
     assert "2 rows: 2 built, 0 unchanged, 0 failed" in capsys.readouterr().out
@@ -211,3 +212,27 @@ def test_a_running_cluster_by_its_address(tmp_path, monkeypatch, capsys):
     assert err.startswith("ecmgen: error: --scheduler tcp://127.0.0.1:9: no Dask scheduler "
                           "answers there") and err.count("\n") == 1
     assert not (tmp_path / "none").exists()
+
+
+def test_the_local_cluster_holds_no_fixed_port(recwarn):
+    """The fleet's own cluster serves HTTP on an ephemeral port of this machine only: not
+    Dask's default :8787 on every interface, which another cluster may hold (a warning)."""
+    import socket
+
+    import ecmgen.fleet.run as run
+
+    holder = socket.socket()
+    try:
+        holder.bind(("127.0.0.1", 8787))
+    except OSError:
+        holder.close()
+        pytest.skip("port 8787 is taken on this machine already")
+    holder.listen()
+    try:
+        with run._client(None, 1) as (client, _):
+            server = client.cluster.scheduler.http_server      # tornado's HTTPServer
+            host, port = next(iter(server._sockets.values())).getsockname()[:2]
+    finally:
+        holder.close()
+    assert host == "127.0.0.1" and port != 8787
+    assert not [w for w in recwarn if "8787" in str(w.message)]

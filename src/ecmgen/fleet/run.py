@@ -41,6 +41,7 @@ from .task import Options, Outcome, run_row
 DEFAULT_SOC = (0.2, 0.5, 0.8)
 DEFAULT_TEMPERATURES_C = (25.0,)
 CONNECT_TIMEOUT_S = 20.0
+LOCAL_HTTP = "127.0.0.1:0"       # the local cluster's HTTP server (see _client)
 INSTALL_HINT = "pip install 'ecmgen[fleet]' (dask.distributed and pyarrow)"
 FLEET_FILES = ("failures.csv", "fleet.csv", "fleet.parquet", "ageing.csv")   # written into out
 
@@ -173,8 +174,11 @@ def _client(scheduler: str | None, workers: int | None):
 
     if scheduler is None:
         n = workers or cores()
+        # the scheduler's HTTP server starts whatever the dashboard setting (None means
+        # its default, :8787, on every interface, and a warning when another cluster holds
+        # it): an ephemeral port on this machine only
         with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                          dashboard_address=None, silence_logs=logging.ERROR) as cluster, \
+                          dashboard_address=LOCAL_HTTP, silence_logs=logging.ERROR) as cluster, \
                 Client(cluster) as client:
             yield client, n
         return
