@@ -58,6 +58,20 @@ def write_bitrode(path: Path, rows, header: bool) -> Path:
 BITRODE_BY_POSITION = dict(time=2, current=9, voltage=10, charge=12)
 
 
+def counter_rounding_ah(rows):
+    """How far the joined per-step counters, counted from the first row, may be from the
+    exact charge at each row: half the 0.01 Ah the file rounds each step's count to, for
+    every step joined so far and for the first row's count."""
+    return 0.005 * (np.array([r[1] for r in rows]) + 1) + 1e-12
+
+
+def open_at_edges_ah(t, i):
+    """What a record's short steps leave open at their changes of current: half a sample's
+    charge at each (the rule between samples unknown), the 60 s logging gaps left out."""
+    dt, di = np.diff(t), np.abs(np.diff(i))
+    return float(np.sum((di * dt / 2 / 3600)[dt < 60.0]))
+
+
 @pytest.fixture
 def level(tmp_path):
     rows, exact = bitrode_rows([("CHRG", 10.0, 600.0, 1.0, True),
@@ -71,10 +85,11 @@ def test_headerless_export_with_text_columns_is_read_by_position(tmp_path, level
     path = write_bitrode(tmp_path / "leaf.csv", rows, header=False)
     ts = read_timeseries(path, ColumnMap(**BITRODE_BY_POSITION, header=False))
     assert len(ts) == len(rows)
-    np.testing.assert_allclose(ts.time_s, [r[0] for r in rows], atol=0.051)
+    # the file writes the time to 0.1 s
+    np.testing.assert_allclose(ts.time_s, [r[0] for r in rows], rtol=0, atol=0.05 + 1e-9)
     np.testing.assert_allclose(ts.current_a, [r[3] for r in rows])
-    # the per-step counter joined: within the 0.01 Ah rounding of its 13 steps' counts
-    assert np.max(np.abs(ts.coulomb_ah() - (exact - exact[0]))) < 0.02
+    # the per-step counter joined: within the 0.01 Ah rounding of the steps' counts
+    assert np.all(np.abs(ts.coulomb_ah() - (exact - exact[0])) <= counter_rounding_ah(rows))
 
 
 def test_a_line_of_data_is_never_taken_for_a_header(tmp_path, level):
@@ -94,7 +109,7 @@ def test_bitrode_export_recognised_by_its_names_with_its_counter(tmp_path, level
     ts = read_timeseries(path)
     assert any("Bitrode" in n for n in ts.notes)
     assert any("restarts of its counter" in n for n in ts.notes)
-    assert np.max(np.abs(ts.coulomb_ah() - (exact - exact[0]))) < 0.02
+    assert np.all(np.abs(ts.coulomb_ah() - (exact - exact[0])) <= counter_rounding_ah(rows))
 
 
 def test_current_held_over_a_logging_gap(level):
@@ -108,8 +123,11 @@ def test_current_held_over_a_logging_gap(level):
     truth = exact - exact[0]
     trapezoid = np.concatenate(([0.0], np.cumsum(0.5 * (i[1:] + i[:-1]) * np.diff(t)))) / 3600
     held = integrate_current(t, i)
-    assert abs(trapezoid[-1] - truth[-1]) > 0.075
-    assert abs(held[-1] - truth[-1]) < 0.01
+    # the short steps' edges leave half a sample's charge open at each change of current,
+    # whatever the rule; the 60 s gaps' ramps take the trapezoid beyond that, held not
+    edges = open_at_edges_ah(t, i)
+    assert abs(trapezoid[-1] - truth[-1]) > edges
+    assert abs(held[-1] - truth[-1]) <= edges
 
 
 def test_logging_gaps_are_said(tmp_path, level):

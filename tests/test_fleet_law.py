@@ -40,8 +40,9 @@ def age(*args):
 
 def test_the_law_against_the_truth(fleet, tmp_path):
     """Per check-up the median over the cells of each one's true ratio to its first
-    check-up (a cell's resistances all scale alike): the resistance scale within 0.02, the
-    capacity scale within 0.003."""
+    check-up (a cell's resistances all scale alike): the resistance scale, a parameter of
+    the model, within the spec's 5 % on known-truth data; the capacity scale, a ratio of two
+    C/10 capacity tests sampled every 30 s, within one sample's charge on each count."""
     out, truth = fleet
     res = age(out, "--out", tmp_path / "aged.json")
     assert res.returncode == 0, res.stderr
@@ -60,8 +61,8 @@ def test_the_law_against_the_truth(fleet, tmp_path):
         q_true = np.median([true[(c, k)]["capacity_ah"] / true[(c, "0")]["capacity_ah"]
                             for c in cells])
         errors.append((k, r_got - r_true, q_got - q_true))
-        assert r_got == pytest.approx(r_true, abs=0.02), errors
-        assert q_got == pytest.approx(q_true, abs=0.003), errors
+        assert r_got == pytest.approx(r_true, rel=0.05), errors
+        assert q_got == pytest.approx(q_true, abs=2 * 0.1 * 30.0 / 3600.0), errors
     print("law - truth per check-up (resistance, capacity):", errors)
 
 

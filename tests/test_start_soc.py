@@ -12,6 +12,9 @@ from ecmgen.data.soc import find_rests, fit_start_soc, record_start_soc
 from ecmgen.diagnosis.synthcell import random_cell
 from ecmgen.model.simulate import simulate, validate
 
+# The spec: the start SOC of a test within 1 % of its truth.
+SPEC_SOC = 0.01
+
 
 def _lfp_cell(seed=1):
     """A flat-OCV LFP cell whose hidden hysteresis starts on the discharge branch."""
@@ -34,27 +37,42 @@ def test_pulse_test_start_soc_on_a_flat_lfp_ocv_with_hysteresis(seed):
                              c_rates_charge=(1.0,), soc_start=0.55)
     ocv = _mean_branch_ocv(cell)
     first_rest = float(ocv.soc_at(pulses.voltage_v[0]))
-    assert abs(first_rest - 0.55) > 0.15          # what the old start SOC did
+    assert abs(first_rest - 0.55) > SPEC_SOC      # what the old start SOC did
     rests = find_rests(pulses, 0.02 * q, 300.0)
     fit = fit_start_soc(ocv, q, rests, "pulses.csv")
-    assert fit.soc0 == pytest.approx(0.55, abs=0.01)
-    # the rests after a discharge sit below the mean-branch OCV by about the hysteresis
-    m_v = cell.hidden.effects[0].m_v
-    assert -1.5 * m_v < fit.offset_v["after discharge"] < -0.5 * m_v
+    assert fit.soc0 == pytest.approx(0.55, abs=SPEC_SOC)
+    # the rests after a discharge sit below the mean-branch OCV by the hysteresis: the cell
+    # stays on its discharge branch (h = -1; the 1C charge pulses barely move it), m_v
+    # below, give or take its instantaneous m0_v and what the spec's 1 % of start SOC
+    # moves the OCV over the rests' SOC range
+    hys = cell.hidden.effects[0]
+    slack = SPEC_SOC * float(ocv.ocv_at(0.55) - ocv.ocv_at(0.05)) / 0.5
+    assert -hys.m_v - hys.m0_v - slack <= fit.offset_v["after discharge"] \
+        <= -hys.m_v + hys.m0_v + slack, (fit.offset_v, hys)
     assert "hysteresis offset" in fit.note
 
 
-def test_drive_cycle_on_a_flat_lfp_ocv_fits_all_its_rests():
+def _lfp_drive_start():
     cell = _lfp_cell(1)
     ocv = _mean_branch_ocv(cell)
     cycle = cell.drive_cycle(soc_start=0.9, soc_end=0.3)
     soc0, how = record_start_soc(ocv, cell.capacity_ah, cycle, cell.capacity_ah / 100)
-    # five rests on the plateau (0.6 mV per % SOC) whose offsets vary by 3 mV with how far
-    # the hysteresis had moved: a few % of SOC
-    assert soc0 == pytest.approx(0.9, abs=0.03)
+    return ocv, cycle, soc0, how
+
+
+def test_drive_cycle_on_a_flat_lfp_ocv_fits_all_its_rests():
+    ocv, cycle, soc0, how = _lfp_drive_start()
     assert "fit to its rests" in how
-    # its first rest alone says
-    assert abs(float(ocv.soc_at(cycle.voltage_v[599])) - 0.9) > 0.1
+    # its first rest alone, on the plateau and on the discharge branch, says worse
+    assert abs(float(ocv.soc_at(cycle.voltage_v[599])) - 0.9) > abs(soc0 - 0.9)
+
+
+@pytest.mark.xfail(strict=True, reason="known miss: 0.879 against 0.9; the rests' true "
+                   "offsets vary with how far the hysteresis had moved, one per direction "
+                   "is fitted")
+def test_drive_cycle_on_a_flat_lfp_ocv_start_within_the_spec():
+    _, _, soc0, _ = _lfp_drive_start()
+    assert soc0 == pytest.approx(0.9, abs=SPEC_SOC)
 
 
 def _top_up_then_discharge(model):
@@ -86,7 +104,8 @@ def test_a_record_opening_with_a_top_up_charge_is_full_at_its_end():
     m = synthetic_nca_model()
     series, soc0 = _top_up_then_discharge(m)
     got, how = record_start_soc(m.ocv, m.capacity_ah, series, m.capacity_ah / 100)
-    assert got == pytest.approx(soc0, abs=1e-4)
+    # to the count's resolution: one 1 s sample of the 0.5C charge
+    assert got == pytest.approx(soc0, abs=0.5 * 1.0 / 3600.0)
     assert "constant-voltage" in how
 
 
@@ -100,7 +119,10 @@ def test_a_record_opening_rested_takes_the_most_relaxed_sample_of_that_rest():
     v[:600] += 0.010 * np.exp(-t[:600] / 120.0)   # relaxing down from a charge
     got, how = record_start_soc(m.ocv, m.capacity_ah, TimeSeries(t, i, v, source="c.csv"),
                                 0.029)
-    assert got == pytest.approx(0.7, abs=0.002)
+    # no further off than the relaxation the last sample still holds, through the OCV
+    ocv = m.ocv.at_temperature(None)
+    left = float(ocv.soc_at(ocv.ocv_at(0.7) + 0.010 * np.exp(-t[599] / 120.0))) - 0.7
+    assert abs(got - 0.7) <= left + 1e-9, (got, left)
     assert "last sample of the rest it opens with" in how
 
 
@@ -133,8 +155,10 @@ def test_start_soc_and_capacity_from_the_rests_together(scale):
                                    c_rates=(1.0, 2.0), noise_v=0.0005, seed=2, log_moves=True)
     rests = find_rests(series, 0.02 * nominal.capacity_ah, 300.0)
     fit, q = pulse_test_start_soc_and_capacity(nominal.ocv, nominal.capacity_ah, rests, "p.csv")
-    assert q == pytest.approx(truth.capacity_ah, rel=0.01)
-    assert fit.soc0 == pytest.approx(soc0, abs=0.01)
+    # the spec: the start SOC and the SOC at the last level within 1 %
+    assert fit.soc0 == pytest.approx(soc0, abs=SPEC_SOC)
+    last = rests.charge_ah[-1]
+    assert fit.soc0 + last / q == pytest.approx(soc0 + last / truth.capacity_ah, abs=SPEC_SOC)
     assert ("the capacity the rests imply" in fit.note) == (scale != 1.0)
 
 
@@ -144,7 +168,7 @@ def test_an_unrelaxed_opening_rest_is_taken_where_its_relaxation_heads():
     """A record that opens 20 s into a rest after a discharge, its voltage still
     recovering (one exponential, 30 s, 60 mV below the OCV at the first sample). Before:
     the OCV of its last sample, 3 % SOC low; now where the relaxation heads (Aitken's
-    delta squared over the rest), within 0.3 %."""
+    delta squared over the rest), exact for one exponential but for float rounding."""
     from ecmgen.data.soc import _relaxed_voltage
 
     m = synthetic_nca_model()
@@ -156,17 +180,20 @@ def test_an_unrelaxed_opening_rest_is_taken_where_its_relaxation_heads():
     q = np.concatenate(([0.0], np.cumsum(i[1:] * 1.0 / 3600)))
     v = np.concatenate([v_rest, ocv.ocv_at(soc_true + q[20:] / 2.9) - 0.03])
     rec = TimeSeries(t, i, v, source="unrelaxed")
-    assert _relaxed_voltage(rec, 19) == pytest.approx(float(ocv.ocv_at(soc_true)), abs=2e-4)
+    # float64 rounding, amplified by the second difference of samples that near the OCV
+    rounding = 1e6 * np.finfo(float).eps
+    assert _relaxed_voltage(rec, 19) == pytest.approx(float(ocv.ocv_at(soc_true)),
+                                                      abs=rounding)
     soc0, how = record_start_soc(ocv, 2.9, rec, rest_a=0.029)
-    assert abs(soc0 - soc_true) < 0.003 and "relaxation" in how, how
+    assert abs(soc0 - soc_true) < rounding and "relaxation" in how, how
     old = float(ocv.soc_at(v[19]))
-    assert soc_true - old > 0.02         # what the last sample alone gave
+    assert soc_true - old > SPEC_SOC     # what the last sample alone gave
 
 
 @pytest.mark.slow
 def test_auto_start_soc_of_the_shared_cycles_within_half_a_millivolt_of_a_full_start():
     """The eight shared Panasonic drive cycles start full: each auto start gives the MAE of
-    SOC 1.0 within 0.5 mV, or says it is uncertain with 1.0 within two of its sigma (six
+    SOC 1.0 within the spec's 0.5 mV, or says it is uncertain with 1.0 within two of its sigma (six
     open under load, read against the model over their first 2400 s; this older model
     errs 60 mV on the -20 degC US06, whose start it reads 0.99 +- 0.02)."""
     from ecmgen.model.simulate import start_estimate
@@ -204,7 +231,8 @@ def test_a_start_soc_that_needs_an_offset_beyond_any_hysteresis_is_said_uncertai
     held = fit_start_soc(OcvTable(soc, held_v), 2.0, rests, "cycle.csv")
     true = fit_start_soc(OcvTable(soc, true_v), 2.0, rests, "cycle.csv")
     assert "warning" in held.note and "uncertain" in held.note
-    assert "warning" not in true.note and true.soc0 == pytest.approx(0.9, abs=0.005)
+    # noise-free rests on the true OCV: exact but for the solver's tolerance
+    assert "warning" not in true.note and true.soc0 == pytest.approx(0.9, abs=1e-6)
 
 
 def _drive(seconds: float, seed: int = 0):
@@ -218,7 +246,8 @@ def _drive(seconds: float, seed: int = 0):
 def test_a_record_cut_under_load_is_read_against_the_model(cut_s):
     """The model's own cell (1 mV noise), driven from SOC 0.9 and cut in the drive: the
     opening is unsettled, the start SOC comes from the voltage over the first window
-    against the model, within a tenth of a percent of the truth, and it is sure of it;
+    against the model, within its 3 sigma of the truth (the estimator spec) and 3 sigma
+    within the spec's 1 %, and it is sure of it;
     the opening rest logic read the first 20 s step's voltage as a rest before."""
     from ecmgen.model.simulate import start_estimate
 
@@ -230,8 +259,8 @@ def test_a_record_cut_under_load_is_read_against_the_model(cut_s):
     part = TimeSeries(t[k:] - t[k], i[k:], v[k:])
     got = start_estimate(model, part)
     assert not got.settled and "against the model" in got.how
-    assert got.soc0 == pytest.approx(sim.soc[k - 1], abs=0.001)
-    assert got.sigma < 0.005 and "uncertain" not in got.how
+    assert abs(got.soc0 - sim.soc[k - 1]) <= 3 * got.sigma, (got.soc0, got.sigma)
+    assert 3 * got.sigma < SPEC_SOC and "uncertain" not in got.how
 
 
 def test_an_unsure_start_is_said_uncertain_on_validate():
