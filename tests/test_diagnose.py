@@ -160,7 +160,7 @@ def test_names_a_hidden_slow_rc_and_the_held_out_error_falls(extra_rc_run):
     cell, r = extra_rc_run
     assert isinstance(r, DiagnoseResult)
     assert r.effects and r.effects[0] == "extra_rc"
-    assert r.mae_after_v <= 0.6 * r.mae_before_v
+    assert r.mae_after_v <= 0.6 * r.mae_before_v       # the spec's 40 % held-out drop
     st = r.steps[0]
     assert st.mae_before_v == r.mae_before_v and st.mae_after_v < st.mae_before_v
     assert st.ci_low_v > 0
@@ -218,7 +218,7 @@ def test_second_cycle_as_judge_and_given_soc():
     r = diagnose(base, fit, judge, soc0=0.95, judge_soc0=0.9)
     assert r.effects[:1] == ("hysteresis",)
     assert r.judge_start == 0 and r.fit_stop == len(fit)
-    assert r.mae_after_v < 0.6 * r.mae_before_v
+    assert r.mae_after_v < 0.6 * r.mae_before_v        # the spec's 40 % held-out drop
     assert "all of" in r.split
 
 
