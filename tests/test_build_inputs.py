@@ -65,6 +65,16 @@ def test_lfp_cell_with_hysteresis_builds_and_diagnoses_without_pulses_soc0(tmp_p
     assert main(["diagnose", str(cfg), "--out", str(tmp_path / "diag"), "--quiet",
                  "--no-plots"]) == 0
     assert (tmp_path / "diag" / "model.json").exists()
+    # [diagnose] base: it starts from the model the build wrote, as it is (not the plain
+    # 2RC it fits itself), and never writes over it
+    cfg.write_text(cfg.read_text() + '[diagnose]\nbase = "out/model.json"\n')
+    assert main(["diagnose", str(cfg), "--out", str(tmp_path / "given"), "--quiet",
+                 "--no-plots"]) == 0
+    base = json.loads((tmp_path / "given" / "model-base.json").read_text())
+    assert base == doc == json.loads((out / "model.json").read_text())
+    cfg.write_text(cfg.read_text().replace("out/model.json", "none.json"))
+    assert main(["diagnose", str(cfg), "--out", str(tmp_path / "none"), "--quiet"]) == 2
+    assert not (tmp_path / "none").exists()
 
 
 @pytest.fixture(scope="module")

@@ -262,18 +262,19 @@ def test_config_section_options():
     from ecmgen.diagnosis.search import diagnose_options
     from ecmgen.errors import InputError
 
-    assert diagnose_options(None) == {"judge": None, "cycle": None}
+    assert diagnose_options(None) == {"judge": None, "cycle": None, "base": None}
     o = diagnose_options({"judge": "hwfet-a.mat", "split": 0.5, "effects": ["extra_rc"],
                           "max_effects": 2, "confidence": 0.95, "judge_soc0": 1.0,
-                          "min_rel_gain": 0.1, "cycle": "us06.mat", "cycle_soc0": 0.9},
-                         "c.toml")
+                          "min_rel_gain": 0.1, "cycle": "us06.mat", "cycle_soc0": 0.9,
+                          "base": "out/model.json"}, "c.toml")
     assert o == {"judge": "hwfet-a.mat", "split": 0.5, "candidates": ("extra_rc",),
                  "max_effects": 2, "confidence": 0.95, "judge_soc0": 1.0, "min_rel_gain": 0.1,
-                 "cycle": "us06.mat", "soc0": 0.9}
+                 "cycle": "us06.mat", "soc0": 0.9, "base": "out/model.json"}
     for bad, words in (({"splitt": 0.5}, "unknown key"), ({"split": 2.0}, "diagnose.split"),
                        ({"effects": ["x"]}, "diagnose.effects"),
                        ({"max_effects": 1.5}, "integer"), ({"judge": 3}, "file name"),
-                       ({"cycle": ""}, "file name"), ({"cycle_soc0": 2}, "cycle_soc0")):
+                       ({"cycle": ""}, "file name"), ({"base": 1}, "file name"),
+                       ({"cycle_soc0": 2}, "cycle_soc0")):
         with pytest.raises(InputError, match=words) as err:
             diagnose_options(bad, "c.toml")
         assert str(err.value).startswith("c.toml: ")

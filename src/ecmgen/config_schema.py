@@ -253,6 +253,8 @@ SECTIONS: tuple[Section, ...] = (
             default="the held-out end of data.cycle"),
         Key("judge_soc0", NUMBER, "its start SOC", unit="SOC", range=SOC,
             default="from its first rested voltage"),
+        Key("base", FILE, "the model.json to start from (e.g. what build wrote)",
+            default="the plain 2RC fitted from the config's data"),
         Key("split", NUMBER, "fraction of the cycle fitted without a judge",
             range=(0.1, 0.9), default="0.6"),
         Key("effects", CHOICES, "the candidates", choices=EFFECTS, default="all five"),

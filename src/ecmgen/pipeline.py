@@ -623,32 +623,22 @@ def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _qu
 
     options = diagnose_options(cfg.raw.get("diagnose"), cfg.path)
     judge_path = _diagnose_file(cfg, "judge", options.pop("judge"))
+    base_path = _diagnose_file(cfg, "base", options.pop("base"))
     cycle_path = _diagnose_file(cfg, "cycle", options.pop("cycle")) or cfg.cycle
     if cycle_path is None:
         raise InputError(cfg.path, "diagnose needs data.cycle or diagnose.cycle (the record "
                                    "to diagnose on)")
     soc0 = options.pop("soc0", cfg.soc0 if cycle_path == cfg.cycle else None)
     out_dir = Path(out_dir).resolve()
-    given = cfg.input_files() | {p for p in (judge_path, cycle_path) if p is not None}
+    given = cfg.input_files() | {p for p in (judge_path, cycle_path, base_path) if p}
     check_output_folder(out_dir, given)
     fit_series = read_series(cfg, cycle_path, "cycle")     # read and checked before the fit
     judge = read_series(cfg, judge_path, "judge") if judge_path is not None else None
     for record in (fit_series, judge):  # a flipped current is "unexplained" otherwise
         if record is not None:
             check_sign(record)
-    fit_cfg = replace(cfg, methods=(cfg.best,))
-    if "curve_branches" not in (cfg.raw.get("fit") or {}):
-        # the base of a diagnosis is the plain 2RC: the diffusion pair and the Butler-Volmer
-        # branch are what extra_rc and current_dependent_resistance would name
-        fit_cfg = replace(fit_cfg, curve_branches=False)
-        progress("base model: the plain 2RC (no diffusion pair, no Butler-Volmer branch; "
-                 "[fit] curve_branches = true fits them into the base)")
-    models, raw, inputs, _ = fit_all(fit_cfg, progress)
-    base = models[cfg.best]
-    refits = {}
-    if cfg.best == "curve" and not cfg.over_temperature:
-        refits["current_dependent_resistance"] = lambda: _refit_with_current_dependence(
-            fit_cfg, inputs, raw["curve_fit"], progress)
+    base, refits = (_load_base(base_path, progress) if base_path is not None
+                    else _fit_base(cfg, progress))
     try:
         result = diagnose(base, fit_series, judge, soc0=soc0, progress=progress,
                           base_refits=refits, **options)
@@ -659,6 +649,33 @@ def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _qu
         base.save(staging / "model-base.json")
         write_diagnose_outputs(result, staging, plots=plots)
     return result, out_dir, files
+
+
+def _fit_base(cfg: BuildConfig, progress: Progress):
+    """The base of a diagnosis fitted from the config's data (method ``fit.best``), and
+    the refits of it that a candidate may ask for."""
+    fit_cfg = replace(cfg, methods=(cfg.best,))
+    if "curve_branches" not in (cfg.raw.get("fit") or {}):
+        # the base of a diagnosis is the plain 2RC: the diffusion pair and the Butler-Volmer
+        # branch are what extra_rc and current_dependent_resistance would name
+        fit_cfg = replace(fit_cfg, curve_branches=False)
+        progress("base model: the plain 2RC (no diffusion pair, no Butler-Volmer branch; "
+                 "[fit] curve_branches = true fits them into the base)")
+    models, raw, inputs, _ = fit_all(fit_cfg, progress)
+    refits = {}
+    if cfg.best == "curve" and not cfg.over_temperature:
+        refits["current_dependent_resistance"] = lambda: _refit_with_current_dependence(
+            fit_cfg, inputs, raw["curve_fit"], progress)
+    return models[cfg.best], refits
+
+
+def _load_base(path: Path, progress: Progress):
+    """[diagnose] base: the user's model as it is, and no refits (the data that made it is
+    not at hand)."""
+    from .model.model import load_model
+
+    progress(f"base model: {path.name} as given ([diagnose] base)")
+    return load_model(path), {}
 
 
 def _diagnose_file(cfg: BuildConfig, key: str, name: str | None) -> Path | None:

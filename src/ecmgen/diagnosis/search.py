@@ -692,6 +692,8 @@ def diagnose_options(table, path=None) -> dict:
         judge = "hwfet-a.mat"     # a second cycle to judge on (default: the last part of
                                   # data.cycle, see split)
         judge_soc0 = 1.0          # its start SOC (default: from its first rested voltage)
+        base = "out/model.json"   # the model to start from (default: the base fitted
+                                  # from the config's data, the plain 2RC)
         split = 0.6               # fraction of data.cycle that is fitted without a judge
         effects = ["hysteresis", "extra_rc"]   # candidates (default: all five)
         max_effects = 4
@@ -701,8 +703,8 @@ def diagnose_options(table, path=None) -> dict:
     table = {} if table is None else table
     if not isinstance(table, dict):
         raise InputError(path, "[diagnose] must be a table")
-    known = {"cycle", "cycle_soc0", "judge", "judge_soc0", "split", "effects", "max_effects",
-             "min_rel_gain", "confidence"}
+    known = {"cycle", "cycle_soc0", "judge", "judge_soc0", "base", "split", "effects",
+             "max_effects", "min_rel_gain", "confidence"}
     unknown = sorted(set(table) - known)
     if unknown:
         raise InputError(path, f"unknown key(s) in [diagnose]: {', '.join(unknown)}; "
@@ -716,8 +718,8 @@ def diagnose_options(table, path=None) -> dict:
             raise InputError(path, f"diagnose.{key} must be {kind} in [{lo}, {hi}], got {v!r}")
         return int(v) if integer else float(v)
 
-    out: dict = {"judge": None, "cycle": None}
-    for key in ("cycle", "judge"):
+    out: dict = {"judge": None, "cycle": None, "base": None}
+    for key in ("cycle", "judge", "base"):
         if key in table:
             if not isinstance(table[key], str) or not table[key]:
                 raise InputError(path, f"diagnose.{key} must be a file name")
