@@ -193,7 +193,8 @@ def test_an_unrelaxed_opening_rest_is_taken_where_its_relaxation_heads():
 @pytest.mark.slow
 def test_auto_start_soc_of_the_shared_cycles_within_half_a_millivolt_of_a_full_start():
     """The eight shared Panasonic drive cycles start full: each auto start gives the MAE of
-    SOC 1.0 within the spec's 0.5 mV, or says it is uncertain with 1.0 within two of its sigma (six
+    SOC 1.0 within the spec's 0.5 mV, or says it is uncertain with 1.0 within two of its sigma
+    (the 95 % interval of the uncertainty it states, read as a normal one) (six
     open under load, read against the model over their first 2400 s; this older model
     errs 60 mV on the -20 degC US06, whose start it reads 0.99 +- 0.02)."""
     from ecmgen.model.simulate import start_estimate
