@@ -588,7 +588,7 @@ def _branch(series, soc, seg, lo, hi):
 
 
 def curve_from_branches(series: TimeSeries, soc0: float, capacity_ah: float,
-                        span: tuple[float, float], source) -> OcvCurve | None:
+                        span: tuple[float, float]) -> OcvCurve | None:
     """The OCV below ``span[0]`` and above ``span[1]`` (the rests' span) from the test's
     own charge and discharge branches there (module docstring), or None when the test
     has no pair of branches beyond its rests."""
@@ -617,13 +617,13 @@ def curve_from_branches(series: TimeSeries, soc0: float, capacity_ah: float,
         past = (g < edge) if side == "below" else (g > edge)
         points.update(zip(g[past].tolist(), (v[past] + eta).tolist()))
         far = g[past][0 if side == "below" else -1] if past.any() else edge
+        goes_on = "discharge" if side == "below" else "charge"
+        past_words = (f"; past it the {goes_on} branch {abs(eta) * 1e3:.0f} mV from its OCV "
+                      "there" if past.any() else "")
         notes.append(f"OCV: SOC {min(far, both[0]):.2f}..{max(far, both[-1]):.2f} ({side} the "
-                     "rests) "
-                     f"from the pulse test's own {ic:.3g} A charge and {id_:.3g} A discharge "
-                     f"branches (their current-weighted mean over SOC {both[0]:.2f}.."
-                     f"{both[-1]:.2f}" + (f"; past it the {'discharge' if side == 'below' else 'charge'} "
-                                          f"branch {abs(eta) * 1e3:.0f} mV from its OCV there"
-                                          if past.any() else "") + ")")
+                     f"rests) from the pulse test's own {ic:.3g} A charge and {id_:.3g} A "
+                     f"discharge branches (their current-weighted mean over SOC "
+                     f"{both[0]:.2f}..{both[-1]:.2f}{past_words})")
     if not points:
         return None
     g = np.array(sorted(points))
@@ -711,7 +711,7 @@ def assemble(sources, file_curves: dict, paths: dict, rests, soc0, capacity_ah: 
     if series is not None and "pulses" in sources:
         lo, hi = min(c.span[0] for c in curves), max(c.span[1] for c in curves)
         if lo > 0.005 or hi < 0.995:
-            more = curve_from_branches(series, soc0, capacity_ah, (lo, hi), paths["pulses"])
+            more = curve_from_branches(series, soc0, capacity_ah, (lo, hi))
             curves += [more] if more is not None else []
     table, n, origin = merge_curves(curves)
     for c in curves:
