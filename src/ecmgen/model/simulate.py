@@ -388,8 +388,12 @@ SOC_RANGE_TOLERANCE = 0.005   # simulated SOC this far outside [0, 1] is warned 
 # current column counts the other way (measured at lag 0: +0.99 as recorded, -0.99 with
 # the sign flipped, on the synthetic cycle of the tests)
 FLIPPED_SIGN_CORRELATION = -0.5
-# an MAE above this is not a model's error on its own cell (the bundled cell: 11-76 mV
-# from 25 to -20 degC) but a record it does not describe
+# a record's rests read for whether the model's cell could rest there: those the start-SOC
+# fit reads (ecmgen.data.soc.record_start_soc), at the start SOC's rest current
+FOREIGN_REST_S = 300.0
+# with fewer rests than that to judge by, an MAE above this is taken for a record the
+# model does not describe (its own cell's drive cycles, without rests: 10-57 mV from 25
+# to -20 degC; every shared record of another cell without rests: 173-796 mV)
 FOREIGN_MAE_V = 0.15
 
 
@@ -498,10 +502,53 @@ def validate(model: EcmModel, series: TimeSeries, soc0: float | None = None,
             warns.append(f"{name}: start SOC {soc0:.3f} from {how}")
         if lag_samples:
             warns.append(lag.note(series.source))
-        if overall.mae_v > FOREIGN_MAE_V:
+        judged, foreign = foreign_rests_warning(model, series, sim, float(soc0), temps, name)
+        if judged:
+            warns.append(foreign)
+        elif overall.mae_v > FOREIGN_MAE_V:
             warns.append(f"{name}: MAE {overall.mae_v * 1e3:.0f} mV is far beyond a model's "
-                         f"error on the cell it was fitted on (tens of mV): a record of "
-                         f"another cell, or in other units? (warning)")
+                         f"error on the cell it was fitted on (tens of mV), and the record "
+                         f"has no rests to tell: a record of another cell, or in other "
+                         f"units? (warning)")
     return Validation(series.source, float(soc0), from_ocv, overall,
                       Metrics.of(err[sim.soc > 0.10]), sim, series.voltage_v, temps, how,
                       tuple(w for w in warns if w), lag_samples)
+
+
+def foreign_rests_warning(model: EcmModel, series: TimeSeries, sim: SimResult, soc0: float,
+                          temperature_c=None, name: str = "") -> tuple[bool, str | None]:
+    """(whether the record has rests to judge by, a warning when most of its rests --
+    after the one it opens with, two at least -- sit where the model's cell cannot rest: the rested voltage, less the
+    overpotential the model still has there, is more than OFFSET_WARN_V (the largest
+    hysteresis the start-SOC fit accepts) from the model's OCV at the SOC the record's
+    own charge count gives, for every capacity in the range the start-SOC fit tries
+    (CAPACITY_SCALES); beyond the table's ends only a voltage on the wrong side of the
+    end counts). The evidence is the cell's, not the size of the error: a record of the
+    model's own cell at -20 degC has a large error and rests where its OCV says."""
+    from ..data.soc import CAPACITY_SCALES, OFFSET_WARN_V, find_rests
+
+    rest_a = max(model.direction_deadband_a, model.capacity_ah / 100.0)
+    rests = find_rests(series, rest_a, FOREIGN_REST_S)
+    if len(rests) < 3:
+        return False, None
+    temps = temperature_c if model.ocv.n_temperatures > 1 else None
+    capacity = model.capacity_ah * np.linspace(CAPACITY_SCALES.min(), CAPACITY_SCALES.max(), 29)
+    off = 0
+    for k, charge in zip(rests.index[1:], rests.charge_ah[1:]):
+        t = None if temps is None else np.full(capacity.size, float(temps[k]))
+        now = model.ocv.ocv_at(np.clip(sim.soc[k:k + 1], 0.0, 1.0),
+                               None if t is None else t[:1])
+        rested = series.voltage_v[k] - (sim.voltage_v[k] - float(now[0]))
+        soc = soc0 + charge / capacity
+        ocv = model.ocv.ocv_at(np.clip(soc, 0.0, 1.0), t)
+        fits = np.where(soc < 0.0, rested <= ocv + OFFSET_WARN_V,
+                        np.where(soc > 1.0, rested >= ocv - OFFSET_WARN_V,
+                                 np.abs(rested - ocv) <= OFFSET_WARN_V))
+        off += not fits.any()
+    n = len(rests) - 1
+    if 2 * off <= n:
+        return True, None
+    return True, (f"{name}: {off} of its {n} rests of {FOREIGN_REST_S:.0f} s or more sit over "
+            f"{OFFSET_WARN_V * 1e3:.0f} mV from the model's OCV at the SOC its charge count "
+            f"gives (any capacity {CAPACITY_SCALES.min():.2f}-{CAPACITY_SCALES.max():.2f}x): "
+            "a record of another cell? (warning)")
