@@ -65,8 +65,9 @@ def test_the_model_s_own_cell_is_not_another_cell(a123_model, run):
 
 def test_own_cell_cold_cycle_is_not_another_cell():
     """The Panasonic cell's model over temperature on its -20 degC US06 (a large error:
-    the cold cell, no rests) and on its 25 degC pulse test without the SOC moves (its current
-    leaves out the SOC steps, its Ah counter keeps them, and its rests sit on the OCV): neither is another cell."""
+    the cold cell, no rests) and on its 25 degC pulse test without the SOC moves (its
+    current leaves out the SOC steps, its Ah counter keeps them, and its rests sit on the
+    OCV): neither is another cell."""
     from test_codegen_helpers import load_cycle_t, temperature_fitted_model
 
     model = temperature_fitted_model()

@@ -517,13 +517,15 @@ def validate(model: EcmModel, series: TimeSeries, soc0: float | None = None,
 
 def foreign_rests_warning(model: EcmModel, series: TimeSeries, sim: SimResult, soc0: float,
                           temperature_c=None, name: str = "") -> tuple[bool, str | None]:
-    """(whether the record has rests to judge by, a warning when most of its rests --
-    after the one it opens with, two at least -- sit where the model's cell cannot rest: the rested voltage, less the
+    """(whether the record has rests to judge by, a warning or None).
+
+    The warning comes when most of the record's rests (after the one it opens with; two
+    at least) sit where the model's cell cannot rest: the rested voltage, less the
     overpotential the model still has there, is more than OFFSET_WARN_V (the largest
     hysteresis the start-SOC fit accepts) from the model's OCV at the SOC the record's
     own charge count gives, for every capacity in the range the start-SOC fit tries
     (CAPACITY_SCALES); beyond the table's ends only a voltage on the wrong side of the
-    end counts). The evidence is the cell's, not the size of the error: a record of the
+    end counts. The evidence is the cell's, not the size of the error: a record of the
     model's own cell at -20 degC has a large error and rests where its OCV says."""
     from ..data.soc import CAPACITY_SCALES, OFFSET_WARN_V, find_rests
 
