@@ -562,23 +562,23 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
 
             raise InputError(cfg.path, "build --strict: "
                                        + quality_words(cfg.best, result.quality[cfg.best]))
-        plot_tasks = {}
-        if plots:
-            from .plots import parameters_png
-
-            measured = sorted(t.temperature_c for t in tests) if tests else \
-                ([one_test_c(tests, inputs)] if cfg.activation_k else None)
-            plot_tasks = {f"parameters-{m}.png": pool.submit(parameters_png, model, measured)
-                          for m, model in models.items()}
+        # the validations first: the C check, the longest tasks left, waits for them
         result.validations = validate_all(cfg, models, progress, workers=pool)
         result.fit_flags = raw.get("flags", {})
         record_usage(result, one_test_c(tests, inputs))
         lap("validate")
 
         with staged(out_dir, given) as (staging, files):
-            # the C check of the best model on one worker, the validation plots beside it
+            # the C check of the best model on the workers first, the plots beside and after
             c_task = submit_c(pool, cfg, result, staging) if c_code and cfg.c_numeric else None
+            plot_tasks = {}
             if plots:
+                from .plots import parameters_png
+
+                measured = sorted(t.temperature_c for t in tests) if tests else \
+                    ([one_test_c(tests, inputs)] if cfg.activation_k else None)
+                plot_tasks = {f"parameters-{m}.png": pool.submit(parameters_png, model, measured)
+                              for m, model in models.items()}
                 plot_tasks.update((validation_png_name(label), task) for label, task in
                                   validation_plots(pool, result.validations, cfg.best).items())
             if tests:

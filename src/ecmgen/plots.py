@@ -76,6 +76,16 @@ def _panel_layout(fig) -> None:
                         wspace=0.42, hspace=0.55)
 
 
+def _stack_layout(fig, left_in: float, right_in: float, title_lines: int = 1,
+                  hspace: float = 0.1) -> None:
+    """Fixed margins (inches) for panels stacked over one x axis, as tight_layout sets
+    them on the shared data, without its extra pass to measure the figure (a third of a
+    validation plot's time)."""
+    w, h = fig.get_size_inches()
+    fig.subplots_adjust(left=left_in / w, right=1 - right_in / w, bottom=0.6 / h,
+                        top=1 - (0.18 + 0.17 * title_lines) / h, hspace=hspace)
+
+
 def _envelope(t: np.ndarray, y: np.ndarray, buckets: int = 1500):
     """A long trace as the min and max of each of ``buckets`` runs of samples (in time
     order), which draws the same picture at the plot's resolution, much faster."""
@@ -134,7 +144,8 @@ def plot_validations(vals: dict, path, title: str = "", best: str = ""):
         a3.set_ylabel("cell [°C]", color=TEMPERATURE_COLOUR)
         a3.grid(alpha=0.3)
     axes[-1].set_xlabel("time in the record [s]")
-    fig.tight_layout()
+    # the two-line error label on the left, the SOC axis on the right
+    _stack_layout(fig, 1.05, 0.72, title.count("\n") + 1)
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return path
@@ -326,7 +337,7 @@ def plot_ocv(inputs, path: Path, at: str = "") -> Path:
     a2.set_xlabel("SOC [%]")
     a2.set_ylim(-60, 60)
     a2.grid(alpha=0.3)
-    fig.tight_layout()
+    _stack_layout(fig, 0.75, 0.15, hspace=0.07)
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return path

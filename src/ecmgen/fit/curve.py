@@ -281,8 +281,27 @@ class _Problem:
         cached = self._cache.get((kind, tau))
         if cached is not None:
             return cached
-        x = np.take(rc_response(self.rec, tau, self._inputs(kind)), self.rows, axis=0)
-        return self._cache.put((kind, tau), np.multiply(x, self.w[:, None], out=x))
+        resp = rc_response(self.rec, tau, self._inputs(kind))
+        return self._cache.put((kind, tau), self._weighted_rows(
+            resp, np.empty((self.rows.size, resp.shape[1]), order="F")))
+
+    def block_into(self, kind: str, tau: float, out: np.ndarray) -> None:
+        """:meth:`block_met` written into ``out`` (a design buffer's columns): a block not
+        cached is made there, not kept (a search's evaluations rarely meet a time constant
+        again), the same values without the copy."""
+        cached = self._cache.get((kind, tau))
+        if cached is not None:
+            out[...] = cached
+            return
+        self._weighted_rows(rc_response(self.rec, tau, self._inputs(kind)), out)
+
+    def _weighted_rows(self, resp: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """The rows of the responses ``resp`` times their weights, into ``out`` (column-
+        major): column by column, each read and written in order (a row gather across the
+        columns of a column-major array and its transposing copy cost ten times more)."""
+        for j in range(resp.shape[1]):
+            np.multiply(resp[:, j].take(self.rows), self.w, out=out[:, j])
+        return out
 
     def taus_met(self, kinds, taus) -> tuple:
         """The time constants the blocks of ``kinds`` at ``taus`` are made at (the first

@@ -228,7 +228,7 @@ class NormalEquations:
         for n, (k, tau, width) in enumerate(zip(kinds, met, widths)):
             if held[n] != tau:
                 held[n] = None             # a block half copied is no block
-                z[:, at:at + width] = prob.block_met(k, tau)
+                prob.block_into(k, tau, z[:, at:at + width])
                 held[n] = tau
             at += width
         return z
