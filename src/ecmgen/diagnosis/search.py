@@ -51,6 +51,7 @@ from ..model.rc import rc_recurrence
 from ..model.simulate import SimResult, initial_soc, simulate
 from ..parallel import one_blas_thread
 from .problems import _Problem, _Spec, _fit, _fixed, _neutral, _specs
+from .refits import PulseRefit, hysteresis_on_refitted_base
 
 
 # -- results ------------------------------------------------------------------------------
@@ -425,7 +426,8 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
              max_fit_samples: int = 12000, max_nfev: int = 40,
              loss_scale_v: float | None = None, seed: int = 0,
              progress: Callable[[str], None] | None = None,
-             base_refits: dict | None = None) -> DiagnoseResult:
+             base_refits: dict | None = None,
+             pulse_refit: PulseRefit | None = None) -> DiagnoseResult:
     """Find the effects missing from ``base_model`` on ``fit_series`` (see module doc).
 
     judge_series     a second cycle to judge on; None: the last ``1 - split`` of the
@@ -453,12 +455,16 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
                      effect, the effect, a note) or None: the candidate is that model, judged
                      as it is (the test that made the base shows the effect's parameters
                      better than the cycle's fit part); None: fitted on the cycle as others
+    pulse_refit      the pulse test that made the base: a hysteresis is also tried on the
+                     base refitted there with it taken out (:mod:`.refits`), and kept so
+                     where that fits the cycle's fit part better
     Raises ValueError for unknown candidates, a bad split or too short records."""
     t_start = _time.perf_counter()
     say = progress or (lambda _m: None)
     base0 = base_model
     refits = dict(base_refits or {})
     refitted: dict = {}
+    base_notes: dict[str, str] = {}
     unknown = [c for c in candidates if c not in fx.EFFECT_TYPES]
     if unknown:
         raise ValueError(f"unknown effect(s) {unknown}; known: {list(fx.EFFECT_NAMES)}")
@@ -546,6 +552,16 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
     rnd = 0
     notes: list[str] = []
 
+    def refit_on(base, layout, name, start):
+        """``name`` fitted on ``base`` from ``start`` (an effect): (the effect, the fit
+        part's MAE, (values, effects, specs) and what :func:`judged` gives)."""
+        ctx_b = _context(base, fit_series, fit_stop)
+        specs_b, fixed_b = _specs(name, base, ctx_b), _fixed(name, ctx_b)
+        vals_b, effects_b = fitted(layout + [(name, None, specs_b)], [start.params()],
+                                   fixed_b, base=base)
+        j = judged(effects_b, base)
+        return effects_b[-1], j[4], ((vals_b, effects_b, specs_b), j)
+
     def judged(effects, base=None):
         model = (base_model if base is None else base).with_effects(effects)
         sj = sim_judge(model)
@@ -554,11 +570,11 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
         fit_mae1 = _mae(sf.voltage_v[:fit_stop] - fit_series.voltage_v[:fit_stop])
         return model, sj, e1, _mae(e1), fit_mae1
 
-    def fitted(layout, starts_native, fixed):
+    def fitted(layout, starts_native, fixed, base=None):
         """Fit the free parameters of the last layout entry (and of any other entry
         that has specs) from the best of the starts; returns the effects."""
         name, _, specs = layout[-1]
-        prob = _Problem(base_model.with_effects(()), fit_data, soc0,
+        prob = _Problem((base or base_model).with_effects(()), fit_data, soc0,
                         layout[:-1] + [(name, dict(starts_native[0], **fixed), specs)])
         z_starts = []
         for st in starts_native:
@@ -594,6 +610,13 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
                                        _time.perf_counter() - t0, f"fit failed: {exc}"))
                 continue
             model, sj, e1, mae1, fit_mae1 = judged(effects, new_base)
+            if name == fx.Hysteresis.name and pulse_refit is not None and base_model is base0:
+                alt = hysteresis_on_refitted_base(
+                    pulse_refit, base0.ocv, effects[-1],
+                    lambda b, start: refit_on(b, layout, name, start))
+                if alt is not None and alt[2][1][4] < fit_mae1:
+                    new_base, base_notes[name] = alt[0], alt[1]
+                    (vals, effects, specs), (model, sj, e1, mae1, fit_mae1) = alt[2]
             d = np.abs(e_cur) - np.abs(e1)
             d = np.where(np.isfinite(d), d, 0.0)
             low = block_bootstrap_low(d, block, confidence, seed=seed + rnd)
@@ -629,12 +652,20 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
         # of the candidates that pass the held-out test, the one with the lowest MAE over
         # all the data (fit part and held-out part, weighted by their samples)
         n_fit, n_judge = fit_stop, len(vj)
-        _, mae1, name, vals, specs, model, sj, e1, low, fit_mae1, new_base = min(
-            passing, key=lambda c: (n_judge * c[1] + n_fit * c[9]) / (n_judge + n_fit))
+        passing.sort(key=lambda c: (n_judge * c[1] + n_fit * c[9]) / (n_judge + n_fit))
+        plain = [c for c in passing if c[10] is None]
+        if passing[0][10] is not None and plain and block_bootstrap_low(
+                np.abs(plain[0][7]) - np.abs(passing[0][7]), block, confidence,
+                seed=seed + rnd) <= 0.0:
+            # a candidate on a base refitted for it has the pulse test's freedom too: it
+            # wins over one on the base as it is only by the held-out test any candidate
+            # must pass
+            passing.insert(0, plain[0])
+        _, mae1, name, vals, specs, model, sj, e1, low, fit_mae1, new_base = passing[0]
         if new_base is not None:
             # the effect came with its own base tables: later candidates build on them
             base_model = new_base
-            notes.append(refitted[name][2])
+            notes.append(base_notes.get(name) or refitted[name][2])
         n_fixed = len(fixed_effects)
         new_added = [(n, v, sp) for (n, _, sp), v in
                      zip(added + [(name, None, specs)], vals[n_fixed:])]
