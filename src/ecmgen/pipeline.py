@@ -637,11 +637,11 @@ def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _qu
     for record in (fit_series, judge):  # a flipped current is "unexplained" otherwise
         if record is not None:
             check_sign(record)
-    base, refits = (_load_base(base_path, progress) if base_path is not None
-                    else _fit_base(cfg, progress))
+    base, refits, pulse_refit = (_load_base(base_path, progress) if base_path is not None
+                                 else _fit_base(cfg, progress))
     try:
         result = diagnose(base, fit_series, judge, soc0=soc0, progress=progress,
-                          base_refits=refits, **options)
+                          base_refits=refits, pulse_refit=pulse_refit, **options)
     except NothingToJudge as exc:
         raise InputError(judge_path or cycle_path, str(exc)) from None
 
@@ -652,8 +652,8 @@ def run_diagnose(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _qu
 
 
 def _fit_base(cfg: BuildConfig, progress: Progress):
-    """The base of a diagnosis fitted from the config's data (method ``fit.best``), and
-    the refits of it that a candidate may ask for."""
+    """The base of a diagnosis fitted from the config's data (method ``fit.best``), the
+    refits of it that a candidate may ask for, and the pulse test to refit it on (or None)."""
     fit_cfg = replace(cfg, methods=(cfg.best,))
     if "curve_branches" not in (cfg.raw.get("fit") or {}):
         # the base of a diagnosis is the plain 2RC: the diffusion pair and the Butler-Volmer
@@ -662,11 +662,30 @@ def _fit_base(cfg: BuildConfig, progress: Progress):
         progress("base model: the plain 2RC (no diffusion pair, no Butler-Volmer branch; "
                  "[fit] curve_branches = true fits them into the base)")
     models, raw, inputs, _ = fit_all(fit_cfg, progress)
-    refits = {}
+    refits, pulse_refit = {}, None
     if cfg.best == "curve" and not cfg.over_temperature:
         refits["current_dependent_resistance"] = lambda: _refit_with_current_dependence(
             fit_cfg, inputs, raw["curve_fit"], progress)
-    return models[cfg.best], refits
+        pulse_refit = _pulse_refit(fit_cfg, inputs, raw["curve_fit"], models[cfg.best])
+    return models[cfg.best], refits, pulse_refit
+
+
+def _pulse_refit(cfg: BuildConfig, inputs: Inputs, base_fit, base: EcmModel):
+    """The pulse test that made a diagnosis's base, and the whole-test fit of it with a
+    voltage taken out (:mod:`ecmgen.diagnosis.refits`)."""
+    from .diagnosis.refits import PulseRefit
+
+    common = _common(cfg, inputs)
+    series = inputs.pulses_series
+
+    def refit(voltage_v):
+        inp = replace(inputs, pulses_series=replace(series,
+                                                    voltage_v=series.voltage_v - voltage_v))
+        _, cf, _ = model_fit = curve_model(cfg, inp, common)
+        return model_fit[0], cf.rms_error_v
+
+    return PulseRefit(series, base_fit.rms_error_v, refit, inputs.capacity_ah,
+                      base.direction_deadband_a, inputs.pulses, inputs.soc_capacity_ah)
 
 
 def _load_base(path: Path, progress: Progress):
@@ -675,7 +694,7 @@ def _load_base(path: Path, progress: Progress):
     from .model.model import load_model
 
     progress(f"base model: {path.name} as given ([diagnose] base)")
-    return load_model(path), {}
+    return load_model(path), {}, None
 
 
 def _diagnose_file(cfg: BuildConfig, key: str, name: str | None) -> Path | None:

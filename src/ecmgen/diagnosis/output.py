@@ -202,10 +202,19 @@ def report_text(result: DiagnoseResult, model_name: str = "model.json") -> str:
                          f"99 % lower bound of the gain {mv(st.ci_low_v)}).")
         lines += ["", f"Held-out MAE of the base model {mv(result.mae_before_v)}, of the "
                       f"augmented model ({model_name}) {mv(result.mae_after_v)}."]
+    elif result.not_named:
+        tried = ", ".join(st.name for st in result.not_named)
+        lines.append(f"Unexplained: {tried} passed the held-out test but left "
+                     f"{mv(result.not_named[-1].mae_after_v)}, more than 3 x the larger of "
+                     f"the voltage noise ({mv(result.noise_v)}) and the base's RMS on its "
+                     f"pulse test ({mv(result.misfit_v)}): what the record shows is not what "
+                     f"they describe (an effect diagnose has no candidate for, or more than "
+                     f"it can tell apart), so none is named. {model_name} is the base model "
+                     f"unchanged.")
     elif result.unexplained:
         lines.append(f"Unexplained: the held-out MAE ({mv(result.mae_before_v)}) is "
-                     f"{result.mae_before_v / result.noise_v:.0f} x the voltage noise "
-                     f"({mv(result.noise_v)}), and no effect that diagnose knows lowered it by "
+                     f"{result.mae_before_v / result.floor_v:.0f} x {_floor_words(result)}"
+                     f", and no effect that diagnose knows lowered it by "
                      f"more than noise explains. {model_name} is the base model unchanged.")
     else:
         lines.append(f"Nothing is missing that this data can show: no effect lowered the "
@@ -213,8 +222,8 @@ def report_text(result: DiagnoseResult, model_name: str = "model.json") -> str:
                      f"{model_name} is the base model unchanged.")
     if result.steps and result.unexplained:
         lines += ["", f"Unexplained: after them the held-out MAE ({mv(result.mae_after_v)}) is "
-                      f"still {result.mae_after_v / result.noise_v:.0f} x the voltage noise "
-                      f"({mv(result.noise_v)}): part of the error is nothing diagnose knows."]
+                      f"still {result.mae_after_v / result.floor_v:.0f} x "
+                      f"{_floor_words(result)}: part of the error is nothing diagnose knows."]
     lines += ["", "## Signatures in the base residual (fit part)", "",
               "| effect | explains | what was regressed |", "|---|---|---|"]
     for name, sig in sorted(result.signatures.items(), key=lambda kv: -kv[1].r2):
@@ -241,6 +250,13 @@ def report_text(result: DiagnoseResult, model_name: str = "model.json") -> str:
     for n in result.notes:
         lines.append(f"- note: {n}")
     return "\n".join(lines) + "\n"
+
+
+def _floor_words(result: DiagnoseResult) -> str:
+    if result.misfit_v is not None and result.misfit_v > result.noise_v:
+        return (f"the base's RMS on its pulse test ({1e3 * result.misfit_v:.2f} mV, above the "
+                f"voltage noise {1e3 * result.noise_v:.2f} mV)")
+    return f"the voltage noise ({1e3 * result.noise_v:.2f} mV)"
 
 
 def write_diagnose_outputs(result: DiagnoseResult, out_dir: str | Path, *, plots: bool = True,

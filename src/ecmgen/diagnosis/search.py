@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 import time as _time
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable
 
@@ -51,126 +51,9 @@ from ..model.rc import rc_recurrence
 from ..model.simulate import SimResult, initial_soc, simulate
 from ..parallel import one_blas_thread
 from .problems import _Problem, _Spec, _fit, _fixed, _neutral, _specs
-
-
-# -- results ------------------------------------------------------------------------------
-
-# held-out MAE over the noise std above which the error left is called unexplained: a model
-# that explains the data leaves about 0.8 x the std of white noise plus its own small misfit
-# (the control cells of ../shared/diagnose-suite end at 1.3-1.6 x)
-UNEXPLAINED_RATIO = 3.0
-
-@dataclass(frozen=True)
-class Signature:
-    """How much of the base residual (fit part) one effect's signature explains."""
-
-    name: str
-    applicable: bool
-    r2: float                 # share of the residual's sum of squares explained (0..1)
-    detail: str               # what was regressed on what, best shape parameter
-    guess: dict = field(default_factory=dict)   # starting values for the fit (native units)
-
-
-@dataclass(frozen=True)
-class Candidate:
-    """One effect tried in one greedy round."""
-
-    round: int
-    name: str
-    effect: object | None
-    fit_mae_v: float          # MAE on the fit part with the candidate added
-    judge_mae_v: float        # MAE on the held-out part
-    gain_v: float             # held-out MAE before - after
-    rel_gain: float           # gain_v / held-out MAE before
-    ci_low_v: float           # lower confidence bound of gain_v (block bootstrap)
-    passed: bool
-    seconds: float
-    message: str = ""
-
-
-@dataclass(frozen=True)
-class DiagnoseStep:
-    """One effect added, with the held-out MAE before and after adding it."""
-
-    name: str
-    effect: object
-    mae_before_v: float
-    mae_after_v: float
-    ci_low_v: float
-
-
-@dataclass
-class DiagnoseResult:
-    base_model: EcmModel
-    model: EcmModel                    # base + the effects added (in order)
-    steps: tuple[DiagnoseStep, ...]
-    candidates: tuple[Candidate, ...]
-    signatures: dict[str, Signature]
-    mae_before_v: float                # held-out MAE of the base model
-    mae_after_v: float                 # held-out MAE of the augmented model
-    fit_mae_before_v: float
-    fit_mae_after_v: float
-    noise_v: float                     # voltage noise (std) estimated from the rests
-    split: str                         # how the held-out part was chosen, in words
-    fit_series: TimeSeries
-    judge_series: TimeSeries
-    fit_stop: int                      # fit_series[:fit_stop] was fitted
-    judge_start: int                   # judge_series[judge_start:] was judged
-    soc0: float
-    judge_soc0: float
-    base_fit_sim: SimResult
-    base_judge_sim: SimResult
-    judge_sim: SimResult               # augmented model on the judge series
-    seconds: float
-    notes: tuple[str, ...] = ()
-
-    @property
-    def effects(self) -> tuple[str, ...]:
-        return tuple(s.name for s in self.steps)
-
-    @property
-    def unexplained(self) -> bool:
-        """The held-out error left is well above the noise (UNEXPLAINED_RATIO)."""
-        return bool(self.noise_v > 0 and self.mae_after_v > UNEXPLAINED_RATIO * self.noise_v)
-
-    @property
-    def verdict(self) -> str:
-        """One line: what was named, and whether the error left is noise."""
-        left = (f"held-out error {self.mae_after_v * 1e3:.2f} mV against "
-                f"{self.noise_v * 1e3:.2f} mV noise")
-        named = f"added {', '.join(self.effects)}; " if self.steps else ""
-        if self.unexplained:
-            return (f"{named}unexplained: {left}; no further effect that diagnose knows "
-                    "lowers it by more than noise explains")
-        if self.steps:
-            return f"{named}{left}"
-        return f"nothing is missing that this data can show: {left}"
-
-    def to_json_dict(self, model_path: str | Path | None = None) -> dict:
-        def f(x):
-            return None if x is None or not math.isfinite(x) else float(x)
-
-        return {
-            "effects": [{"name": s.name, "mae_before_v": f(s.mae_before_v),
-                         "mae_after_v": f(s.mae_after_v), "gain_ci_low_v": f(s.ci_low_v),
-                         "params": s.effect.params()} for s in self.steps],
-            "mae_before_v": f(self.mae_before_v),
-            "mae_after_v": f(self.mae_after_v),
-            "fit_mae_before_v": f(self.fit_mae_before_v),
-            "fit_mae_after_v": f(self.fit_mae_after_v),
-            "noise_v": f(self.noise_v),
-            "unexplained": self.unexplained,
-            "verdict": self.verdict,
-            "held_out": self.split,
-            "signatures": {k: {"applicable": s.applicable, "r2": f(s.r2), "detail": s.detail}
-                           for k, s in self.signatures.items()},
-            "candidates": [{"round": c.round, "name": c.name, "judge_mae_v": f(c.judge_mae_v),
-                            "gain_v": f(c.gain_v), "rel_gain": f(c.rel_gain),
-                            "gain_ci_low_v": f(c.ci_low_v), "passed": c.passed,
-                            "message": c.message} for c in self.candidates],
-            "seconds": round(self.seconds, 2),
-            "model": None if model_path is None else str(model_path),
-        }
+from .refits import PulseRefit, hysteresis_on_refitted_base
+from .result import (UNEXPLAINED_RATIO, Candidate, DiagnoseResult, DiagnoseStep,  # noqa: F401
+                     Signature)
 
 
 # -- small numeric helpers ----------------------------------------------------------------
@@ -425,7 +308,8 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
              max_fit_samples: int = 12000, max_nfev: int = 40,
              loss_scale_v: float | None = None, seed: int = 0,
              progress: Callable[[str], None] | None = None,
-             base_refits: dict | None = None) -> DiagnoseResult:
+             base_refits: dict | None = None,
+             pulse_refit: PulseRefit | None = None) -> DiagnoseResult:
     """Find the effects missing from ``base_model`` on ``fit_series`` (see module doc).
 
     judge_series     a second cycle to judge on; None: the last ``1 - split`` of the
@@ -453,12 +337,16 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
                      effect, the effect, a note) or None: the candidate is that model, judged
                      as it is (the test that made the base shows the effect's parameters
                      better than the cycle's fit part); None: fitted on the cycle as others
+    pulse_refit      the pulse test that made the base: a hysteresis is also tried on the
+                     base refitted there with it taken out (:mod:`.refits`), and kept so
+                     where that fits the cycle's fit part better
     Raises ValueError for unknown candidates, a bad split or too short records."""
     t_start = _time.perf_counter()
     say = progress or (lambda _m: None)
     base0 = base_model
     refits = dict(base_refits or {})
     refitted: dict = {}
+    base_notes: dict[str, str] = {}
     unknown = [c for c in candidates if c not in fx.EFFECT_TYPES]
     if unknown:
         raise ValueError(f"unknown effect(s) {unknown}; known: {list(fx.EFFECT_NAMES)}")
@@ -546,6 +434,16 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
     rnd = 0
     notes: list[str] = []
 
+    def refit_on(base, layout, name, start):
+        """``name`` fitted on ``base`` from ``start`` (an effect): (the effect, the fit
+        part's MAE, (values, effects, specs) and what :func:`judged` gives)."""
+        ctx_b = _context(base, fit_series, fit_stop)
+        specs_b, fixed_b = _specs(name, base, ctx_b), _fixed(name, ctx_b)
+        vals_b, effects_b = fitted(layout + [(name, None, specs_b)], [start.params()],
+                                   fixed_b, base=base)
+        j = judged(effects_b, base)
+        return effects_b[-1], j[4], ((vals_b, effects_b, specs_b), j)
+
     def judged(effects, base=None):
         model = (base_model if base is None else base).with_effects(effects)
         sj = sim_judge(model)
@@ -554,11 +452,11 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
         fit_mae1 = _mae(sf.voltage_v[:fit_stop] - fit_series.voltage_v[:fit_stop])
         return model, sj, e1, _mae(e1), fit_mae1
 
-    def fitted(layout, starts_native, fixed):
+    def fitted(layout, starts_native, fixed, base=None):
         """Fit the free parameters of the last layout entry (and of any other entry
         that has specs) from the best of the starts; returns the effects."""
         name, _, specs = layout[-1]
-        prob = _Problem(base_model.with_effects(()), fit_data, soc0,
+        prob = _Problem((base or base_model).with_effects(()), fit_data, soc0,
                         layout[:-1] + [(name, dict(starts_native[0], **fixed), specs)])
         z_starts = []
         for st in starts_native:
@@ -594,6 +492,13 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
                                        _time.perf_counter() - t0, f"fit failed: {exc}"))
                 continue
             model, sj, e1, mae1, fit_mae1 = judged(effects, new_base)
+            if name == fx.Hysteresis.name and pulse_refit is not None and base_model is base0:
+                alt = hysteresis_on_refitted_base(
+                    pulse_refit, base0.ocv, effects[-1],
+                    lambda b, start: refit_on(b, layout, name, start))
+                if alt is not None and alt[2][1][4] < fit_mae1:
+                    new_base, base_notes[name] = alt[0], alt[1]
+                    (vals, effects, specs), (model, sj, e1, mae1, fit_mae1) = alt[2]
             d = np.abs(e_cur) - np.abs(e1)
             d = np.where(np.isfinite(d), d, 0.0)
             low = block_bootstrap_low(d, block, confidence, seed=seed + rnd)
@@ -629,12 +534,20 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
         # of the candidates that pass the held-out test, the one with the lowest MAE over
         # all the data (fit part and held-out part, weighted by their samples)
         n_fit, n_judge = fit_stop, len(vj)
-        _, mae1, name, vals, specs, model, sj, e1, low, fit_mae1, new_base = min(
-            passing, key=lambda c: (n_judge * c[1] + n_fit * c[9]) / (n_judge + n_fit))
+        passing.sort(key=lambda c: (n_judge * c[1] + n_fit * c[9]) / (n_judge + n_fit))
+        plain = [c for c in passing if c[10] is None]
+        if passing[0][10] is not None and plain and block_bootstrap_low(
+                np.abs(plain[0][7]) - np.abs(passing[0][7]), block, confidence,
+                seed=seed + rnd) <= 0.0:
+            # a candidate on a base refitted for it has the pulse test's freedom too: it
+            # wins over one on the base as it is only by the held-out test any candidate
+            # must pass
+            passing.insert(0, plain[0])
+        _, mae1, name, vals, specs, model, sj, e1, low, fit_mae1, new_base = passing[0]
         if new_base is not None:
             # the effect came with its own base tables: later candidates build on them
             base_model = new_base
-            notes.append(refitted[name][2])
+            notes.append(base_notes.get(name) or refitted[name][2])
         n_fixed = len(fixed_effects)
         new_added = [(n, v, sp) for (n, _, sp), v in
                      zip(added + [(name, None, specs)], vals[n_fixed:])]
@@ -668,13 +581,24 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
     steps = [replace(st, effect=final.get(st.name, st.effect)) for st in steps]
     if factor > 1:
         notes.append(f"fit on {len(fit_data)} samples (block averages of {factor})")
+    misfit = None if pulse_refit is None else pulse_refit.rms_v
+    not_named: tuple = ()
+    if steps and mae_cur > UNEXPLAINED_RATIO * max(noise, misfit or 0.0) and misfit is not None:
+        # what was added lowers the error but does not explain it: naming it would send a
+        # user after the wrong physics (a look-alike of an effect without a candidate)
+        not_named, steps = tuple(steps), []
+        current, mae_cur, fit_mae_cur, judge_sim = base0, mae0, fit_mae0, base_judge_sim
+        say(f"not named: {', '.join(st.name for st in not_named)} left "
+            f"{not_named[-1].mae_after_v * 1e3:.2f} mV, above {UNEXPLAINED_RATIO:g}x "
+            f"max(noise, the base's misfit on its pulse test)")
     return DiagnoseResult(
         base_model=base0, model=current, steps=tuple(steps), candidates=tuple(cands),
         signatures=sigs, mae_before_v=mae0, mae_after_v=mae_cur, fit_mae_before_v=fit_mae0,
         fit_mae_after_v=fit_mae_cur, noise_v=noise, split=split_words, fit_series=fit_series,
         judge_series=judge, fit_stop=fit_stop, judge_start=judge_start, soc0=soc0,
         judge_soc0=judge_soc0, base_fit_sim=base_fit_sim, base_judge_sim=base_judge_sim,
-        judge_sim=judge_sim, seconds=_time.perf_counter() - t_start, notes=tuple(notes))
+        judge_sim=judge_sim, seconds=_time.perf_counter() - t_start, notes=tuple(notes),
+        misfit_v=misfit, not_named=not_named)
 
 
 # -- the [diagnose] section of the build config ----------------------------------------------
