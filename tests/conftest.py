@@ -33,6 +33,36 @@ def need(path: Path) -> Path:
     return path
 
 
+def diagnose_cells():
+    """bench/diagnose_cells.py, the independent cell generator (numpy physics, no ecmgen
+    import), loaded as a module: diagnose is scored on cells not made by its own equations."""
+    import importlib.util
+    import sys
+
+    name = "diagnose_cells_bench"
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, REPO / "bench" / "diagnose_cells.py")
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules[name] = mod        # its dataclasses look their module up
+        spec.loader.exec_module(mod)
+    return sys.modules[name]
+
+
+def diagnose_generated(seed: int, effects: tuple[str, ...], folder: Path):
+    """A quick cell of the independent generator (half the pulse levels and cycle) with
+    ``effects`` missing, written into ``folder`` and diagnosed as a user would (its
+    case.toml, no plots); returns the DiagnoseResult."""
+    from ecmgen.config import load_config
+    from ecmgen.pipeline import run_diagnose
+
+    dc = diagnose_cells()
+    case, extra = dc.make_case(seed, effects, quick=True)
+    dc.write_case(case, extra, folder / "cell")
+    result, _, _ = run_diagnose(load_config(folder / "cell" / "case.toml"), folder / "out",
+                                plots=False)
+    return result
+
+
 @pytest.fixture
 def synthetic_model():
     """A plausible NCA-like 2RC model with distinct charge/discharge tables."""

