@@ -22,7 +22,7 @@ import numpy as np
 
 from ..data.measure import TimeSeries, charging_direction
 from ..model import effects as fx
-from ..model.effects import hysteresis_state
+from ..model.effects import hysteresis_state, hysteresis_voltage
 
 # a refit is used only where it fits the pulse test this much better than the base did
 # (the same 1 % the current-dependence refit asks for)
@@ -57,15 +57,12 @@ class PulseRefit:
     soc_capacity_ah: float | None = None
 
 
-def hysteresis_voltage(effect: fx.Hysteresis, series: TimeSeries, deadband_a: float,
-                       h0: float) -> np.ndarray:
+def _voltage_from(effect: fx.Hysteresis, series: TimeSeries, deadband_a: float,
+                  h0: float) -> np.ndarray:
     """The voltage ``effect`` adds on ``series`` from state ``h0``."""
-    ch = charging_direction(series.current_a, deadband_a)
-    s = np.where(ch, 1.0, -1.0)
-    h = hysteresis_state(replace(effect, initial_state=h0), series.time_s, series.current_a,
-                         ch)
-    return effect.m_v * (h - effect.ocv_table_state) + \
-        effect.m0_v * (s - effect.ocv_table_state)
+    return hysteresis_voltage(replace(effect, initial_state=h0), series.time_s,
+                              series.current_a, charging_direction(series.current_a,
+                                                                   deadband_a))
 
 
 def refit_without(pr: PulseRefit, effect: fx.Hysteresis):
@@ -74,7 +71,7 @@ def refit_without(pr: PulseRefit, effect: fx.Hysteresis):
     The test may start on either branch: the one that fits better."""
     best = None
     for h0 in (1.0, -1.0):
-        model, rms = pr.refit(hysteresis_voltage(effect, pr.series, pr.deadband_a, h0))
+        model, rms = pr.refit(_voltage_from(effect, pr.series, pr.deadband_a, h0))
         if best is None or rms < best[1]:
             best = (model, rms, h0)
     model, rms, h0 = best

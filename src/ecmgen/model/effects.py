@@ -334,16 +334,20 @@ def effects_voltage(model, time_s, current_a, soc, charging, temperature_c, para
     current_a = np.asarray(current_a, dtype=np.float64)
     dt = np.diff(time_s, prepend=time_s[0])
     extra = np.zeros_like(current_a)
-    s = np.where(np.asarray(charging, dtype=bool), 1.0, -1.0)
     for e in model.effects:
         if isinstance(e, Hysteresis):
-            a = np.exp(-np.abs(current_a) * dt / (3600.0 * e.decay_ah))
-            h = rc_recurrence(a, (1.0 - a) * s, e.initial_state)
-            extra += e.m_v * (h - e.ocv_table_state) + e.m0_v * (s - e.ocv_table_state)
+            extra += hysteresis_voltage(e, time_s, current_a, charging)
         elif isinstance(e, ExtraRc):
             a = np.exp(-dt / e.tau_s)
             extra += rc_recurrence(a, e.r_ohm * (1.0 - a) * current_a)
     return extra
+
+
+def hysteresis_voltage(effect: Hysteresis, time_s, current_a, charging) -> np.ndarray:
+    """The voltage a hysteresis effect adds over a record (step 5)."""
+    s = np.where(np.asarray(charging, dtype=bool), 1.0, -1.0)
+    h = hysteresis_state(effect, time_s, current_a, charging)
+    return effect.m_v * (h - effect.ocv_table_state) + effect.m0_v * (s - effect.ocv_table_state)
 
 
 def hysteresis_state(effect: Hysteresis, time_s, current_a, charging) -> np.ndarray:
