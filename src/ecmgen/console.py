@@ -106,7 +106,7 @@ def cycle_table(rows, best: str) -> str:
         t = f"{tr[0]:.1f}..{tr[1]:.1f}" if tr else "-"
         lines.append(f"{c:<{width}}  {t:>13}  {'':7} " + "  ".join(
             f"{mae[(m, c)]:7.2f}" if (m, c) in mae else f"{'-':>7}" for m in methods))
-    lines.append(f"(* = model.json; RMSE, max and MAE over SOC > 10 % in report.md)")
+    lines.append("(* = model.json; RMSE, max and MAE over SOC > 10 % in report.md)")
     return "\n".join(lines)
 
 

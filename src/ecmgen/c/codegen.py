@@ -46,7 +46,7 @@ import numpy as np
 
 from ..files import write_atomic
 from .names import c_names
-from .runtime import optional_switches, runtime_dir, switches, templates_dir
+from .runtime import optional_switches, runtime_dir, templates_dir
 from .qformat import INT32_MAX, Q30, Q_D, Q_TEMP, quantize
 from .spec import (C_EFFECTS, FX_FIXED_KEYS, FX_FLOAT_KEYS, NUMERICS, CDir, CGrid, CSpec,
                    _as_model, begin, prepare_float, state_fields)

@@ -22,7 +22,7 @@ from . import cref
 from .codegen import CSpec, _context, _env
 from .estc import EstSpec
 from .estref import simulate_estimator_f32
-from .golden import TOL_SOC_F32, TOL_V_F32, Segment, c_array, write_texts
+from .golden import TOL_V_F32, Segment, c_array, write_texts
 from .names import c_names
 
 GUESS_OFF = 0.2          # the start guess is this far from the true start SOC (towards 0.5)

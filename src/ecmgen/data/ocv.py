@@ -524,7 +524,7 @@ def cross_check(table: OcvTable, soc, v, rest_s, chosen: str,
     if warn and rms > threshold_v and better == "pulses":
         text += ("; warning: the pulse test's rests are the better source (the cell's OCV "
                  "at the pulse test's own temperature and age): ocv = \"pulses\", or "
-                 f"[\"pulses\", ...] to fill the SOC they do not cover")
+                 "[\"pulses\", ...] to fill the SOC they do not cover")
     elif warn and rms > threshold_v:
         text += ("; warning: the rests of the pulse test are short (median "
                  f"{np.median(rest_s):.0f} s), not relaxed: {chosen} is the better source")
