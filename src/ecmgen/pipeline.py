@@ -681,8 +681,8 @@ def _pulse_refit(cfg: BuildConfig, inputs: Inputs, base_fit, base: EcmModel):
     def refit(voltage_v):
         inp = replace(inputs, pulses_series=replace(series,
                                                     voltage_v=series.voltage_v - voltage_v))
-        _, cf, _ = model_fit = curve_model(cfg, inp, common)
-        return model_fit[0], cf.rms_error_v
+        model, cf, _ = curve_model(cfg, inp, common)
+        return model, cf.rms_error_v
 
     return PulseRefit(series, base_fit.rms_error_v, refit, inputs.capacity_ah,
                       base.direction_deadband_a, inputs.pulses, inputs.soc_capacity_ah)

@@ -14,6 +14,7 @@ from ..files import json_text, write_atomic
 from ..model import effects as fx
 from ..model.rc import rc_recurrence
 from ..plotting import MEASURED, _plt
+from .result import UNEXPLAINED_RATIO
 from .search import DiagnoseResult, _lowpass
 
 
@@ -205,7 +206,8 @@ def report_text(result: DiagnoseResult, model_name: str = "model.json") -> str:
     elif result.not_named:
         tried = ", ".join(st.name for st in result.not_named)
         lines.append(f"Unexplained: {tried} passed the held-out test but left "
-                     f"{mv(result.not_named[-1].mae_after_v)}, more than 3 x the larger of "
+                     f"{mv(result.not_named[-1].mae_after_v)}, more than {UNEXPLAINED_RATIO:g} x "
+                     f"the larger of "
                      f"the voltage noise ({mv(result.noise_v)}) and the base's RMS on its "
                      f"pulse test ({mv(result.misfit_v)}): what the record shows is not what "
                      f"they describe (an effect diagnose has no candidate for, or more than "

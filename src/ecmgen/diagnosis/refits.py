@@ -15,7 +15,7 @@ The pipeline hands diagnose a :class:`PulseRefit`; everything about the candidat
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -46,6 +46,7 @@ class PulseRefit:
     deadband_a  the base's direction deadband
     pulses      the pulses found in it (ecmgen.data.dcir.Pulse)
     soc_capacity_ah  the capacity of its SOC axis
+    memo        what the candidates need of it once per diagnosis, whatever the round
     """
 
     series: TimeSeries
@@ -55,6 +56,7 @@ class PulseRefit:
     deadband_a: float
     pulses: tuple = ()
     soc_capacity_ah: float | None = None
+    memo: dict = field(default_factory=dict, compare=False, repr=False)
 
 
 def _voltage_from(effect: fx.Hysteresis, series: TimeSeries, deadband_a: float,
@@ -148,13 +150,19 @@ def hysteresis_on_refitted_base(pr: PulseRefit, ocv, fitted: fx.Hysteresis, fit_
     returns (its effect, the fit part's MAE, anything to keep). Returns (base, note, that
     result), or None where the rests do not show a hysteresis (a test without rested
     pulses: a dynamic test) or no refit fits the pulse test better than the base."""
-    rested = rest_hysteresis(pr, ocv)
+    if "hysteresis" not in pr.memo:
+        # the rests and the first refit do not depend on the round: refit_without starts
+        # the test on either branch whatever the candidate's initial state
+        rested = rest_hysteresis(pr, ocv)
+        pr.memo["hysteresis"] = (rested, None if rested is None else refit_without(pr, rested))
+    rested, got = pr.memo["hysteresis"]
     if rested is None:
         return None
     effect = replace(rested, initial_state=fitted.initial_state)
     best = None
-    for _ in range(2):
-        got = refit_without(pr, effect)
+    for k in range(2):
+        if k:
+            got = refit_without(pr, effect)
         if got is None:
             break
         base, _, note = got

@@ -17,6 +17,13 @@ from ..model.simulate import SimResult
 # (the control cells of ../shared/diagnose-suite end at 1.3-1.6 x)
 UNEXPLAINED_RATIO = 3.0
 
+
+def explained_floor(noise_v: float, misfit_v: float | None) -> float:
+    """What a model that misses nothing leaves: the noise, or the base's own misfit on the
+    test that made it where that is larger and known."""
+    return max(noise_v, misfit_v or 0.0)
+
+
 @dataclass(frozen=True)
 class Signature:
     """How much of the base residual (fit part) one effect's signature explains."""
@@ -89,9 +96,8 @@ class DiagnoseResult:
 
     @property
     def floor_v(self) -> float:
-        """What a model that misses nothing leaves: the noise, or the base's own misfit on
-        the test that made it where that is larger and known."""
-        return max(self.noise_v, self.misfit_v or 0.0)
+        """:func:`explained_floor` of this diagnosis."""
+        return explained_floor(self.noise_v, self.misfit_v)
 
     @property
     def unexplained(self) -> bool:
@@ -132,7 +138,7 @@ class DiagnoseResult:
             "fit_mae_before_v": f(self.fit_mae_before_v),
             "fit_mae_after_v": f(self.fit_mae_after_v),
             "noise_v": f(self.noise_v),
-            "base_misfit_v": None if self.misfit_v is None else f(self.misfit_v),
+            "base_misfit_v": f(self.misfit_v),
             "not_named": [{"name": s.name, "mae_after_v": f(s.mae_after_v),
                            "params": s.effect.params()} for s in self.not_named],
             "unexplained": self.unexplained,

@@ -53,7 +53,7 @@ from ..parallel import one_blas_thread
 from .problems import _Problem, _Spec, _fit, _fixed, _neutral, _specs
 from .refits import PulseRefit, hysteresis_on_refitted_base
 from .result import (UNEXPLAINED_RATIO, Candidate, DiagnoseResult, DiagnoseStep,  # noqa: F401
-                     Signature)
+                     Signature, explained_floor)
 
 
 # -- small numeric helpers ----------------------------------------------------------------
@@ -583,7 +583,8 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
         notes.append(f"fit on {len(fit_data)} samples (block averages of {factor})")
     misfit = None if pulse_refit is None else pulse_refit.rms_v
     not_named: tuple = ()
-    if steps and mae_cur > UNEXPLAINED_RATIO * max(noise, misfit or 0.0) and misfit is not None:
+    if steps and misfit is not None and mae_cur > UNEXPLAINED_RATIO * explained_floor(noise,
+                                                                                      misfit):
         # what was added lowers the error but does not explain it: naming it would send a
         # user after the wrong physics (a look-alike of an effect without a candidate)
         not_named, steps = tuple(steps), []
