@@ -486,3 +486,25 @@ def test_a_fit_again_with_the_first_fits_searches_is_the_fit_from_scratch():
     for d in ("charge", "discharge"):
         for k, v in scratch.rc_columns(d).items():
             assert np.array_equal(v, again.rc_columns(d)[k]), (d, k)
+
+
+def test_a_pair_slower_than_the_rests_is_kept_only_where_the_rests_show_it():
+    """The diffusion pair ending on the longest relaxation (1200 s): kept there, as a lower
+    bound on its time constant, for a cell whose third pair (3000 s) is slower than every
+    rest, where the two pairs' residual drifts the relaxation's way at the rests' ends;
+    dropped for a 2RC cell whose fit ends there on noise (the spurious pair that leaving a
+    level out alone keeps)."""
+    slow = with_branches(synthetic_nca_model(tau_fast_s=0.5, tau_slow_s=8.0),
+                         r_diff_ohm=0.02, tau_diff_s=3000.0, i0_a=None)
+    plain = synthetic_nca_model(tau_fast_s=0.5, tau_slow_s=8.0)
+    fits = {}
+    for name, truth in (("slow", slow), ("plain", plain)):
+        series, soc0 = make_pulse_test(truth, soc_levels=NINE_LEVELS, c_rates=(1.0, 3.0),
+                                       noise_v=0.0005, seed=0)
+        pulses = find_pulses(series, truth.capacity_ah, soc0=soc0)
+        fits[name] = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah)
+    kept, dropped = fits["slow"], fits["plain"]
+    assert kept.tau_diff_s == pytest.approx(1200.0, rel=0.01)
+    assert any("a lower bound on its time constant" in n for n in kept.notes)
+    assert dropped.tau_diff_s is None
+    assert any("the test does not resolve it" in n for n in dropped.notes)

@@ -306,3 +306,55 @@ def grid_bytes(prob, ranges: dict) -> int:
     side, :func:`ecmgen.fit.curve._search`)."""
     cols = prob.r0w.shape[1] + sum(prob.width(k) * log_grid(*ranges[k]).size for k in ranges)
     return 8 * prob.rows.size * cols
+
+
+# a sign test at 99 %: the level diagnose's rest-hysteresis F test uses too
+DRIFT_P = 0.01
+
+
+@dataclass(frozen=True)
+class RestDrift:
+    """The residual of a fit over the later half of each rest of the test, its slope the
+    way a relaxation goes (up after a discharge, down after a charge)."""
+
+    drifting: int        # rests whose residual drifts that way
+    judged: int          # rests with enough rows and a non-zero slope
+    p: float             # one-sided sign test: P(>= drifting of judged | no drift)
+
+    @property
+    def shown(self) -> bool:
+        return self.p < DRIFT_P
+
+    def words(self) -> str:
+        return (f"the residual drifts at the ends of {self.drifting} of {self.judged} rests the "
+                f"way a slower relaxation would, sign test p = {self.p:.2g}")
+
+
+def rests_still_relax(rec: Record, rows: np.ndarray, residual_v: np.ndarray,
+                      min_rows: int = 3) -> RestDrift:
+    """Does the test show a relaxation slower than a fit resolves? ``residual_v``: the fit's
+    residual (measured - fitted, V) at ``rows`` of ``rec``. A fit whose pairs relax within
+    the rests leaves noise at their ends, drifting either way; a slower process left out
+    makes it drift the relaxation's way at rest after rest. Rests across an unlogged gap
+    and the opening one are not judged."""
+    from math import comb
+
+    t, i = rec.t, rec.i
+    row_of = np.full(t.size, -1)
+    row_of[rows] = np.arange(rows.size)
+    idle = np.concatenate([[0], (i == 0.0).astype(np.int8), [0]])
+    edges = np.flatnonzero(np.diff(idle))
+    drifting = judged = 0
+    for a, b in zip(edges[::2], edges[1::2]):
+        if a == 0 or np.any((rec.restart > a) & (rec.restart < b)):
+            continue
+        k = np.arange(a, b)
+        k = k[(t[k] >= 0.5 * (t[a] + t[b - 1])) & (row_of[k] >= 0)]
+        if k.size < min_rows:
+            continue
+        slope = np.polyfit(t[k] - t[k[0]], residual_v[row_of[k]], 1)[0] * -np.sign(i[a - 1])
+        if slope != 0.0:
+            judged += 1
+            drifting += int(slope > 0.0)
+    p = sum(comb(judged, j) for j in range(drifting, judged + 1)) / 2.0 ** judged
+    return RestDrift(drifting, judged, float(p))
