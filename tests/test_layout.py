@@ -140,7 +140,7 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 def _check_the_graph_sees_lazy_and_relative_imports(g: dict[str, set[str]]) -> None:
     # lazy imports inside functions count (cli imports nearly everything that way)
-    assert "ecmgen.pipeline" in g["ecmgen.cli"]
+    assert "ecmgen.pipeline" in g["ecmgen.cli.commands"]
     assert "ecmgen.model.effects" in g["ecmgen.model.model"]
     # `from . import cref` is an edge to the module, `from ..model import effects` too
     assert "ecmgen.c.cref" in g["ecmgen.c.target"]
