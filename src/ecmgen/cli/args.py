@@ -38,7 +38,15 @@ def parser() -> argparse.ArgumentParser:
     p = _Parser(prog="ecmgen", description=DESCRIPTION)
     p.add_argument("--version", action="version", version=f"ecmgen {__version__}")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    # one function per command, in the order `ecmgen` alone lists them
+    for add in (_build_args, _dcir_args, _fit_args, _validate_args, _estimate_args,
+                _codegen_args, _verify_args, _diagnose_args, _fleet_args, _age_args,
+                _config_args):
+        add(sub)
+    return p
 
+
+def _build_args(sub) -> None:
     b = sub.add_parser("build", help="run the whole chain from a config file")
     b.add_argument("config")
     b.add_argument("--out", help="output folder (default: ecmgen-out beside the config)")
@@ -52,6 +60,8 @@ def parser() -> argparse.ArgumentParser:
                         "smooth and positive")
     b.set_defaults(func=commands.cmd_build)
 
+
+def _dcir_args(sub) -> None:
     d = sub.add_parser("dcir", help="extract the DC-IR table of a pulse test")
     d.add_argument("pulses", nargs="?", help="the pulse test (default with --config: its "
                                              "data.pulses)")
@@ -66,6 +76,8 @@ def parser() -> argparse.ArgumentParser:
     d.add_argument("-q", "--quiet", action="store_true", help="no notes on stderr")
     d.set_defaults(func=commands.cmd_dcir)
 
+
+def _fit_args(sub) -> None:
     f = sub.add_parser("fit", help="fit a model.json from a config file")
     f.add_argument("config")
     f.add_argument("--method", choices=["ga", "lm", "curve"])
@@ -73,6 +85,8 @@ def parser() -> argparse.ArgumentParser:
     f.add_argument("-q", "--quiet", action="store_true")
     f.set_defaults(func=commands.cmd_fit)
 
+
+def _validate_args(sub) -> None:
     v = sub.add_parser("validate", help="simulate a model over a measured cycle")
     v.add_argument("model")
     v.add_argument("cycle")
@@ -89,6 +103,8 @@ def parser() -> argparse.ArgumentParser:
     v.add_argument("-q", "--quiet", action="store_true", help="(no progress is shown anyway)")
     v.set_defaults(func=commands.cmd_validate)
 
+
+def _estimate_args(sub) -> None:
     e = sub.add_parser("estimate", help="run the SOC filter over a measured cycle and "
                                         "compare it with coulomb counting")
     e.add_argument("model")
@@ -121,6 +137,8 @@ def parser() -> argparse.ArgumentParser:
     e.add_argument("--quiet", action="store_true", help="(no progress is shown anyway)")
     e.set_defaults(func=commands.cmd_estimate)
 
+
+def _codegen_args(sub) -> None:
     c = sub.add_parser("codegen", help="write the C of a model.json (e.g. an augmented one)")
     c.add_argument("model")
     c.add_argument("--out", required=True, help="folder for the .h/.c and runtime headers")
@@ -138,6 +156,8 @@ def parser() -> argparse.ArgumentParser:
     c.add_argument("-q", "--quiet", action="store_true", help="do not list the files written")
     c.set_defaults(func=commands.cmd_codegen)
 
+
+def _verify_args(sub) -> None:
     v = sub.add_parser("verify", help="check your copy of the generated C against the build's "
                        "golden vectors (exit 0 pass, 1 fail, 2 bad input)")
     v.add_argument("golden", help="a build's c/float or c/fixed folder (or the build folder, "
@@ -151,6 +171,8 @@ def parser() -> argparse.ArgumentParser:
                    "(default: run it directly)")
     v.set_defaults(func=commands.cmd_verify)
 
+
+def _diagnose_args(sub) -> None:
     g = sub.add_parser("diagnose", help="find, add and check missing model effects")
     g.add_argument("config")
     g.add_argument("--out")
@@ -159,6 +181,8 @@ def parser() -> argparse.ArgumentParser:
     g.add_argument("--no-plots", action="store_true")
     g.set_defaults(func=commands.cmd_diagnose)
 
+
+def _fleet_args(sub) -> None:
     fl = sub.add_parser("fleet", help="build every cell x check-up of a manifest on Dask and "
                         "tabulate their trends (exit 0 all built, 1 some rows failed, 2 bad "
                         "input)")
@@ -182,6 +206,8 @@ def parser() -> argparse.ArgumentParser:
     fl.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
     fl.set_defaults(func=commands.cmd_fleet)
 
+
+def _age_args(sub) -> None:
     ag = sub.add_parser("age", help="fit the fleet's ageing law (resistance and capacity over "
                         "equivalent full cycles) into a model.json")
     ag.add_argument("fleet_dir", help="the --out folder of `ecmgen fleet` (its fleet.csv)")
@@ -190,8 +216,9 @@ def parser() -> argparse.ArgumentParser:
                     "(default: the first non-outlier cell's model at its first check-up)")
     ag.set_defaults(func=commands.cmd_age)
 
+
+def _config_args(sub) -> None:
     k = sub.add_parser("config", help="print the config reference (every section and key)")
     k.add_argument("--explain", action="store_true", help="every key: type, unit, range, "
                    "default, meaning (markdown; docs/config.md holds this text)")
     k.set_defaults(func=commands.cmd_config)
-    return p
