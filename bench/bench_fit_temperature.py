@@ -27,7 +27,7 @@ from ecmgen.data.dcir import extract_dcir, find_pulses
 from ecmgen.data.measure import TimeSeries, read_timeseries
 from ecmgen.data.ocv import ocv_from_pulse_rests
 from ecmgen.errors import InputError
-from ecmgen.fit.curve import fit_pulse_curves
+from ecmgen.fit.curve import CurveOptions, fit_pulse_curves
 from ecmgen.fit.points import five_point_rows
 from ecmgen.fit.rate import fit_exchange_current
 
@@ -99,8 +99,8 @@ def fit_pulse_test(temp: str, *, steps: bool = True, methods=("curve", "ga", "lm
                        i0, times=times)
     if "curve" in methods:
         t0 = time.perf_counter()
-        out.curve = fit_pulse_curves(series, pulses, ocv, CAPACITY_AH, i0_a=i0.i0_a,
-                                     steps=steps_series, **curve_kw)
+        out.curve = fit_pulse_curves(series, pulses, ocv, CAPACITY_AH, CurveOptions(**curve_kw),
+                                     i0_a=i0.i0_a, steps=steps_series)
         times["curve"] = time.perf_counter() - t0
     if "ga" in methods or "lm" in methods:
         rows, out.point_notes = five_point_rows(dcir, "max")

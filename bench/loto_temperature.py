@@ -211,13 +211,13 @@ def main(argv=None):
                            diffusion=not a.no_diffusion, rows_per_decade=a.rows_per_decade,
                            min_weight_s=a.min_weight_s)
         if a.no_bv:
-            from ecmgen.fit.curve import fit_pulse_curves
+            from ecmgen.fit.curve import CurveOptions, fit_pulse_curves
 
-            f.curve = fit_pulse_curves(f.series, f.pulses, f.ocv, CAPACITY_AH, i0_a=None,
+            f.curve = fit_pulse_curves(f.series, f.pulses, f.ocv, CAPACITY_AH,
+                                       CurveOptions(diffusion=not a.no_diffusion), i0_a=None,
                                        steps=None if a.no_steps else
                                        __import__("bench_fit_temperature").read_steps(
-                                           folder(temp) / "hppc-soc-steps.mat"),
-                                       diffusion=not a.no_diffusion)
+                                           folder(temp) / "hppc-soc-steps.mat"))
         c = f.curve
         print(f"{temp}: T {f.temperature_c:.1f} degC, i0 {c.i0_a}, taus {c.tau_fast_s:.3f}/"
               f"{c.tau_slow_s:.2f}/{c.tau_diff_s}, fit RMS {c.rms_error_v * 1e3:.2f} mV, "

@@ -9,7 +9,7 @@ import pytest
 
 from conftest import make_pulse_test, synthetic_nca_model
 from ecmgen.data.dcir import find_pulses
-from ecmgen.fit.curve import _after_charge, fit_pulse_curves, second_difference
+from ecmgen.fit.curve import CurveOptions, _after_charge, fit_pulse_curves, second_difference
 from ecmgen.fit.curve_levels import data_tau_ranges, level_nodes, level_windows
 
 
@@ -77,8 +77,8 @@ def test_rows_beyond_the_pulses_soc_do_not_count(pulse_test, monkeypatch):
     longer = TimeSeries(np.concatenate((series.time_s, t)), np.concatenate((series.current_a, i)),
                         np.concatenate((series.voltage_v, v)), None, None, "p.csv")
     kw = dict(diffusion=False)
-    a = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, **kw)
-    b = fit_pulse_curves(longer, pulses, truth.ocv, truth.capacity_ah, **kw)
+    a = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, CurveOptions(**kw))
+    b = fit_pulse_curves(longer, pulses, truth.ocv, truth.capacity_ah, CurveOptions(**kw))
     # only the first SPAN_MARGIN of SOC past the last level counts: 36 s at 1C
     assert a.n_rows < b.n_rows <= a.n_rows + 36
     # the rows past it change nothing: the fit is the one of the record cut where the
@@ -86,14 +86,14 @@ def test_rows_beyond_the_pulses_soc_do_not_count(pulse_test, monkeypatch):
     n = series.time_s.size + b.n_rows - a.n_rows
     cut = TimeSeries(longer.time_s[:n], longer.current_a[:n], longer.voltage_v[:n],
                      None, None, "p.csv")
-    d = fit_pulse_curves(cut, pulses, truth.ocv, truth.capacity_ah, **kw)
+    d = fit_pulse_curves(cut, pulses, truth.ocv, truth.capacity_ah, CurveOptions(**kw))
     for k in ("r0_ohm", "r_fast_ohm", "r_slow_ohm"):
         assert np.array_equal(getattr(d.discharge, k), getattr(b.discharge, k)), k
     assert (d.tau_fast_s, d.tau_slow_s) == (b.tau_fast_s, b.tau_slow_s)
     from ecmgen.fit import curve
 
     monkeypatch.setattr(curve, "SPAN_MARGIN", 1.0)           # every row counts
-    c = fit_pulse_curves(longer, pulses, truth.ocv, truth.capacity_ah, **kw)
+    c = fit_pulse_curves(longer, pulses, truth.ocv, truth.capacity_ah, CurveOptions(**kw))
 
     def moved(f):
         return max(float(np.max(np.abs(getattr(f.discharge, k) / getattr(a.discharge, k) - 1)))

@@ -9,7 +9,7 @@ from conftest import make_pulse_test, synthetic_nca_model
 from ecmgen.data.dcir import extract_dcir, find_pulses, relaxation_s
 from ecmgen.data.measure import TimeSeries, write_timeseries_csv
 from ecmgen.fit.checks import curve_fit_flags, flag_notes, point_fit_flags
-from ecmgen.fit.curve import fit_pulse_curves
+from ecmgen.fit.curve import CurveOptions, fit_pulse_curves
 
 
 def _short_rest_test():
@@ -26,7 +26,8 @@ def test_curve_tau_longer_than_the_relaxation_is_flagged():
     pulses = find_pulses(series, 2.9, soc0=soc0)
     relax = relaxation_s(series, pulses, 1800.0)
     assert np.all(relax <= 40.0)                  # not the 1800 s asked for
-    fit = fit_pulse_curves(series, pulses, truth.ocv, 2.9, relax_s=1800.0, diffusion=False)
+    fit = fit_pulse_curves(series, pulses, truth.ocv, 2.9,
+                           CurveOptions(relax_s=1800.0, diffusion=False))
     flags = curve_fit_flags(fit, float(relax.max()))
     if fit.tau_slow_s > 40.0:
         assert any(f.kind == "tau_beyond_data" and f.param == "tau_slow_s" for f in flags)

@@ -11,7 +11,7 @@ from ecmgen.data.dcir import extract_dcir, find_pulses
 from ecmgen.data.measure import TimeSeries
 from ecmgen.data.steps import merge_soc_steps
 from ecmgen.errors import InputError
-from ecmgen.fit.curve import fit_pulse_curves
+from ecmgen.fit.curve import CurveOptions, fit_pulse_curves
 from ecmgen.fit.rate import fit_exchange_current
 
 LEVELS = (0.9, 0.6, 0.3)
@@ -64,8 +64,8 @@ def test_recovers_a_2rc_cell(tau_slow_s, noise_v):
     series, soc0 = make_pulse_test(truth, soc_levels=LEVELS, c_rates=(2.0, 6.0),
                                    noise_v=noise_v, seed=3, log_moves=True)
     pulses = find_pulses(series, truth.capacity_ah, soc0=soc0)
-    fit = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, diffusion=False,
-                           tau_slow_s=(5.0, 3000.0))
+    fit = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah,
+                           CurveOptions(diffusion=False, tau_slow_s=(5.0, 3000.0)))
     assert fit.tau_diff_s is None and fit.i0_a is None
     for name, err in worst_errors(truth, fit, LEVELS).items():
         assert err < SPEC_REL, (name, err)
@@ -89,7 +89,8 @@ def test_recovers_the_diffusion_and_butler_volmer_branches():
     assert cols["i0_a"].tolist() == [3.0] and cols["tau_diff_s"][0] == fit.tau_diff_s
     assert explains_to_the_noise(fit.rms_error_v, 0.001), fit.rms_error_v
     # the same cell fitted without the branches it has does not
-    lin = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, diffusion=False)
+    lin = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah,
+                           CurveOptions(diffusion=False))
     assert not explains_to_the_noise(lin.rms_error_v, 0.001), lin.rms_error_v
 
 
@@ -100,8 +101,10 @@ def test_relaxation_is_what_identifies_minutes():
     series, soc0 = make_pulse_test(truth, soc_levels=(0.6,), c_rates=(2.0,))
     pulses = find_pulses(series, truth.capacity_ah, soc0=soc0)
     kw = dict(diffusion=False, tau_slow_s=(5.0, 3000.0))
-    short = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, relax_s=1.0, **kw)
-    full = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, relax_s=1200.0, **kw)
+    short = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah,
+                             CurveOptions(relax_s=1.0, **kw))
+    full = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah,
+                            CurveOptions(relax_s=1200.0, **kw))
     # at the pulse's mid SOC (the nodes 0.55 and 0.6 share it)
     r_slow = float(truth.discharge.at(0.597)["r_slow_ohm"])
     got = lambda f: float(np.interp(0.597, f.soc, f.discharge.r_slow_ohm))  # noqa: E731
@@ -117,8 +120,8 @@ def test_charge_and_discharge_pulses_give_their_own_tables():
                                    direction=(-1, 1), log_moves=True)
     pulses = find_pulses(series, truth.capacity_ah, soc0=soc0)
     assert [p.direction for p in pulses[:2]] == ["discharge", "charge"]
-    fit = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, diffusion=False,
-                           direction_deadband_a=0.029)
+    fit = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah,
+                           CurveOptions(diffusion=False, direction_deadband_a=0.029))
     assert fit.directions == ("charge", "discharge")
     assert not any("pulses only" in n for n in fit.notes)
     # the synthetic cell's charge resistances are 0.9 x its discharge resistances; each
@@ -173,7 +176,8 @@ def test_levels_below_the_lowest_complete_pulse_are_held_flat():
     pulses = find_pulses(series, truth.capacity_ah, soc0=soc0)
     # say the voltage limit cut everything at the lowest level
     pulses = [replace(p, cut_short=p.soc < 0.35) for p in pulses]
-    fit = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, diffusion=False)
+    fit = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah,
+                           CurveOptions(diffusion=False))
     d = fit.discharge
     # the levels with complete pulses span SOC 0.6 .. 0.9 (mid-pulse): nodes 0.6 .. 0.9
     # carry them, the node below holds the lowest level's value
@@ -211,13 +215,13 @@ def test_r0_does_not_collapse_at_a_level_with_one_complete_c_rate(monkeypatch):
                                    rates_at=lambda level: (0.5,) if level < 0.2 else rates,
                                    rest_s=600.0, noise_v=0.001, seed=1, log_moves=True)
     pulses = find_pulses(series, truth.capacity_ah, soc0=soc0)
-    fit = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, i0_a=2.6,
-                           diffusion=False)
+    fit = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah,
+                           CurveOptions(diffusion=False), i0_a=2.6)
     r0 = fit.discharge.r0_ohm
     assert any("r0 held at SOC 0.149 " in n for n in fit.notes), fit.notes
     monkeypatch.setattr(curve, "R0_MIN_RATES", 1)
-    free = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, i0_a=2.6,
-                            diffusion=False)
+    free = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah,
+                            CurveOptions(diffusion=False), i0_a=2.6)
     # free at every level, r0 at the one-rate level trades against r_fast: held, it is
     # nearer the truth there
     one_rate = fit.soc <= 0.15
@@ -301,7 +305,8 @@ def test_usabc_leaf_hppc_gives_both_directions_within_5_percent():
     truth = synthetic_nca_model(tau_fast_s=2.0, tau_slow_s=30.0)
     series = make_usabc_hppc(truth, seed=1)
     pulses = find_pulses(series, truth.capacity_ah, soc0=1.0)
-    fit = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, diffusion=False)
+    fit = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah,
+                           CurveOptions(diffusion=False))
     assert fit.directions == ("charge", "discharge")
     t = np.array([0.1, 1.0, 3.0, 10.0, 30.0, 100.0])
 
@@ -326,7 +331,8 @@ def test_pulses_without_a_rest_after_them_take_the_other_directions_slow_pair():
     truth = synthetic_nca_model(tau_fast_s=2.0, tau_slow_s=30.0)
     series = make_usabc_hppc(truth, seed=1)
     pulses = find_pulses(series, truth.capacity_ah, soc0=1.0)
-    fit = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, diffusion=False)
+    fit = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah,
+                           CurveOptions(diffusion=False))
     assert any("the charge slow pair is the discharge one's" in n for n in fit.notes)
     np.testing.assert_array_equal(fit.charge.r_slow_ohm, fit.discharge.r_slow_ohm)
     for d in ("charge", "discharge"):
@@ -363,12 +369,12 @@ def test_a_current_dependent_resistance_is_found_on_the_pulse_test():
 
     def rms_at(i0_a):
         g = CurrentDependentResistance(1.0, i0_a).factor
-        fit = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah,
-                               current_factor=g, **near)
+        fit = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, CurveOptions(**near),
+                               current_factor=g)
         return fit.rms_error_v, fit
 
     i0, rms, fit = best_exchange_current(rms_at, truth.capacity_ah)
-    plain = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, **near)
+    plain = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, CurveOptions(**near))
     # i0 is a parameter of the resistance: the spec's 5 % on known-truth data
     assert i0 == pytest.approx(i0_true, rel=SPEC_REL), i0
     # with the effect the fit explains the record to its noise, without it it does not
@@ -389,23 +395,23 @@ def test_time_constants_offered_by_the_neighbours_are_kept_only_where_they_predi
                                    noise_v=0.001, seed=3, log_moves=True)
     pulses = find_pulses(series, truth.capacity_ah, soc0=soc0)
     kw = dict(diffusion=False, tau_slow_s=(5.0, 3000.0))
-    own = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, **kw)
-    far = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, **kw,
+    own = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, CurveOptions(**kw))
+    far = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, CurveOptions(**kw),
                            neighbour_taus={"fast": 8.0, "slow": 300.0})
     assert (far.tau_fast_s, far.tau_slow_s) == (own.tau_fast_s, own.tau_slow_s)
     assert far.rms_error_v == own.rms_error_v
     said = [n for n in far.notes if "neighbouring tests' time constants" in n]
     assert len(said) == 1 and "no better" in said[0] and "own kept" in said[0]
-    same = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, **kw,
+    same = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, CurveOptions(**kw),
                             neighbour_taus={"fast": own.tau_fast_s, "slow": own.tau_slow_s})
     assert same.rms_error_v == own.rms_error_v
     # beyond the test's search ranges (tau_fast up to 10 s): not tried, said
-    beyond = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, **kw,
+    beyond = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, CurveOptions(**kw),
                               neighbour_taus={"fast": 50.0, "slow": 60.0})
     assert beyond.rms_error_v == own.rms_error_v
     assert any("beyond the ranges this test can show" in n for n in beyond.notes)
     # a different set of branches (a diffusion pair the fit does not have) is not offered
-    other = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, **kw,
+    other = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, CurveOptions(**kw),
                              neighbour_taus={"fast": 2.0, "slow": 60.0, "diff": 600.0})
     assert not any("neighbouring" in n for n in other.notes)
 
@@ -424,7 +430,8 @@ def test_a_third_pair_faster_than_the_diffusion_range_is_kept():
                                    noise_v=0.001, seed=0)
     pulses = find_pulses(series, truth.capacity_ah, soc0=soc0)
     fit = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah)
-    two = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, diffusion=False)
+    two = fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah,
+                           CurveOptions(diffusion=False))
     assert fit.tau_diff_s == pytest.approx(150.0)
     assert any("faster than the diffusion range, kept" in n for n in fit.notes)
     assert fit.rms_error_v < two.rms_error_v
@@ -441,7 +448,8 @@ def test_the_node_sets_side_by_side_give_the_fit_of_one_after_the_other(monkeypa
     pulses = find_pulses(series, truth.capacity_ah, soc0=soc0)
 
     def fit():
-        return fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, diffusion=False)
+        return fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah,
+                                CurveOptions(diffusion=False))
 
     side_by_side = fit()
     monkeypatch.setattr(curve._cr, "THREADS_BYTES", -1)
@@ -476,8 +484,8 @@ def test_a_fit_again_with_the_first_fits_searches_is_the_fit_from_scratch():
     pulses = find_pulses(series, truth.capacity_ah, soc0=soc0)
 
     def fit(**kw):
-        return fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah, diffusion=False,
-                                **kw)
+        return fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah,
+                                CurveOptions(diffusion=False), **kw)
 
     first = fit()
     offer = {"fast": first.tau_fast_s * 1.2, "slow": first.tau_slow_s * 0.8}

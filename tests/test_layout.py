@@ -1,5 +1,7 @@
 """The source layout follows the pipeline: no import circles, no stage imports a later one,
-no module over 800 lines, and the notebook API resolves from ``import ecmgen``.
+no module over 800 lines, and the notebook API resolves from ``import ecmgen``. The C a
+reviewer reads is capped as the Python is (every file of c_runtime/ and templates/), and
+docs/layout.md names every module.
 
 Every import statement of every module under src/ecmgen is read with ``ast`` (also the
 ones inside functions, relative and absolute), so a lazy import counts like any other.
@@ -14,12 +16,23 @@ from __future__ import annotations
 
 import ast
 import importlib
+import re
 from pathlib import Path
+
+import pytest
 
 import ecmgen
 
 SRC = Path(ecmgen.__file__).resolve().parent
+REPO = Path(__file__).resolve().parents[1]
+# the brief's "no module over ~800 lines", for the Python and for the C files alike
 MAX_LINES = 800
+C_DIRS = ("c_runtime", "templates")
+# files over the cap today, each with its own strict xfail below (removed when it is under)
+OVER_THE_CAP = {
+    "c_runtime/ecmrt_q.h": "the fixed-point step holds every effect's #if branches inline; "
+                           "it comes under the cap when each effect is a unit of its own",
+}
 
 # the stages, lowest first; a unit may import only units of a lower level (and itself)
 LEVELS = [
@@ -140,7 +153,7 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 def _check_the_graph_sees_lazy_and_relative_imports(g: dict[str, set[str]]) -> None:
     # lazy imports inside functions count (cli imports nearly everything that way)
-    assert "ecmgen.pipeline" in g["ecmgen.cli"]
+    assert "ecmgen.pipeline" in g["ecmgen.cli.commands"]
     assert "ecmgen.model.effects" in g["ecmgen.model.model"]
     # `from . import cref` is an edge to the module, `from ..model import effects` too
     assert "ecmgen.c.cref" in g["ecmgen.c.target"]
@@ -198,3 +211,62 @@ def test_layout_follows_the_pipeline():
     _check_no_cycles_and_no_stage_imports_a_later_one(graph)
     _check_no_module_over_800_lines()
     _check_the_notebook_api_resolves()
+
+
+def _c_files() -> dict[str, int]:
+    """Every file of c_runtime/ and templates/ (relative path) -> its lines."""
+    return {f"{d}/{p.name}": len(p.read_text().splitlines())
+            for d in C_DIRS for p in sorted((REPO / d).iterdir()) if p.is_file()}
+
+
+def test_no_c_runtime_or_template_file_over_800_lines():
+    files = _c_files()
+    assert "c_runtime/ecmrt_f32.h" in files and "templates/ecm.c.j2" in files
+    long = {name: n for name, n in files.items() if n > MAX_LINES and name not in OVER_THE_CAP}
+    assert not long, long
+
+
+@pytest.mark.parametrize("name", sorted(OVER_THE_CAP))
+def test_known_c_files_over_the_cap(name, request):
+    request.applymarker(pytest.mark.xfail(strict=True, reason=OVER_THE_CAP[name]))
+    assert _c_files()[name] <= MAX_LINES
+
+
+def _layout_rows() -> dict[str, str]:
+    """docs/layout.md's table of subpackages: package ("ecmgen" for the top level) -> the
+    text of its row."""
+    rows = {}
+    for line in (REPO / "docs" / "layout.md").read_text().splitlines():
+        m = re.match(r"\| (?:`(\w+)/`|top level) \|", line)
+        if m:
+            rows["ecmgen" + (f".{m.group(1)}" if m.group(1) else "")] = line
+    return rows
+
+
+def test_layout_md_names_every_module():
+    """A subpackage has its row; a module is named (`name`) in its package's row."""
+    rows = _layout_rows()
+    assert {"ecmgen", "ecmgen.data", "ecmgen.c", "ecmgen.cli"} <= set(rows), sorted(rows)
+    missing = []
+    for name, path in _modules().items():
+        if name == "ecmgen":
+            continue
+        package, _, leaf = name.rpartition(".")
+        if _is_package(path):
+            if name not in rows:
+                missing.append(f"{name} (no row `{leaf}/`)")
+        elif f"`{leaf}`" not in rows.get(package, ""):
+            missing.append(name)
+    assert not missing, "docs/layout.md does not name: " + ", ".join(missing)
+
+
+def test_layout_md_says_which_code_mirrors_which():
+    """The mirrors' table names files that exist (a renamed file shows here)."""
+    text = (REPO / "docs" / "layout.md").read_text()
+    table = text[text.index("## Which code mirrors which"):]
+    named = set(re.findall(r"`((?:c_runtime|templates|tests|model|c|estimate)/[\w.]+)`", table))
+    assert {"model/simulate.py", "c/cref.py", "c_runtime/ecmrt_f32.h", "c_runtime/ecmrt_q.h",
+            "estimate/process.py", "c/estref.py", "c_runtime/ecmrt_est_f32.h"} <= named, named
+    gone = [n for n in sorted(named)
+            if not ((REPO / n).exists() or (SRC / n).exists())]
+    assert not gone, gone

@@ -401,12 +401,13 @@ def test_point_rows_with_an_unreached_time_does_not_warn():
 
 def test_cli_keeps_remaining_warnings_off_stderr(monkeypatch, capsys, tmp_path):
     import ecmgen.cli as cli
+    import ecmgen.cli.commands as commands
 
     def noisy(args):
         warnings.warn("something numerical", RuntimeWarning)
         return 0
 
-    monkeypatch.setattr(cli, "cmd_codegen", noisy)          # parser() binds it per call
+    monkeypatch.setattr(commands, "cmd_codegen", noisy)     # parser() binds it per call
     monkeypatch.setattr(sys, "warnoptions", [])
     with warnings.catch_warnings(record=True) as seen:
         warnings.simplefilter("always")

@@ -42,6 +42,7 @@ _API = {
     "fit_ga": "ecmgen.fit.ga",
     "fit_lm": "ecmgen.fit.lm",
     "fit_pulse_curves": "ecmgen.fit.curve",
+    "CurveOptions": "ecmgen.fit.curve",
     "EcmModel": "ecmgen.model.model",
     "load_model": "ecmgen.model.model",
     "simulate": "ecmgen.model.simulate",

@@ -453,6 +453,38 @@ def load_config(path: str | Path) -> BuildConfig:
 
 
 def _load_config(path: Path) -> BuildConfig:
+    """The config's sections in a fixed order (the first problem found is the one named):
+    the schema, [cell], [data], [dcir], [fit], [c], [model], then the files and tables
+    that name other files."""
+    raw = _parsed(path)
+    base = path.resolve().parent
+    cell, data = _table(raw, "cell", path), _table(raw, "data", path)
+    dcir_t, fit, c = _table(raw, "dcir", path), _table(raw, "fit", path), _table(raw, "c", path)
+    model_t = _table(raw, "model", path)
+    capacity = _number(cell, "capacity_ah", path, "cell", positive=True)
+    inputs = _data_inputs(data, base, path)
+    settings = _dcir_settings(dcir_t, path)
+    settings.update(_fit_settings(fit, inputs, path))
+    settings.update(_c_settings(c, path))
+    settings.update(_model_settings(model_t, inputs["pulse_tests"], path))
+    cycle = _file(base, data, "cycle", path)
+    known = [inputs["pulses"], inputs["ocv"], cycle, *inputs["extra_cycles"],
+             *(p for t in inputs["pulse_tests"] for p in (t.file, t.steps, t.ocv)),
+             *(s for s in inputs["ocv_sources"] if s != "pulses")]
+    return BuildConfig(
+        path=path, capacity_ah=capacity, cycle=cycle, **inputs, **settings,
+        max_mae_mv=_number(raw.get("report", {}), "max_mae_mv", path, "report", 50.0,
+                           positive=True),
+        estimator=estimator_config(raw.get("estimator", {}), path),
+        raw=raw, cycle_window_s=_cycle_windows(data, base, path, known),
+        temperature_c=_temperatures(data, base, path, known),
+        file_columns=_file_columns(inputs["columns"], inputs["pulse_tests"], base, path,
+                                   known))
+
+
+def _parsed(path: Path) -> dict:
+    """The config file read as TOML and checked against the schema (every section and key
+    known, of its type and in its range)."""
     if path.is_dir():
         raise InputError(path, "is a folder; give the config file (a .toml)")
     try:
@@ -465,16 +497,17 @@ def _load_config(path: Path) -> BuildConfig:
                                f"{exc.start}); TOML files are UTF-8") from None
     except tomllib.TOMLDecodeError as exc:
         raise InputError(path, f"not valid TOML ({exc})") from None
-    base = path.resolve().parent
-    try:        # every section and key known, of its type and in its range
+    try:
         check_config(raw)
     except SchemaError as exc:
         raise InputError(path, str(exc)) from None
-    cell, data = _table(raw, "cell", path), _table(raw, "data", path)
-    dcir_t, fit, c = _table(raw, "dcir", path), _table(raw, "fit", path), _table(raw, "c", path)
-    model_t = _table(raw, "model", path)
-    capacity = _number(cell, "capacity_ah", path, "cell", positive=True)
+    return raw
 
+
+def _data_inputs(data: dict, base: Path, path: Path) -> dict[str, Any]:
+    """[data] but the validation cycle and the per-file tables: the pulse test (or DC-IR
+    table, dynamic test, pulse tests over temperature), the OCV sources, the extra cycles
+    and the column map, as BuildConfig's fields."""
     pulses = _file(base, data, "pulses", path)
     dcir = _file(base, data, "dcir", path)
     dynamic = _file(base, data, "dynamic", path)
@@ -489,6 +522,33 @@ def _load_config(path: Path) -> BuildConfig:
     if several and "pulses_soc0" in data:
         raise InputError(path, "data.pulses_soc0 goes with data.pulses; give soc0 in each "
                                "[[data.pulse_tests]] table")
+    sources = _ocv_sources(data, base, path, pulses, several)
+    ocv = next((s for s in sources if s != "pulses"), None)
+    ocv_cycle = data.get("ocv_cycle")
+    if ocv_cycle is not None and (isinstance(ocv_cycle, bool) or not isinstance(ocv_cycle, int)
+                                  or ocv_cycle < 1):
+        raise InputError(path, f"data.ocv_cycle must be a cycle number from 1, got {ocv_cycle!r}")
+    pulse_tests = _pulse_tests(data, base, path, ocv) if several else ()
+    branch = data.get("ocv_branch", "auto")
+    if branch not in ("auto", "both", "charge", "discharge"):
+        raise InputError(path, "data.ocv_branch must be auto, both, charge or discharge, "
+                               f"got {branch!r}")
+    extra = data.get("extra_cycles", [])
+    if not isinstance(extra, list):
+        raise InputError(path, "data.extra_cycles must be a list of file names")
+    extra_paths = tuple(_file(base, {"extra_cycles": e}, "extra_cycles", path) for e in extra)
+    return dict(
+        pulses=pulses, dcir=dcir, dynamic=dynamic is not None,
+        pulses_soc0=_number(data, "pulses_soc0", path, "data", None, unit_interval=True),
+        pulse_tests=pulse_tests, ocv=ocv, ocv_sources=tuple(sources), ocv_cycle=ocv_cycle,
+        ocv_soc0=_number(data, "ocv_soc0", path, "data", unit_interval=True),
+        ocv_branch=branch, soc0=_number(data, "soc0", path, "data", unit_interval=True),
+        extra_cycles=extra_paths, columns=_columns(data, path))
+
+
+def _ocv_sources(data: dict, base: Path, path: Path, pulses: Path | None, several: bool
+                 ) -> list:
+    """data.ocv in merge order: "pulses" (the pulse tests' rests) or a file."""
     ocv_raw = data.get("ocv", "pulses" if several else None)
     if ocv_raw is None:
         raise InputError(path, "missing data.ocv (a soc,ocv_v table, a low-rate test, "
@@ -507,22 +567,12 @@ def _load_config(path: Path) -> BuildConfig:
             sources.append("pulses")
         else:
             sources.append(_file(base, {"ocv": name}, "ocv", path))
-    ocv = next((s for s in sources if s != "pulses"), None)
-    ocv_cycle = data.get("ocv_cycle")
-    if ocv_cycle is not None and (isinstance(ocv_cycle, bool) or not isinstance(ocv_cycle, int)
-                                  or ocv_cycle < 1):
-        raise InputError(path, f"data.ocv_cycle must be a cycle number from 1, got {ocv_cycle!r}")
-    pulse_tests = _pulse_tests(data, base, path, ocv) if several else ()
-    branch = data.get("ocv_branch", "auto")
-    if branch not in ("auto", "both", "charge", "discharge"):
-        raise InputError(path, "data.ocv_branch must be auto, both, charge or discharge, "
-                               f"got {branch!r}")
+    return sources
 
-    extra = data.get("extra_cycles", [])
-    if not isinstance(extra, list):
-        raise InputError(path, "data.extra_cycles must be a list of file names")
-    extra_paths = tuple(_file(base, {"extra_cycles": e}, "extra_cycles", path) for e in extra)
 
+def _columns(data: dict, path: Path) -> dict | None:
+    """The raw [data.columns] table (ecmgen.data.columns reads it); its sub-tables are file
+    roles (or [data.columns.files])."""
     columns = data.get("columns")
     if columns is not None and not isinstance(columns, dict):
         raise InputError(path, "[data.columns] must be a table")
@@ -530,7 +580,11 @@ def _load_config(path: Path) -> BuildConfig:
         if isinstance(value, dict) and key not in COLUMN_ROLES and key != "files":
             raise InputError(path, f"[data.columns.{key}]: {key!r} is not a file role "
                                    f"(one of {', '.join(COLUMN_ROLES)})")
+    return columns
 
+
+def _dcir_settings(dcir_t: dict, path: Path) -> dict[str, Any]:
+    """[dcir]: the DC-IR times, the five-point fits' C-rate, how pulses are found."""
     times = dcir_t.get("times_s", [0.1, 1.0, 3.0, 6.0, 10.0])
     if (not isinstance(times, list) or len(times) < 4 or
             not all(isinstance(t, (int, float)) and t > 0 for t in times) or
@@ -539,10 +593,18 @@ def _load_config(path: Path) -> BuildConfig:
     c_rate = dcir_t.get("c_rate", "max")
     if not (c_rate in ("max", "all") or (isinstance(c_rate, (int, float)) and c_rate > 0)):
         raise InputError(path, f"dcir.c_rate must be \"max\", \"all\" or a C-rate, got {c_rate!r}")
+    return dict(times_s=tuple(float(t) for t in times),
+                c_rate=c_rate if isinstance(c_rate, str) else float(c_rate),
+                min_rest_s=_number(dcir_t, "min_rest_s", path, "dcir", 30.0),
+                max_pulse_s=_number(dcir_t, "max_pulse_s", path, "dcir", 120.0, positive=True))
 
+
+def _fit_settings(fit: dict, inputs: dict[str, Any], path: Path) -> dict[str, Any]:
+    """[fit]: the methods (their defaults from what [data] gives), the seed, the curve
+    fit's branches and relaxation, the best method."""
     # the whole-curve fit needs the pulse test itself, a DC-IR table is not enough
-    has_pulses = pulses is not None or several
-    any_dynamic = dynamic is not None or any(t.dynamic for t in pulse_tests)
+    has_pulses = inputs["pulses"] is not None or bool(inputs["pulse_tests"])
+    any_dynamic = inputs["dynamic"] or any(t.dynamic for t in inputs["pulse_tests"])
     methods = fit.get("methods", (["curve"] if any_dynamic else list(METHODS))
                       if has_pulses else ["ga", "lm"])
     if not isinstance(methods, list) or not methods or any(m not in METHODS for m in methods):
@@ -564,7 +626,12 @@ def _load_config(path: Path) -> BuildConfig:
     best = fit.get("best", "curve" if "curve" in methods else methods[-1])
     if best not in methods:
         raise InputError(path, f"fit.best = {best!r} is not one of fit.methods {methods}")
+    return dict(methods=tuple(methods), seed=seed, curve_branches=branches, best=best,
+                relax_s=_number(fit, "relax_s", path, "fit", 1800.0, positive=True))
 
+
+def _c_settings(c: dict, path: Path) -> dict[str, Any]:
+    """[c]: the numerics, the symbol prefix, the step, the estimator, the tables' grids."""
     numeric = c.get("numeric", ["float", "fixed"])
     if isinstance(numeric, str):
         numeric = [numeric]
@@ -584,7 +651,16 @@ def _load_config(path: Path) -> BuildConfig:
                                    "is float32 only")
         if c.get("dt_s") is not None:
             raise InputError(path, "c.estimator needs the variable-dt step: leave c.dt_s unset")
+    return dict(c_prefix=prefix, c_numeric=tuple(numeric),
+                c_dt_s=_number(c, "dt_s", path, "c", None),
+                c_estimator=None if c_estimator == "none" else c_estimator,
+                c_ocv_soc_step=int(c.get("ocv_soc_step", 1)),
+                c_rc_soc_step=int(c.get("rc_soc_step", 1)))
 
+
+def _model_settings(model_t: dict, pulse_tests: tuple[PulseTest, ...], path: Path
+                    ) -> dict[str, Any]:
+    """[model]: the temperature grid, the derived warm row, the surface SOC, Ea/R."""
     step = _number(model_t, "temperature_step_c", path, "model", 5.0)
     if not 0.0 <= step <= 50.0:
         raise InputError(path, f"model.temperature_step_c must lie in 0..50 K (0: the "
@@ -606,35 +682,5 @@ def _load_config(path: Path) -> BuildConfig:
     if activation and len(pulse_tests) > 1:
         raise InputError(path, "model.activation_k is for a model from one pulse test: over "
                                "temperature the tables follow the tests")
-
-    known = [pulses, ocv, _file(base, data, "cycle", path), *extra_paths,
-             *(p for t in pulse_tests for p in (t.file, t.steps, t.ocv)),
-             *(s for s in sources if s != "pulses")]
-    return BuildConfig(
-        path=path, capacity_ah=capacity, pulses=pulses, dcir=dcir, dynamic=dynamic is not None,
-        pulses_soc0=_number(data, "pulses_soc0", path, "data", None, unit_interval=True),
-        pulse_tests=pulse_tests,
-        ocv=ocv, ocv_soc0=_number(data, "ocv_soc0", path, "data", unit_interval=True),
-        ocv_branch=branch,
-        cycle=_file(base, data, "cycle", path),
-        soc0=_number(data, "soc0", path, "data", unit_interval=True),
-        extra_cycles=extra_paths, columns=columns, times_s=tuple(float(t) for t in times),
-        c_rate=c_rate if isinstance(c_rate, str) else float(c_rate),
-        min_rest_s=_number(dcir_t, "min_rest_s", path, "dcir", 30.0),
-        max_pulse_s=_number(dcir_t, "max_pulse_s", path, "dcir", 120.0, positive=True),
-        methods=tuple(methods), seed=seed,
-        relax_s=_number(fit, "relax_s", path, "fit", 1800.0, positive=True),
-        best=best, ocv_sources=tuple(sources), ocv_cycle=ocv_cycle,
-        c_prefix=prefix, c_numeric=tuple(numeric),
-        c_dt_s=_number(c, "dt_s", path, "c", None),
-        c_estimator=None if c_estimator == "none" else c_estimator,
-        c_ocv_soc_step=int(c.get("ocv_soc_step", 1)), c_rc_soc_step=int(c.get("rc_soc_step", 1)),
-        curve_branches=branches,
-        temperature_step_c=step, warm_row_c=None if warm is False else warm,
-        surface_soc_gain=gain, activation_k=activation,
-        max_mae_mv=_number(raw.get("report", {}), "max_mae_mv", path, "report", 50.0,
-                           positive=True),
-        estimator=estimator_config(raw.get("estimator", {}), path),
-        raw=raw, cycle_window_s=_cycle_windows(data, base, path, known),
-        temperature_c=_temperatures(data, base, path, known),
-        file_columns=_file_columns(columns, pulse_tests, base, path, known))
+    return dict(temperature_step_c=step, warm_row_c=None if warm is False else warm,
+                surface_soc_gain=gain, activation_k=activation)

@@ -229,7 +229,7 @@ def curve_model(cfg: BuildConfig, inputs: Inputs, common: dict, progress: Progre
     (:func:`ecmgen.fit.curve.fit_pulse_curves`; then no Butler-Volmer branch);
     ``tau_ranges``: time-constant search ranges in place of the defaults."""
     from .fit.checks import curve_fit_flags, flag_notes
-    from .fit.curve import fit_pulse_curves
+    from .fit.curve import CurveOptions, fit_pulse_curves
     from .data.dynamic import DYNAMIC_TAU_RANGES
     from .fit.rate import fit_exchange_current
     from .model.spans import model_span_notes
@@ -244,13 +244,16 @@ def curve_model(cfg: BuildConfig, inputs: Inputs, common: dict, progress: Progre
     progress(f"whole-test fit of the pulse test ({len(inputs.pulses)} pulses, "
              f"{dcir_mod.relaxation_words(relax, cfg.relax_s)}"
              f"{', SOC steps merged' if inputs.steps is not None else ''})")
+    options = CurveOptions(diffusion=branches, relax_s=cfg.relax_s,
+                           direction_deadband_a=common["direction_deadband_a"],
+                           blocks_both_ways=cfg.dynamic,
+                           **{**(DYNAMIC_TAU_RANGES if cfg.dynamic else {}),
+                              **(tau_ranges or {})})
     cf = fit_pulse_curves(inputs.pulses_series, list(inputs.pulses), inputs.ocv,
-                          inputs.soc_capacity_ah or inputs.capacity_ah,
-                          i0_a=bv.i0_a if bv else None, diffusion=branches, steps=inputs.steps,
-                          relax_s=cfg.relax_s, direction_deadband_a=common["direction_deadband_a"],
-                          blocks_both_ways=cfg.dynamic, current_factor=current_factor,
-                          neighbour_taus=neighbour_taus, searches=searches,
-                          **{**(DYNAMIC_TAU_RANGES if cfg.dynamic else {}), **(tau_ranges or {})})
+                          inputs.soc_capacity_ah or inputs.capacity_ah, options,
+                          i0_a=bv.i0_a if bv else None, steps=inputs.steps,
+                          current_factor=current_factor, neighbour_taus=neighbour_taus,
+                          searches=searches)
     flags = curve_fit_flags(cf, float(relax.max()) if relax.size else None)
     model = EcmModel(charge=RcTable(**cf.rc_columns("charge")),
                      discharge=RcTable(**cf.rc_columns("discharge")), method="curve", **common)

@@ -7,12 +7,12 @@ dependence, and :mod:`.curve` the whole-test fit of a pulse test (:mod:`.lsq` it
 numerical pieces). casadi is imported only when an LM fit runs.
 """
 
-from .curve import CurveFit, fit_pulse_curves
+from .curve import CurveFit, CurveOptions, fit_pulse_curves
 from .ga import fit_ga
 from .lm import fit_lm
 from .points import Bounds, PointFit, curve_r_ohm, default_bounds, five_point_rows
 from .rate import ExchangeCurrentFit, fit_exchange_current
 
-__all__ = ["Bounds", "CurveFit", "ExchangeCurrentFit", "PointFit", "curve_r_ohm",
-           "default_bounds", "fit_exchange_current", "fit_ga", "fit_lm", "fit_pulse_curves",
-           "five_point_rows"]
+__all__ = ["Bounds", "CurveFit", "CurveOptions", "ExchangeCurrentFit", "PointFit",
+           "curve_r_ohm", "default_bounds", "fit_exchange_current", "fit_ga", "fit_lm",
+           "fit_pulse_curves", "five_point_rows"]

@@ -397,36 +397,53 @@ def _after_charge(i: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------ the fit
+@dataclass(frozen=True)
+class CurveOptions:
+    """The curve fit's settings (the record, its OCV and what other fits found are
+    :func:`fit_pulse_curves`' own arguments).
+
+    diffusion        fit the third (diffusion) RC pair
+    relax_s          rest rows up to this long after each current change
+    rows_per_decade, min_weight_s   the rest rows' density and a row's least weight
+                     (:func:`ecmgen.fit.curve_record.pulse_record`)
+    tau_*_s          search ranges (s); the fit keeps tau_fast < tau_slow < tau_diff
+    soc_nodes        the SOC grid the tables are written on
+    direction_deadband_a   |i| at or below it keeps the last direction, as the simulator's
+                     rule (None: 1 % of the capacity in A)
+    blocks_both_ways the pulses are blocks of a dynamic test (:mod:`ecmgen.data.dynamic`):
+                     each is a level of both directions where the record runs both ways
+                     (:func:`_both_ways`), and the OCV offsets are not split by the last
+                     current's direction (a drive profile flips it every few seconds)
+    """
+
+    diffusion: bool = True
+    relax_s: float = 1800.0
+    rows_per_decade: float = 20.0
+    min_weight_s: float = W_SPAN_S[0]
+    tau_fast_s: tuple[float, float] = (0.1, 10.0)
+    tau_slow_s: tuple[float, float] = (5.0, 500.0)
+    tau_diff_s: tuple[float, float] = (150.0, 3000.0)
+    soc_nodes: tuple[float, ...] = tuple(SOC_NODES.tolist())
+    direction_deadband_a: float | None = None
+    blocks_both_ways: bool = False
+
+
 @one_blas_thread
 def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
-                     capacity_ah: float, *, i0_a: float | None = None,
-                     steps: TimeSeries | None = None, diffusion: bool = True,
-                     relax_s: float = 1800.0, rows_per_decade: float = 20.0, min_weight_s: float = W_SPAN_S[0],
-                     tau_fast_s: tuple[float, float] = (0.1, 10.0),
-                     tau_slow_s: tuple[float, float] = (5.0, 500.0),
-                     tau_diff_s: tuple[float, float] = (150.0, 3000.0),
-                     soc_nodes: np.ndarray = SOC_NODES,
-                     direction_deadband_a: float | None = None, progress=None,
-                     blocks_both_ways: bool = False, current_factor=None,
-                     neighbour_taus: dict | None = None, searches: list | None = None
-                     ) -> CurveFit:
+                     capacity_ah: float, options: CurveOptions = CurveOptions(), *,
+                     i0_a: float | None = None, steps: TimeSeries | None = None,
+                     current_factor=None, neighbour_taus: dict | None = None,
+                     searches: list | None = None, progress=None) -> CurveFit:
     """Fit one pulse test as a whole (module docstring): the curve method.
 
     series, pulses   the pulse test and its pulses (:func:`ecmgen.data.dcir.find_pulses`;
                      their SOCs fix the record's SOC axis)
     ocv              the OCV the model will use (held fixed; e.g. the rests' OCV)
+    options          the fit's settings (:class:`CurveOptions`)
     i0_a             Butler-Volmer current of the fast branch (:func:`ecmgen.fit.rate.
                      fit_exchange_current`); None: linear fast branch
     steps            the record of the SOC steps the pulse test left out (merged into its
                      gaps, :func:`ecmgen.data.steps.merge_soc_steps`); None: the gaps are rests
-    diffusion        fit the third (diffusion) RC pair
-    relax_s          rest rows up to this long after each current change
-    tau_*_s          search ranges (s); the fit keeps tau_fast < tau_slow < tau_diff
-    progress         called as progress(done, total)
-    blocks_both_ways the pulses are blocks of a dynamic test (:mod:`ecmgen.data.dynamic`):
-                     each is a level of both directions where the record runs both ways
-                     (:func:`_both_ways`), and the OCV offsets are not split by the last
-                     current's direction (a drive profile flips it every few seconds)
     current_factor   f(i) -> resistance factor at current i (array in, array out) applied
                      to r0 and r_fast as a ``current_dependent_resistance`` effect of the
                      model does; the tables are then its values at zero current (not with i0_a)
@@ -436,18 +453,21 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
                      left-out level better (:func:`_neighbour_choice`)
     searches         the ``searches`` of an earlier fit of the same test with the same
                      settings: its time-constant searches are taken, not run again
+    progress         called as progress(done, total)
     """
+    diffusion, relax_s = options.diffusion, options.relax_s
+    blocks_both_ways = options.blocks_both_ways
     if i0_a is not None and current_factor is not None:
         raise ValueError("give i0_a or current_factor, not both")
     if i0_a is not None and not (np.isfinite(i0_a) and i0_a > 0):
         raise ValueError(f"i0_a must be positive, got {i0_a!r}")
-    ranges = {"fast": tau_fast_s, "slow": tau_slow_s}
+    ranges = {"fast": options.tau_fast_s, "slow": options.tau_slow_s}
     if diffusion:
-        ranges["diff"] = tau_diff_s
+        ranges["diff"] = options.tau_diff_s
     for k, (lo, hi) in ranges.items():
         if not (0 < lo < hi and np.isfinite(hi)):
             raise ValueError(f"tau_{k}_s range must be 0 < lo < hi, got {(lo, hi)!r}")
-    nodes = np.asarray(soc_nodes, dtype=np.float64)
+    nodes = np.asarray(options.soc_nodes, dtype=np.float64)
     complete = [p for p in pulses if not p.cut_short]
     if not complete:
         raise InputError(series.source, "every pulse was cut short: nothing to fit the "
@@ -459,15 +479,17 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
     if steps is not None:
         record, n = merge_soc_steps(series, steps)
         notes.extend(n)
-    deadband = 0.01 * capacity_ah if direction_deadband_a is None else direction_deadband_a
+    deadband = (0.01 * capacity_ah if options.direction_deadband_a is None
+                else options.direction_deadband_a)
     blocks = complete
     if blocks_both_ways:
         complete, n = both_ways(complete, series, deadband)
         notes.extend(n)
     directions = tuple(d for d in DIRECTIONS if any(p.direction == d for p in complete))
     rec = pulse_record(record, soc0, ocv, capacity_ah, directions=directions,
-                       deadband_a=deadband, relax_s=relax_s, rows_per_decade=rows_per_decade,
-                       min_weight_s=min_weight_s)
+                       deadband_a=deadband, relax_s=relax_s,
+                       rows_per_decade=options.rows_per_decade,
+                       min_weight_s=options.min_weight_s)
     ranges, n = data_tau_ranges(ranges, pulse_sampling_s(series, complete), rec.rest_used_s,
                                 None if blocks_both_ways else
                                 max(p.duration_s for p in complete))

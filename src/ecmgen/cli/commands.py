@@ -1,31 +1,18 @@
-"""`ecmgen` command line: a thin layer over the library (see ecmgen.pipeline)."""
+"""The commands of `ecmgen`: one ``cmd_<name>(args) -> exit code`` each, a thin layer over
+the library (:mod:`ecmgen.pipeline` and the stages); :mod:`ecmgen.cli.args` binds them to
+their parsers."""
 
 from __future__ import annotations
 
-import argparse
-import contextlib
-import errno
 import math
-import os
-import signal
 import sys
-import threading
-import warnings
 from pathlib import Path
 
-from .parallel import ONE_BLAS_THREAD
+import numpy as np
 
-# The command line owns its process: one BLAS thread unless the caller sets another,
-# set before numpy loads (ecmgen.parallel says why).
-for _name, _value in ONE_BLAS_THREAD.items():
-    os.environ.setdefault(_name, _value)
-
-import numpy as np  # noqa: E402
-
-from ._version import __version__  # noqa: E402
-from .errors import InputError, describe, reading, user_file_of  # noqa: E402
-from .files import json_text  # noqa: E402
-from .outputs import check_output_file, check_output_folder, refuse_inputs, staged  # noqa: E402
+from ..errors import InputError, reading
+from ..files import json_text
+from ..outputs import check_output_file, check_output_folder, refuse_inputs, staged
 
 
 def _given(cfg) -> set[Path]:
@@ -60,16 +47,16 @@ def _check_numbers(args) -> None:
 
 
 def _progress(enabled: bool):
-    from .console import StderrProgress, quiet
+    from ..console import StderrProgress, quiet
 
     return StderrProgress() if enabled else quiet
 
 
 def cmd_build(args) -> int:
-    from .config import load_config
-    from .console import build_summary, cycle_table, note_lines
-    from .pipeline import build
-    from .report import build_json, pulse_test_table, validation_rows
+    from ..config import load_config
+    from ..console import build_summary, cycle_table, note_lines
+    from ..pipeline import build
+    from ..report import build_json, pulse_test_table, validation_rows
 
     cfg = load_config(args.config)
     out = Path(args.out) if args.out else cfg.path.parent / "ecmgen-out"
@@ -86,7 +73,7 @@ def cmd_build(args) -> int:
         return 0
     q = result.quality.get(result.best)
     if q is not None and not q.passes:
-        from .fit.quality import quality_words
+        from ..fit.quality import quality_words
 
         print(f"warning: {quality_words(result.best, q)} (build --strict makes this an error)",
               file=sys.stderr)
@@ -114,7 +101,7 @@ def cmd_build(args) -> int:
 
 def _warn_kept(out: Path) -> None:
     """Name the user's edited files a run wrote again (kept beside, as <name>.edited)."""
-    from .outputs import kept_beside
+    from ..outputs import kept_beside
 
     for name in kept_beside(out):
         print(f"warning: {_shown_path(out / name.rsplit('.edited', 1)[0])} was changed since "
@@ -135,12 +122,12 @@ def _dcir_with_config(args):
     start SOC and [dcir] settings); a PULSES argument or an option overrides the config."""
     from dataclasses import replace
 
-    from .config import load_config
-    from .pipeline import prepare
+    from ..config import load_config
+    from ..pipeline import prepare
 
     cfg = load_config(args.config)
     if cfg.pulse_tests:     # [[data.pulse_tests]]: the one named, with its own settings
-        from .pipeline import pulse_test_config
+        from ..pipeline import pulse_test_config
 
         given = None if args.pulses is None else Path(args.pulses).resolve()
         named = [t for t in cfg.pulse_tests if t.file == given]
@@ -169,8 +156,8 @@ def _dcir_with_config(args):
 
 
 def cmd_dcir(args) -> int:
-    from .data.dcir import DEFAULT_TIMES_S, extract_dcir, find_pulses
-    from .data.measure import read_timeseries
+    from ..data.dcir import DEFAULT_TIMES_S, extract_dcir, find_pulses
+    from ..data.measure import read_timeseries
 
     _check_numbers(args)
     if args.config:
@@ -198,8 +185,8 @@ def cmd_dcir(args) -> int:
 def cmd_fit(args) -> int:
     from dataclasses import replace
 
-    from .config import load_config
-    from .pipeline import fit_all
+    from ..config import load_config
+    from ..pipeline import fit_all
 
     cfg = load_config(args.config)
     if args.method:
@@ -213,9 +200,9 @@ def cmd_fit(args) -> int:
 
 
 def cmd_validate(args) -> int:
-    from .data.measure import read_timeseries
-    from .model.model import load_model
-    from .model.simulate import validate
+    from ..data.measure import read_timeseries
+    from ..model.model import load_model
+    from ..model.simulate import validate
 
     _check_numbers(args)
     inputs = [args.model, args.cycle, args.config]
@@ -227,8 +214,8 @@ def cmd_validate(args) -> int:
                                      "(ecmgen age writes it)")
     if args.config:
         # a CSV from another cycler: the config's [data.columns] (or [data.columns.cycle])
-        from .config import load_config
-        from .pipeline import read_series
+        from ..config import load_config
+        from ..pipeline import read_series
 
         cfg = load_config(args.config)
         if args.plot:
@@ -244,8 +231,8 @@ def cmd_validate(args) -> int:
         series = series.window(*args.window_s)
     val = validate(model, series, args.soc0, args.temperature_c, args.equivalent_full_cycles)
     if args.plot:
-        from .files import write_atomic
-        from .plots import validation_png
+        from ..files import write_atomic
+        from ..plots import validation_png
 
         write_atomic(Path(args.plot), validation_png({"": val}, Path(args.cycle).name))
     if args.json:
@@ -273,12 +260,12 @@ def cmd_validate(args) -> int:
 def cmd_estimate(args) -> int:
     from dataclasses import asdict, replace
 
-    from .config import EstimatorConfig, load_config, start_settings
-    from .data.measure import read_timeseries
-    from .estimate.run import estimate_csv_text, estimate_json, estimate_record
-    from .files import write_atomic
-    from .model.model import load_model
-    from .model.simulate import opens_settled, start_estimate
+    from ..config import EstimatorConfig, load_config, start_settings
+    from ..data.measure import read_timeseries
+    from ..estimate.run import estimate_csv_text, estimate_json, estimate_record
+    from ..files import write_atomic
+    from ..model.model import load_model
+    from ..model.simulate import opens_settled, start_estimate
 
     out = None
     if args.out:
@@ -288,7 +275,7 @@ def cmd_estimate(args) -> int:
     settings = EstimatorConfig()
     set_keys: set = set()               # the [estimator] keys the config sets
     if args.config:
-        from .pipeline import read_series
+        from ..pipeline import read_series
 
         cfg = load_config(args.config)
         set_keys = set(cfg.raw.get("estimator") or {})
@@ -356,7 +343,7 @@ def _window_start(model, series, soc0: float, window_s):
     """The record cut to ``window_s`` and its true SOC at the window's first sample (the
     measured current counted from ``soc0`` at the record's start): a mid-record start,
     under load or mid-relaxation, as a BMS meets it after a reset."""
-    from .estimate.run import coulomb_count
+    from ..estimate.run import coulomb_count
 
     cut = series.window(*window_s)
     k0 = int(np.searchsorted(series.time_s, cut.time_s[0]))
@@ -370,8 +357,8 @@ def _settings_from_validation(cfg, model, settings, cycle: Path):
     filter). Returns (settings, the keys measured)."""
     from dataclasses import replace
 
-    from .estimate.residual import settings_from_cycles
-    from .pipeline import read_series
+    from ..estimate.residual import settings_from_cycles
+    from ..pipeline import read_series
 
     given = cfg.raw.get("estimator", {})
     if "model_error" in given and "error_correlation_s" in given:
@@ -388,7 +375,7 @@ def _settings_from_validation(cfg, model, settings, cycle: Path):
 
 
 def cmd_verify(args) -> int:
-    from .c.verify import verify
+    from ..c.verify import verify
 
     verdicts = verify(args.golden, args.csrc, args.cc, args.cflags, args.run)
     for v in verdicts:
@@ -407,17 +394,17 @@ AGED_ESTIMATOR = ("the estimator predicts with the fresh cell (age 0: the model'
 
 
 def cmd_codegen(args) -> int:
-    from .c.codegen import file_names, generate_c, prepare
-    from .c.golden import vector_names, write_golden
-    from .c.spec import check_options, coarsen_tables
-    from .model.model import load_model
+    from ..c.codegen import file_names, generate_c, prepare
+    from ..c.golden import vector_names, write_golden
+    from ..c.spec import check_options, coarsen_tables
+    from ..model.model import load_model
 
     _check_numbers(args)
     check_options(args.prefix, args.numeric, args.dt_s, None)     # the options' own words
     out = check_output_folder(args.out, [args.model])
     estimator = None
     if args.estimator != "none":
-        from .config import EstimatorConfig
+        from ..config import EstimatorConfig
 
         estimator = EstimatorConfig()
     model = coarsen_tables(load_model(args.model), args.ocv_soc_step, args.rc_soc_step)
@@ -435,9 +422,9 @@ def cmd_codegen(args) -> int:
                        dt_s=args.dt_s, estimator=estimator)
             write_golden(spec, staging)         # no cycle here: a drive of pulses and rests
             if estimator is not None:
-                from .c.estc import prepare_estimator
-                from .c.estgolden import write_est_golden
-                from .c.golden import drive_segment
+                from ..c.estc import prepare_estimator
+                from ..c.estgolden import write_est_golden
+                from ..c.golden import drive_segment
 
                 write_est_golden(spec, prepare_estimator(model, spec, estimator), staging,
                                  drive_segment(spec))
@@ -455,8 +442,8 @@ def cmd_codegen(args) -> int:
 
 
 def cmd_diagnose(args) -> int:
-    from .config import load_config
-    from .pipeline import run_diagnose
+    from ..config import load_config
+    from ..pipeline import run_diagnose
 
     cfg = load_config(args.config)
     out = Path(args.out) if args.out else cfg.path.parent / "ecmgen-diagnose"
@@ -476,7 +463,7 @@ def cmd_diagnose(args) -> int:
 
 
 def cmd_fleet(args) -> int:
-    from .fleet import Options, run_fleet
+    from ..fleet import Options, run_fleet
 
     _check_numbers(args)
     progress = _progress(not args.quiet)
@@ -502,7 +489,7 @@ def cmd_fleet(args) -> int:
 
 
 def cmd_age(args) -> int:
-    from .fleet.law import write_aged_model
+    from ..fleet.law import write_aged_model
 
     notes: list[str] = []
     out, law, base = write_aged_model(args.fleet_dir, args.out, args.base, notes)
@@ -516,285 +503,7 @@ def cmd_age(args) -> int:
 
 
 def cmd_config(args) -> int:
-    from .config_schema import reference
+    from ..config_schema import reference
 
     sys.stdout.write(reference())
     return 0
-
-
-class _Parser(argparse.ArgumentParser):
-    """Bad arguments are bad input too: one line ``ecmgen: error: ...``, exit 2."""
-
-    def error(self, message):
-        where = self.prog.removeprefix("ecmgen").strip()
-        if not where and "required: command" in message:     # `ecmgen` alone
-            print(self.command_list(), file=sys.stderr)
-            sys.exit(2)
-        print(f"ecmgen: error: {where + ': ' if where else ''}{' '.join(message.split())}",
-              file=sys.stderr)
-        sys.exit(2)
-
-    def command_list(self) -> str:
-        """`ecmgen` alone: what it does and each command with its one-line help."""
-        actions = self._subparsers._group_actions[0]
-        helps = {a.dest: a.help for a in actions._choices_actions}
-        width = max(len(n) for n in actions.choices)
-        return "\n".join(["usage: ecmgen COMMAND [options]   (ecmgen COMMAND --help)", "",
-                          "commands:"] + [f"  {n:<{width}}  {helps.get(n, '')}"
-                                          for n in actions.choices])
-
-
-def parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="ecmgen", description=__doc__)
-    p.add_argument("--version", action="version", version=f"ecmgen {__version__}")
-    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
-
-    b = sub.add_parser("build", help="run the whole chain from a config file")
-    b.add_argument("config")
-    b.add_argument("--out", help="output folder (default: ecmgen-out beside the config)")
-    b.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    b.add_argument("-q", "--quiet", action="store_true",
-                   help="print nothing on success but warnings (on stderr)")
-    b.add_argument("--no-plots", action="store_true")
-    b.add_argument("--no-c", action="store_true", help="skip C generation")
-    b.add_argument("--strict", action="store_true",
-                   help="fail (exit 2, nothing written) when the best model's tables are not "
-                        "smooth and positive")
-    b.set_defaults(func=cmd_build)
-
-    d = sub.add_parser("dcir", help="extract the DC-IR table of a pulse test")
-    d.add_argument("pulses", nargs="?", help="the pulse test (default with --config: its "
-                                             "data.pulses)")
-    d.add_argument("--config", help="a build config: its column mapping, capacity, start "
-                                    "SOC and [dcir] settings (the table build writes)")
-    d.add_argument("--capacity-ah", type=float, help="cell capacity (needed without --config)")
-    d.add_argument("--soc0", type=float, help="SOC at the start of the test (default 1.0, "
-                                              "or as the build with --config)")
-    d.add_argument("--times", type=float, nargs="+",
-                   help="DC-IR times in s (default 0.1 1 3 6 10, or [dcir] times_s)")
-    d.add_argument("--out", help="CSV path (default: stdout)")
-    d.add_argument("-q", "--quiet", action="store_true", help="no notes on stderr")
-    d.set_defaults(func=cmd_dcir)
-
-    f = sub.add_parser("fit", help="fit a model.json from a config file")
-    f.add_argument("config")
-    f.add_argument("--method", choices=["ga", "lm", "curve"])
-    f.add_argument("--out", default="model.json")
-    f.add_argument("-q", "--quiet", action="store_true")
-    f.set_defaults(func=cmd_fit)
-
-    v = sub.add_parser("validate", help="simulate a model over a measured cycle")
-    v.add_argument("model")
-    v.add_argument("cycle")
-    v.add_argument("--soc0", type=float, help="start SOC (default: from the OCV)")
-    v.add_argument("--temperature-c", type=float, default=None,
-                   help="cell temperature in degC for a file without a temperature column")
-    v.add_argument("--equivalent-full-cycles", type=float, default=None, metavar="EFC",
-                   help="the cell's age, for a model with an ageing law (default: fresh)")
-    v.add_argument("--json", action="store_true")
-    v.add_argument("--plot", help="write measured vs simulated PNG here")
-    v.add_argument("--config", help="a build config whose [data.columns] maps the cycle's CSV")
-    v.add_argument("--window-s", type=float, nargs=2, metavar=("T0", "T1"),
-                   help="validate on the rows with T0 <= time <= T1 s (the file's own time)")
-    v.add_argument("-q", "--quiet", action="store_true", help="(no progress is shown anyway)")
-    v.set_defaults(func=cmd_validate)
-
-    e = sub.add_parser("estimate", help="run the SOC filter over a measured cycle and "
-                                        "compare it with coulomb counting")
-    e.add_argument("model")
-    e.add_argument("cycle")
-    e.add_argument("--soc0-guess", type=float, help="start SOC the filter is told "
-                   "(default: --soc0)")
-    e.add_argument("--soc0", type=float, help="true start SOC, for the reference SOC by "
-                   "coulomb counting the measured current (default: from the OCV)")
-    e.add_argument("--current-offset-a", type=float, default=0.0,
-                   help="offset added to the current the filter sees, A")
-    e.add_argument("--current-gain", type=float, default=1.0,
-                   help="gain applied to the current the filter sees")
-    e.add_argument("--temperature-c", type=float, default=None,
-                   help="cell temperature in degC for a file without a temperature column")
-    e.add_argument("--filter", choices=["ekf", "ukf"],
-                   help="override the config's estimator.filter (default ekf)")
-    e.add_argument("--config", help="a build config: its [estimator] settings and the "
-                   "[data.columns] of the cycle's CSV")
-    e.add_argument("--window-s", type=float, nargs=2, metavar=("T0", "T1"),
-                   help="start the filter at T0 (the file's own time) and run it to T1; "
-                        "--soc0 stays the SOC at the file's start, --soc0-guess is the "
-                        "guess at T0")
-    e.add_argument("--start", choices=["rested", "anywhere"],
-                   help="how the record starts: rested (its first voltage read as the OCV) "
-                        "or anywhere (under load or mid-relaxation: the start-anywhere "
-                        "settings where [estimator] sets none); default: the config's, "
-                        "anywhere when the record (or --window-s) opens unsettled")
-    e.add_argument("--out", help="write time_s,soc,soc_sigma,voltage_pred_v,soc_ref here")
-    e.add_argument("--json", action="store_true")
-    e.add_argument("--quiet", action="store_true", help="(no progress is shown anyway)")
-    e.set_defaults(func=cmd_estimate)
-
-    c = sub.add_parser("codegen", help="write the C of a model.json (e.g. an augmented one)")
-    c.add_argument("model")
-    c.add_argument("--out", required=True, help="folder for the .h/.c and runtime headers")
-    c.add_argument("--prefix", default="ecm", help="C symbol prefix")
-    c.add_argument("--numeric", choices=["float", "fixed"], default="float")
-    c.add_argument("--dt-s", type=float, help="fixed step in s (default: variable dt)")
-    c.add_argument("--estimator", choices=["none", "ekf"], default="none",
-                   help="also generate the SOC filter <prefix>_est_f32.h/.c (float, "
-                        "variable dt; the [estimator] defaults)")
-    for what in ("ocv", "rc"):
-        c.add_argument(f"--{what}-soc-step", type=int, default=1, metavar="N",
-                       help=f"flash: the {what.upper()} table{'s' if what == 'rc' else ''} on "
-                            "every N-th SOC breakpoint (and the last; [c] "
-                            f"{what}_soc_step)")
-    c.add_argument("-q", "--quiet", action="store_true", help="do not list the files written")
-    c.set_defaults(func=cmd_codegen)
-
-    v = sub.add_parser("verify", help="check your copy of the generated C against the build's "
-                       "golden vectors (exit 0 pass, 1 fail, 2 bad input)")
-    v.add_argument("golden", help="a build's c/float or c/fixed folder (or the build folder, "
-                   "or one <prefix>_ecm_<s>_vectors.h)")
-    v.add_argument("--c", dest="csrc", help="folder of your copy of the C (<prefix>_ecm_<s>.c "
-                   "and its headers; default: the golden folder)")
-    v.add_argument("--cc", help="C compiler command (default: cc)")
-    v.add_argument("--cflags", help="compiler flags, one string (default: "
-                   "'-std=c99 -O2 -ffp-contract=off')")
-    v.add_argument("--run", help="command that runs the test program, e.g. an emulator "
-                   "(default: run it directly)")
-    v.set_defaults(func=cmd_verify)
-
-    g = sub.add_parser("diagnose", help="find, add and check missing model effects")
-    g.add_argument("config")
-    g.add_argument("--out")
-    g.add_argument("--json", action="store_true")
-    g.add_argument("-q", "--quiet", action="store_true")
-    g.add_argument("--no-plots", action="store_true")
-    g.set_defaults(func=cmd_diagnose)
-
-    fl = sub.add_parser("fleet", help="build every cell x check-up of a manifest on Dask and "
-                        "tabulate their trends (exit 0 all built, 1 some rows failed, 2 bad "
-                        "input)")
-    fl.add_argument("manifest", help="CSV: cell,checkup,config[,cycles,throughput_ah,date]")
-    fl.add_argument("--out", required=True, metavar="DIR", help="output folder: <cell>/<checkup>/ "
-                    "per row, fleet.csv, fleet.parquet, ageing.csv, failures.csv, trend plots")
-    fl.add_argument("--scheduler", metavar="ADDRESS", help="address of a running Dask scheduler (default: a "
-                    "local cluster)")
-    fl.add_argument("--workers", type=int, metavar="N", help="local worker processes (default: one per "
-                    "core); with --scheduler, wait for this many workers")
-    fl.add_argument("--soc", type=float, nargs="+", default=[0.2, 0.5, 0.8], metavar="S",
-                    help="SOC points of the fleet table (default 0.2 0.5 0.8)")
-    fl.add_argument("--temperature-c", type=float, nargs="+", default=[25.0], metavar="T",
-                    help="temperature points of the fleet table, degC (default 25; a "
-                         "one-temperature model gives its own table)")
-    fl.add_argument("--build-plots", action="store_true", help="each row's build plots too "
-                    "(none by default)")
-    fl.add_argument("--no-plots", action="store_true", help="no trend plots")
-    fl.add_argument("--no-c", action="store_true", help="no C for any row")
-    fl.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    fl.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
-    fl.set_defaults(func=cmd_fleet)
-
-    ag = sub.add_parser("age", help="fit the fleet's ageing law (resistance and capacity over "
-                        "equivalent full cycles) into a model.json")
-    ag.add_argument("fleet_dir", help="the --out folder of `ecmgen fleet` (its fleet.csv)")
-    ag.add_argument("--out", required=True, metavar="MODEL.json", help="the aged model")
-    ag.add_argument("--base", metavar="MODEL.json", help="the model the law is written into "
-                    "(default: the first non-outlier cell's model at its first check-up)")
-    ag.set_defaults(func=cmd_age)
-
-    k = sub.add_parser("config", help="print the config reference (every section and key)")
-    k.add_argument("--explain", action="store_true", help="every key: type, unit, range, "
-                   "default, meaning (markdown; docs/config.md holds this text)")
-    k.set_defaults(func=cmd_config)
-    return p
-
-
-def main(argv=None) -> int:
-    args = parser().parse_args(argv)
-    try:
-        with _no_stray_warnings(), _sigterm_unwinds():
-            code = int(args.func(args) or 0)
-            sys.stdout.flush()          # a full or closed stdout fails here, not at exit
-            return code
-    except InputError as exc:
-        return _error(str(exc))
-    except OSError as exc:
-        if exc.filename is not None or exc.errno not in _STDOUT_ERRNOS:
-            return _boundary(exc)
-        _silence_stdout()               # else Python's own flush at exit fails again
-        if exc.errno == errno.EPIPE:    # `ecmgen ... | head`: the reader left, not an error
-            return 141
-        return _error(f"standard output: cannot be written ({describe(exc)})")
-    except KeyboardInterrupt:
-        return 130
-    except Terminated:
-        return 143
-    except Exception as exc:
-        return _boundary(exc)
-
-
-# errors of a write to a full, broken or closed standard output (a file name is not set)
-_STDOUT_ERRNOS = {errno.ENOSPC, errno.EPIPE, errno.EIO, errno.EDQUOT, errno.EBADF, errno.EFBIG}
-
-
-def _silence_stdout() -> None:
-    with contextlib.suppress(OSError, ValueError, AttributeError):
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-
-
-def _boundary(exc: BaseException) -> int:
-    """The one boundary: an exception raised while reading a user's file (marked by
-    ecmgen.errors.reading), or the system refusing a path (an output folder under /proc, a
-    full disk), is bad input or a bad place: one line, exit 2. Anything else is a fault of
-    ecmgen and keeps its traceback (exit 1)."""
-    where = user_file_of(exc)
-    if where is None and isinstance(exc, OSError) and exc.filename is not None:
-        where = exc.filename
-    if where is None:
-        raise exc
-    return _error(f"{where}: {describe(exc)}")
-
-
-def _error(message: str) -> int:
-    print(f"ecmgen: error: {' '.join(message.split())}", file=sys.stderr)
-    return 2
-
-
-class Terminated(BaseException):
-    """SIGTERM, raised where the program is, like KeyboardInterrupt for SIGINT (not an
-    Exception: no ``except Exception`` on the way may swallow it)."""
-
-
-@contextlib.contextmanager
-def _sigterm_unwinds():
-    """SIGTERM (a CI timeout, ``kill``) unwinds the stack as Ctrl-C does, so that the
-    staging folder and temporary files are removed on the way out (exit 143)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def terminate(signum, frame):
-        raise Terminated()
-
-    previous = signal.signal(signal.SIGTERM, terminate)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
-@contextlib.contextmanager
-def _no_stray_warnings():
-    """Safety net: no Python warning reaches the user of the command line. What the user
-    must know is said as a note or an error; the warnings numpy/scipy/matplotlib raise
-    about intermediate values are fixed at their cause where found (and tested with
-    ``-W error``), and anything left is not the user's to act on. A developer who asks
-    for warnings (``python -W ...`` or PYTHONWARNINGS) still sees them."""
-    if sys.warnoptions:
-        yield
-        return
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        yield
-
-
-if __name__ == "__main__":
-    sys.exit(main())
