@@ -40,11 +40,12 @@ give the same model.json):
   40 degC, SOURCE.md): a one-temperature model holds its tables at any temperature; the
   model of both tests runs it at each test's temperature (``@25C``, ``@40C``), each that
   temperature's OCV.
-- ``a123`` (examples/a123-dynamic/config.toml: OCV from the four OCV scripts, tables from
-  the dynamic test s1) and ``a123+rests`` (``ocv = ["pulses", S1..S4]``: the dynamic test's
-  rests first, as the example's build warning advises). Judged on s2 and s3, their start
-  SOC from their opening rest, as the example's build does. s2 opens nearly empty and holds
-  2.0 V for hours before its charge: its figures judge mostly the OCV at and below empty.
+- ``a123`` (examples/a123-dynamic/config.toml: OCV from the four OCV scripts, which the
+  dynamic test's relaxed rests lead (``data.ocv_rests_first``), tables from the dynamic test
+  s1) and ``a123+files`` (``ocv_rests_first = "never"``: the four files alone). Judged on
+  s2 and s3, their start SOC from their opening rest, as the example's build does. s2
+  opens nearly empty and holds 2.0 V for hours before its charge: its figures judge mostly
+  the OCV at and below empty.
 
 The shared data: ../shared/data beside the repository, or $ECMGEN_SHARED_DATA.
 """
@@ -170,14 +171,14 @@ def _leaf(temps: tuple[str, ...]) -> Configuration:
                          records + cycling)
 
 
-def _a123(rests_first: bool) -> Configuration:
+def _a123(files_alone: bool) -> Configuration:
     shared = str(DATA / "plett-a123-lfp")
     rel = {"../../../shared/data/plett-a123-lfp": shared}
-    if rests_first:
-        rel['ocv = ["'] = 'ocv = ["pulses", "'
+    if files_alone:
+        rel['ocv = ["'] = 'ocv_rests_first = "never"\nocv = ["'
     text = _example(REPO / "examples" / "a123-dynamic" / "config.toml", rel)
     dyn = DATA / "plett-a123-lfp" / "dyn_data"
-    return Configuration("a123" + ("+rests" if rests_first else ""), text,
+    return Configuration("a123" + ("+files" if files_alone else ""), text,
                          tuple(Record(f"a123/{s}", dyn / f"A123_DYN_50_P25_{s}.csv", None)
                                for s in ("s2", "s3")))
 

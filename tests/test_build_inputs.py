@@ -105,8 +105,14 @@ def test_panasonic_c20_disagrees_with_the_pulse_rests_and_says_so(tmp_path, pana
     assert "warning: read as the average of its branches, it differs by 2" in note
     assert "the pulse test's rests are still the better source" in note
     assert any("data.ocv_branch auto: its discharge branch" in n for n in inputs.notes)
-    # read as the average (data.ocv_branch = "both"): the check itself warns
+    # read as the average (data.ocv_branch = "both"): 25 mV RMS off the relaxed rests at the
+    # test's own temperature, so the rests lead and the file fills the SOC beyond them ...
     cfg.write_text(cfg.read_text() + 'ocv_branch = "both"\n')
+    led = prepare(load_config(cfg))
+    assert led.ocv_report.sources[0] == "pulses"
+    assert any("the pulse test's rests first" in n for n in led.notes)
+    # ... and, the file kept as given (data.ocv_rests_first = "never"), the check warns
+    cfg.write_text(cfg.read_text() + 'ocv_rests_first = "never"\n')
     both_ = prepare(load_config(cfg)).ocv_report.check
     assert both_.warning and 0.015 < both_.rms_v < 0.035
     # the rests themselves: 66 before the pulses, the record's first, one after a cut-off

@@ -207,6 +207,7 @@ class BuildConfig:
     best: str
     ocv_sources: tuple = ()       # in merge order: "pulses" or a Path (data.ocv)
     ocv_cycle: int | None = None  # cycle of the low-rate test (1-based); None: the last
+    ocv_rests_first: bool = True  # data.ocv_rests_first auto (ecmgen.data.ocv.rests_should_lead)
     c_prefix: str = "ecm"
     c_numeric: tuple[str, ...] = ("float", "fixed")
     c_dt_s: float | None = None
@@ -533,6 +534,9 @@ def _data_inputs(data: dict, base: Path, path: Path) -> dict[str, Any]:
     if branch not in ("auto", "both", "charge", "discharge"):
         raise InputError(path, "data.ocv_branch must be auto, both, charge or discharge, "
                                f"got {branch!r}")
+    rests_first = data.get("ocv_rests_first", "auto")
+    if rests_first not in ("auto", "never"):
+        raise InputError(path, f"data.ocv_rests_first must be auto or never, got {rests_first!r}")
     extra = data.get("extra_cycles", [])
     if not isinstance(extra, list):
         raise InputError(path, "data.extra_cycles must be a list of file names")
@@ -542,7 +546,8 @@ def _data_inputs(data: dict, base: Path, path: Path) -> dict[str, Any]:
         pulses_soc0=_number(data, "pulses_soc0", path, "data", None, unit_interval=True),
         pulse_tests=pulse_tests, ocv=ocv, ocv_sources=tuple(sources), ocv_cycle=ocv_cycle,
         ocv_soc0=_number(data, "ocv_soc0", path, "data", unit_interval=True),
-        ocv_branch=branch, soc0=_number(data, "soc0", path, "data", unit_interval=True),
+        ocv_branch=branch, ocv_rests_first=rests_first == "auto",
+        soc0=_number(data, "soc0", path, "data", unit_interval=True),
         extra_cycles=extra_paths, columns=_columns(data, path))
 
 

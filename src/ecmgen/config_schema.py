@@ -88,6 +88,10 @@ SECTIONS: tuple[Section, ...] = (
         Key("ocv_branch", CHOICE, "the OCV branch: both (their average), charge, discharge, "
             "auto (with a pulse test the one closest to its rests, else both)",
             choices=("auto", "both", "charge", "discharge"), default='"auto"'),
+        Key("ocv_rests_first", CHOICE, "auto: where data.ocv's files, measured at the pulse "
+            "test's own temperature, differ from its relaxed rests beyond the OCV check, the "
+            "rests lead and the files fill the SOC they do not cover; never: the files as "
+            "given", choices=("auto", "never"), default='"auto"'),
         Key("ocv_soc0", NUMBER, "SOC at the low-rate test's first sample: count SOC with "
             "cell.capacity_ah instead of normalising each branch", unit="SOC", range=SOC),
         Key("cycle", FILE, "the validation drive cycle"),

@@ -155,7 +155,8 @@ def prepare(cfg: BuildConfig, progress: Progress = _quiet) -> Inputs:
         records.append(InputRecord("steps", steps_file.name, file_sha256(steps_file)))
     paths = {s: (cfg.pulses if s == "pulses" else s) for s in sources}
     ocv, n, report = ocv_mod.assemble(sources, file_curves, paths, rests, soc0, q_axis,
-                                      auto=cfg.ocv_branch == "auto", series=series)
+                                      auto=cfg.ocv_branch == "auto", series=series,
+                                      rests_first=cfg.ocv_rests_first)
     notes.extend(n)
     return Inputs(q, ocv, table, series, pulses, tuple(records), tuple(notes), steps, report,
                   q_axis)

@@ -214,6 +214,7 @@ class OcvCurve:
     raw: tuple = ()
     branches: dict = field(default_factory=dict)   # low-rate: direction -> (soc, ocv_v)
     exact: bool = False      # a user's table: used as given when it is the only source
+    temperature_c: float | None = None   # a low-rate test's median cell temperature
 
     @property
     def span(self) -> tuple[float, float]:
@@ -335,8 +336,9 @@ def curve_from_low_rate(series: TimeSeries, capacity_ah: float, name: str, *,
                             f"(discharge {qd:.4g} Ah, charge {qc:.4g} Ah, "
                             f"{abs(qd - qc) / max(qd, qc):.0%} apart): check the test (warning)")
     g, c = readings[key]
+    temp = None if series.temperature_c is None else float(np.median(series.temperature_c))
     return OcvCurve(name, g, c, tuple(notes), caps, tuple(raw),
-                    readings if len(readings) > 1 else {})
+                    readings if len(readings) > 1 else {}, temperature_c=temp)
 
 
 def choose_reading(curve: OcvCurve, rest_soc, rest_v) -> tuple[OcvCurve, dict, str]:
@@ -534,6 +536,38 @@ def cross_check(table: OcvTable, soc, v, rest_s, chosen: str,
                     threshold_v, bool(warn), better, text)
 
 
+# a file of the OCV and a pulse test within this of each other are at one temperature (the
+# pulse-test label check's tolerance, ecmgen.data.sources.PULSE_LABEL_TOL_K)
+SAME_TEMPERATURE_K = 5.0
+
+
+def rests_should_lead(check: OcvCheck, curves, sources, series: TimeSeries | None
+                      ) -> str | None:
+    """Why the pulse test's rests should lead the OCV files given alone (None: they should
+    not): the files fail the check against rests relaxed enough to be the cell's own OCV
+    (``check.better``), and each was measured at the pulse test's own temperature, so an
+    entropic shift cannot explain the difference (a file at another temperature is kept
+    as given: that the test's rests differ from it is expected, and which of the two the
+    cell's cycles follow, the rests say nothing of)."""
+    if "pulses" in sources or not (check.warning and check.rms_v > check.threshold_v
+                                   and check.better == "pulses"):
+        return None
+    if series is None or series.temperature_c is None:
+        return None
+    test_c = float(np.median(series.temperature_c))
+    temps = [c.temperature_c for c in curves]
+    if any(t is None or abs(t - test_c) > SAME_TEMPERATURE_K for t in temps):
+        return None
+    files = " + ".join(c.name for c in curves)
+    return (f"the pulse test's rests first, {files} filling the SOC they do not cover: "
+            f"{files} alone differs from the test's {check.n} rested voltages by "
+            f"{check.rms_v * 1e3:.1f} mV RMS (mean {check.mean_v * 1e3:+.1f} mV, the check "
+            f"allows {check.threshold_v * 1e3:g} mV) at the test's own temperature "
+            f"({test_c:.1f} degC, the file {', '.join(f'{t:.1f}' for t in temps)} degC); "
+            "the rests are the cell's OCV at the test's age and state "
+            "(data.ocv_rests_first = \"never\" keeps the files alone)")
+
+
 # --------------------------------------------------------------------------- beyond the rests
 # OCV where a pulse test's rests do not reach, from the test's own low-rate branches.
 #
@@ -683,7 +717,7 @@ class OcvReport:
 
 
 def assemble(sources, file_curves: dict, paths: dict, rests, soc0, capacity_ah: float, *,
-             auto: bool = True, series: TimeSeries | None = None
+             auto: bool = True, series: TimeSeries | None = None, rests_first: bool = True
              ) -> tuple[OcvTable, list[str], OcvReport]:
     """The OCV of one pulse test (or of a DC-IR table's build, ``rests`` None): the
     sources in order ("pulses" or a key of ``file_curves``; ``paths`` names each one's
@@ -693,12 +727,15 @@ def assemble(sources, file_curves: dict, paths: dict, rests, soc0, capacity_ah: 
     source) and against the rests (:func:`cross_check`). Returns the table, the notes
     and the report. ``series``: the pulse test, whose own low-rate branches fill the SOC
     that no source covers (:func:`curve_from_branches`) when its rests are a source.
+    ``rests_first``: where the files alone fail the check against relaxed rests at the
+    pulse test's own temperature (:func:`rests_should_lead`), the rests lead and the
+    files fill the SOC they do not cover.
     """
     notes: list[str] = []
     has_rests = rests is not None and len(rests) > 0
     rest_soc = soc0 + rests.charge_ah / capacity_ah if has_rests else None
     rest_v = rests.voltage_v if has_rests else None
-    file_curves = dict(file_curves)
+    given, file_curves = file_curves, dict(file_curves)
     default_rms = None
     if auto and has_rests:
         for src, c in file_curves.items():
@@ -729,6 +766,13 @@ def assemble(sources, file_curves: dict, paths: dict, rests, soc0, capacity_ah: 
                    if not np.array_equal(b[1], curves[0].ocv_v)}
         check = cross_check(table, rest_soc, rest_v, rests.duration_s, chosen,
                             alternatives=alt, default_rms_v=default_rms)
+        lead = rests_should_lead(check, curves, sources, series) if rests_first else None
+        if lead is not None:
+            table, more, report = assemble(("pulses", *sources), given,
+                                           {"pulses": series.source, **paths}, rests,
+                                           soc0, capacity_ah, auto=auto, series=series,
+                                           rests_first=False)
+            return table, [f"OCV: {lead}"] + more, report
         notes.append(check.note)
     return table, notes, OcvReport(tuple(c.name for c in curves), tuple(curves), check,
                                    rest_soc, rest_v)
