@@ -383,10 +383,13 @@ def _workers_for(cfg: BuildConfig, workers: int) -> Workers:
 
 
 def fit_pulse_tests(cfg: BuildConfig, progress: Progress = _quiet,
-                    workers: Workers | int = 2, plots: bool = False) -> list[TestFit]:
+                    workers: Workers | int = 2, plots: bool = False,
+                    png_tasks: dict | None = None) -> list[TestFit]:
     """fit_pulse_test for every [[data.pulse_tests]] entry, in config order, on the
     ``workers`` (or that many processes; see ecmgen.parallel): each test is fitted whole
-    by one process, so the results do not depend on scheduling."""
+    by one process, so the results do not depend on scheduling. ``png_tasks``: where
+    given, the plots still being drawn when the fits are in go there ({file name: task}),
+    not waited for (a build takes them when it writes its plots)."""
     if not isinstance(workers, Workers):
         with _workers_for(cfg, workers) as pool:
             return fit_pulse_tests(cfg, progress, pool, plots)
@@ -408,11 +411,12 @@ def fit_pulse_tests(cfg: BuildConfig, progress: Progress = _quiet,
     except BaseException:
         workers.cancel(tasks)
         raise
-    return _with_neighbour_taus(cfg, out, workers, plots, detail)
+    return _with_neighbour_taus(cfg, out, workers, plots, detail, png_tasks)
 
 
 def _with_neighbour_taus(cfg: BuildConfig, fits: list[TestFit], workers: Workers,
-                         plots: bool, detail) -> list[TestFit]:
+                         plots: bool, detail, png_tasks: dict | None = None
+                         ) -> list[TestFit]:
     """The curve fits of the tests between two others in temperature again, offered their
     time constants (:func:`ecmgen.model.temperature.neighbour_time_constants`)."""
     from .model.temperature import neighbour_time_constants
@@ -427,10 +431,14 @@ def _with_neighbour_taus(cfg: BuildConfig, fits: list[TestFit], workers: Workers
                                fits[k].raw["curve_fit"].searches)
              for k, taus in enumerate(offer) if taus is not None}
     # the plots of the whole-test fits that stand, beside the fits again
-    plot_tasks = {k: workers.submit(curve_fit_png, f.raw["curve_fit"], f.label, f.temperature_c)
-                  for k, f in enumerate(fits) if plots and k not in tasks}
-    for k, task in plot_tasks.items():
-        fits[k].pngs.update(task.result())
+    plot_tasks = {f"curve-fit-{f.label}.png": (k, workers.submit(
+        curve_fit_png, f.raw["curve_fit"], f.label, f.temperature_c))
+        for k, f in enumerate(fits) if plots and k not in tasks}
+    for name, (k, task) in plot_tasks.items():
+        if png_tasks is None:
+            fits[k].pngs[name] = task.result()
+        else:
+            png_tasks[name] = task
     for k, task in tasks.items():
         label = f"pulse test {k + 1}"
         try:
@@ -450,23 +458,25 @@ def _with_neighbour_taus(cfg: BuildConfig, fits: list[TestFit], workers: Workers
 
 
 def curve_fit_png(curve_fit, label: str, temperature_c: float,
-                  progress: Progress = _quiet) -> dict[str, bytes]:
-    """The whole-test fit's plot of a pulse test: {curve-fit-<label>.png: PNG bytes}."""
+                  progress: Progress = _quiet) -> bytes:
+    """The whole-test fit's plot of a pulse test (curve-fit-<label>.png), PNG bytes."""
     from .plots import fit_pngs
     from .plotting import degrees
 
-    return fit_pngs({"curve_fit": curve_fit}, f"-{label}", at=degrees(temperature_c))
+    return fit_pngs({"curve_fit": curve_fit}, f"-{label}",
+                    at=degrees(temperature_c))[f"curve-fit-{label}.png"]
 
 
 @one_blas_thread
 def fit_all(cfg: BuildConfig, progress: Progress = _quiet, *, workers: Workers | int = 2,
-            plots: bool = False):
+            plots: bool = False, png_tasks: dict | None = None):
     """Every method's model of the config: (models, raw fits, inputs, tests), every
     file's column map checked first (a wrong one said before the fits, not after them).
     The data.pulses / data.dcir form: one model per method as prepare + fit_models give it
     (``tests`` empty). [[data.pulse_tests]]: every test fitted (fit_pulse_tests, its fit
     plots drawn there with ``plots``) and each method's models joined over temperature
-    (model.temperature); ``inputs`` and ``raw``: the warmest test's; ``tests``: all."""
+    (model.temperature); ``inputs`` and ``raw``: the warmest test's; ``tests``: all.
+    ``png_tasks``: see fit_pulse_tests."""
     check_column_maps(cfg)
     if not cfg.over_temperature:
         inputs = prepare(cfg, progress)
@@ -475,7 +485,7 @@ def fit_all(cfg: BuildConfig, progress: Progress = _quiet, *, workers: Workers |
         return models, raw, inputs, []
     from .model.temperature import assemble_over_temperature
 
-    tests = fit_pulse_tests(cfg, progress, workers, plots)
+    tests = fit_pulse_tests(cfg, progress, workers, plots, png_tasks)
     temps = [t.temperature_c for t in tests]
     names = pulse_file_names(cfg)
     labels = [names[t.test.file] for t in tests]
@@ -553,7 +563,9 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
     check_output_folder(out_dir, given)     # before the fit, not after it
     check_temperature_logs(cfg)
     with _workers_for(cfg, workers) as pool:
-        models, raw, inputs, tests = fit_all(cfg, progress, workers=pool, plots=plots)
+        plot_tasks: dict = {}       # {file name: task}, the plots still being drawn
+        models, raw, inputs, tests = fit_all(cfg, progress, workers=pool, plots=plots,
+                                             png_tasks=plot_tasks)
         lap("fit")
         result = BuildResult(models=models, best=cfg.best, inputs=inputs,
                              curve_fit=raw.get("curve_fit"),
@@ -566,8 +578,12 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
 
             raise InputError(cfg.path, "build --strict: "
                                        + quality_words(cfg.best, result.quality[cfg.best]))
-        # the validations first: the C check, the longest tasks left, waits for them
-        result.validations = validate_all(cfg, models, progress, workers=pool)
+        # the validations first: the C check, the longest tasks left, waits for them; the
+        # parameter plots (the models alone) behind them
+        result.validations = validate_all(
+            cfg, models, progress, workers=pool,
+            meanwhile=lambda: plot_tasks.update(
+                _parameter_plots(pool, cfg, models, tests, inputs) if plots else {}))
         result.fit_flags = raw.get("flags", {})
         record_usage(result, one_test_c(tests, inputs))
         lap("validate")
@@ -575,14 +591,7 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
         with staged(out_dir, given) as (staging, files):
             # the C check of the best model on the workers first, the plots beside and after
             c_task = submit_c(pool, cfg, result, staging) if c_code and cfg.c_numeric else None
-            plot_tasks = {}
             if plots:
-                from .plots import parameters_png
-
-                measured = sorted(t.temperature_c for t in tests) if tests else \
-                    ([one_test_c(tests, inputs)] if cfg.activation_k else None)
-                plot_tasks = {f"parameters-{m}.png": pool.submit(parameters_png, model, measured)
-                              for m, model in models.items()}
                 plot_tasks.update((validation_png_name(label), task) for label, task in
                                   validation_plots(pool, result.validations, cfg.best).items())
             if tests:
@@ -609,6 +618,17 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
     result.files = files
     result.out_dir = out_dir
     return result
+
+
+def _parameter_plots(pool: Workers, cfg: BuildConfig, models: dict[str, EcmModel], tests,
+                     inputs: Inputs) -> dict:
+    """parameters-<method>.png of every model, as tasks of ``pool``: {file name: task}."""
+    from .plots import parameters_png
+
+    measured = sorted(t.temperature_c for t in tests) if tests else \
+        ([one_test_c(tests, inputs)] if cfg.activation_k else None)
+    return {f"parameters-{m}.png": pool.submit(parameters_png, model, measured)
+            for m, model in models.items()}
 
 
 def _quality(models: dict[str, EcmModel], flags: dict) -> dict:

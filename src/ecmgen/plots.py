@@ -363,8 +363,14 @@ RC_NAMES = ("r0_ohm", "r_fast_ohm", "tau_fast_s", "r_slow_ohm", "tau_slow_s")
 def _png(draw, *args, **kw) -> bytes:
     """What ``draw(..., path)`` writes, as PNG bytes (drawn where the data is: a worker
     process sends back bytes, not the data)."""
+    import matplotlib
+
     buf = io.BytesIO()
-    draw(*args, buf, **kw)
+    # each title at the top of its axes, where matplotlib's automatic placement leaves it
+    # in these plots (no x tick labels on top, no y offset text under a title), without
+    # measuring every axis for it at each draw: a fifth of a plot's time, same pixels
+    with matplotlib.rc_context({"axes.titley": 1.0}):
+        draw(*args, buf, **kw)
     return buf.getvalue()
 
 

@@ -56,14 +56,21 @@ def cycles(cfg: BuildConfig) -> list[tuple[Path, str, str]]:
 
 
 def validate_all(cfg: BuildConfig, models: dict[str, EcmModel], progress: Progress = _quiet,
-                 *, workers: Workers | None = None) -> dict[str, dict[str, Validation]]:
+                 *, workers: Workers | None = None,
+                 meanwhile: Callable[[], None] | None = None
+                 ) -> dict[str, dict[str, Validation]]:
     """Each model on the config's validation cycle(s); ``soc0`` applies to every cycle.
     A model over temperature runs on each cycle's own cell temperature column.
-    Returns {method: {cycle name: Validation}}. The cycles run on ``workers`` if given."""
+    Returns {method: {cycle name: Validation}}. The cycles run on ``workers`` if given;
+    ``meanwhile`` is called once they are given, before their results are waited for
+    (the build queues its parameter plots behind them there: the workers draw them while
+    this process takes the validations in and plans the C)."""
     workers = workers or Workers(1)
     todo = cycles(cfg)
     tasks = [workers.submit(validate_cycle, cfg, path, role, label, models)
              for path, role, label in todo]
+    if meanwhile is not None:
+        meanwhile()
     out: dict[str, dict[str, Validation]] = {m: {} for m in models}
     if len(todo) > 1:
         progress(f"validating on {len(todo)} cycles")

@@ -89,8 +89,24 @@ def c_float(v) -> str:
     return s + "f"
 
 
+def c_floats(values) -> list[str]:
+    """:func:`c_float` of every value, in one pass over the array (a model's tables are
+    thousands of literals)."""
+    a = np.asarray(values)
+    if a.dtype.kind != "f":
+        return [c_float(v) for v in values]
+    f = a.reshape(-1).astype(np.float32)
+    finite = np.isfinite(f)
+    if not finite.all():
+        c_float(a.reshape(-1)[np.argmin(finite)])      # its error
+    out = [f"{x:.9g}" for x in f.astype(np.float64).tolist()]
+    out = [s if "." in s or "e" in s else s + ".0" for s in out]
+    assert (np.array([float(s) for s in out]).astype(np.float32) == f).all()
+    return [s + "f" for s in out]
+
+
 def _body(values, fmt, per_line: int) -> str:
-    items = [fmt(v) for v in values]
+    items = c_floats(values) if fmt is c_float else [fmt(v) for v in values]
     lines = [", ".join(items[i:i + per_line]) for i in range(0, len(items), per_line)]
     return ",\n    ".join(lines)
 

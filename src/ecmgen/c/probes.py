@@ -227,16 +227,25 @@ def _ocv_sweep(spec: CSpec, si: _Si, t: float, row: int) -> list[_Seg]:
     return [seg]
 
 
-def _surface_target(si: _Si, row: int, s: float) -> float:
-    """The surface SOC to read the RC tables at from SOC ``s``: where r0's slope times the
-    distance from s is largest (a per-volt entry moves the lookup by a fraction of that
-    distance), on the discharge table below s, the charge table above it."""
-    best, where = -1.0, s
-    for d, side in ((0, -1.0), (1, 1.0)):
+def _r0_slopes(si: _Si, row: int) -> list:
+    """Per direction (discharge, charge): the mid-SOC and |slope| of each segment of r0 at
+    temperature row ``row``, the same for every probe point of the row."""
+    out = []
+    for d in (0, 1):
         x = si.rc_soc[d]
         r0 = np.mean(si.r0[d][row:row + 2], axis=0) if si.r0[d].shape[0] > 1 else si.r0[d][0]
-        mid = _mids(x)
-        score = np.abs(np.diff(r0) / np.diff(x)) * np.abs(mid - s)
+        out.append((_mids(x), np.abs(np.diff(r0) / np.diff(x))))
+    return out
+
+
+def _surface_target(slopes: list, s: float) -> float:
+    """The surface SOC to read the RC tables at from SOC ``s``: where r0's slope times the
+    distance from s is largest (a per-volt entry moves the lookup by a fraction of that
+    distance), on the discharge table below s, the charge table above it (``slopes``:
+    :func:`_r0_slopes` of the row)."""
+    best, where = -1.0, s
+    for (mid, slope), side in zip(slopes, (-1.0, 1.0)):
+        score = slope * np.abs(mid - s)
         score[side * (mid - s) <= 0] = -1.0
         k = int(np.argmax(score))
         if score[k] > best:
@@ -252,10 +261,11 @@ def _surface_probes(spec: CSpec, si: _Si, t: float, row: int) -> _Seg:
     seg = _Seg(0.5, t)
     tau_d = _row_mean(si.tau_diff[0], row)
     rd = max(_row_mean(si.r_diff[0], row), 1e-9)
+    slopes = _r0_slopes(si, row)
     for s in _points(si.ocv_soc):
         k = int(np.clip(np.searchsorted(si.ocv_soc, s) - 1, 0, si.ocv_soc.size - 2))
         sv = max(float(np.mean(si.surface[row:row + 2, k:k + 2])), 1e-9)
-        u_d = (_surface_target(si, row, s) - s) / sv
+        u_d = (_surface_target(slopes, s) - s) / sv
         sign = -1.0 if u_d < 0 else 1.0
         cur = min(abs(u_d) / (rd * (1.0 - math.exp(-1.0))), si.i_cap,
                   SOC_REACH / (tau_d * si.k_soc))

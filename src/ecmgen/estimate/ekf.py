@@ -249,16 +249,15 @@ class Ekf(Filter):
                                               tw_ocv=tw_ocv)
         F = np.array(F)
         P = F @ self.P @ F.T
-        P[np.diag_indices(n)] += process_noise(sm, self.noise, aux, dt, self.first,
-                                               self.P[0][0])
-        p_soc = float(P[0][0])
+        P.flat[::n + 1] += process_noise(sm, self.noise, aux, dt, self.first, self.P[0, 0])
+        p_soc = float(P[0, 0])
         v_pred, H, ocv = sm.measure(x, aux, tw, tw_ocv, tfac,
                                     ocv_slope=spread_slope(sm, self.noise, x[0], p_soc, tw_ocv))
         R = self.variance(v_pred, ocv, dt, x, aux, tw, tw_ocv, tfac)
         if R > 0.0:
             x0 = np.array(x)
             H = np.array(H)
-            xu, K = gain_update(x0, P, H, R, v_meas - v_pred)
+            xu, K, c = gain_update(x0, P, H, R, v_meas - v_pred)
             # iterated update: relinearise the measurement where the update lands while
             # that moves the SOC (a large first correction on a curved OCV)
             for _ in range(MAX_ITERATIONS):
@@ -270,13 +269,13 @@ class Ekf(Filter):
                     sm, self.noise, xu[0], p_soc, tw_ocv))
                 H = np.array(H_i)
                 xu = np.array(xu)
-                x_next, K = gain_update(x0, P, H, R, v_meas - v_i - H @ (x0 - xu))
+                x_next, K, c = gain_update(x0, P, H, R, v_meas - v_i - H @ (x0 - xu))
                 done = abs(x_next[0] - xu[0]) < ITERATE_TOL
                 xu = x_next
                 if done:
                     break
             x = xu.tolist()
-            P = joseph_covariance(P, H, R, K)
+            P = joseph_covariance(P, H, R, K, c)
         self.x, self.P = clamp_state(sm, x), P
         return v_pred
 
@@ -303,17 +302,23 @@ def spread_slope(step: StepModel, noise: NoiseModel, soc: float, p_soc: float, t
 
 
 def gain_update(x: np.ndarray, P: np.ndarray, H: np.ndarray, R: float, innovation: float):
-    """x + K innovation with K = P H^T / (H P H^T + R); returns (x, K)."""
+    """x + K innovation with K = P H^T / (H P H^T + R); returns (x, K, P H^T)."""
     c = P @ H
     K = c / (H @ c + R)
-    return x + K * innovation, K
+    return x + K * innovation, K, c
 
 
-def joseph_covariance(P: np.ndarray, H: np.ndarray, R: float, K: np.ndarray) -> np.ndarray:
+def joseph_covariance(P: np.ndarray, H: np.ndarray, R: float, K: np.ndarray,
+                      c: np.ndarray | None = None) -> np.ndarray:
     """Joseph form (I - K H) P (I - K H)^T + R K K^T, as products of rank-one updates:
-    M = P - K c^T (c = P H^T), d = M H^T, P = M - d K^T + R K K^T; symmetrised."""
-    M = P - np.outer(K, P @ H)
-    Pn = M - np.outer(M @ H, K) + R * np.outer(K, K)
+    M = P - K c^T (c = P H^T, given or computed), d = M H^T, P = M - d K^T + R K K^T;
+    symmetrised. (The outer products by broadcasting: np.outer's products, without its
+    overhead, which in a filter's per-sample loop is most of the time.)"""
+    if c is None:
+        c = P @ H
+    kc = K[:, None]
+    M = P - kc * c
+    Pn = M - (M @ H)[:, None] * K + R * (kc * K)
     return 0.5 * (Pn + Pn.T)
 
 

@@ -176,6 +176,7 @@ class StepModel:
                 self.extra = e
         self.soc_per_as = 1.0 / (3600.0 * model.capacity_ah * scale)
         self.deadband = float(model.direction_deadband_a)
+        self._surface_last = self._r0_last = (None, None, None, None)
 
     # -- per-record inputs ------------------------------------------------------------
     def inputs(self, time_s, i_seen, temperature_c=None) -> StepInputs:
@@ -209,24 +210,35 @@ class StepModel:
         tab = self.tables[charging]
         tw = tw[0] if charging else tw[1]
         j, t, inv = _segment(tab.soc, soc)
+        # _row_value over the five fields, written out: the filter's innermost loop
         if tw is None:
             row = tab.rows[0]
-            vals, slopes = [], []
-            for f in range(5):
-                v, s = _row_value(row, j, t, inv, f)
-                vals.append(v)
-                slopes.append(s)
+            if len(row) == 1:
+                vals, slopes = list(row[0]), [0.0] * 5
+            else:
+                a, b = row[j], row[j + 1]
+                d = [b[f] - a[f] for f in range(5)]
+                vals = [a[f] + d[f] * t for f in range(5)]
+                slopes = [e * inv for e in d]
             branch = tuple(None if b is None else b[0]
                            for b in (tab.r_diff, tab.tau_diff, tab.i0))
             return vals, slopes, branch
         k, w = tw
         lo, hi = tab.rows[k], tab.rows[k + 1]
-        vals, slopes = [], []
-        for f in range(5):
-            v0, s0 = _row_value(lo, j, t, inv, f)
-            v1, s1 = _row_value(hi, j, t, inv, f)
-            vals.append(v0 + (v1 - v0) * w)
-            slopes.append(s0 + (s1 - s0) * w)
+        if len(lo) == 1:
+            v0, v1 = lo[0], hi[0]
+            vals = [v0[f] + (v1[f] - v0[f]) * w for f in range(5)]
+            slopes = [0.0 + (0.0 - 0.0) * w] * 5
+        else:
+            a0, b0, a1, b1 = lo[j], lo[j + 1], hi[j], hi[j + 1]
+            vals, slopes = [], []
+            for f in range(5):
+                y0, y1 = a0[f], a1[f]
+                d0, d1 = b0[f] - y0, b1[f] - y1
+                v0, v1 = y0 + d0 * t, y1 + d1 * t
+                s0, s1 = d0 * inv, d1 * inv
+                vals.append(v0 + (v1 - v0) * w)
+                slopes.append(s0 + (s1 - s0) * w)
         branch = tuple(None if b is None else b[k] + (b[k + 1] - b[k]) * w
                        for b in (tab.r_diff, tab.tau_diff, tab.i0))
         return vals, slopes, branch
@@ -252,11 +264,19 @@ class StepModel:
         (0 or 1, 0, 0) where it is clamped."""
         if self.sv_rows is None:
             return soc, 1.0, 0.0
+        # a step reads it three times at the same values (predict, dc_resistance,
+        # measure): the same objects give the last result
+        last = self._surface_last
+        if last[0] is soc and last[1] is u_prev and last[2] is tw_ocv:
+            return last[3]
         sv, dsv = self._on_ocv_grid(self.sv_rows, soc, tw_ocv)
         r = soc + sv * u_prev
         if r < 0.0 or r > 1.0:
-            return min(max(r, 0.0), 1.0), 0.0, 0.0
-        return r, 1.0 + dsv * u_prev, sv
+            out = min(max(r, 0.0), 1.0), 0.0, 0.0
+        else:
+            out = r, 1.0 + dsv * u_prev, sv
+        self._surface_last = (soc, u_prev, tw_ocv, out)
+        return out
 
     def direction(self, charging: bool, i: float) -> bool:
         if i > self.deadband:
@@ -355,15 +375,21 @@ class StepModel:
 
     def r0(self, charging: bool, soc: float, tw) -> tuple[float, float]:
         """r0 and dr0/dsoc of the direction's table at (soc, T)."""
+        last = self._r0_last        # dc_resistance and measure: the same values
+        if last[0] is charging and last[1] is soc and last[2] is tw:
+            return last[3]
         tab = self.tables[charging]
-        tw = tw[0] if charging else tw[1]
+        tw_d = tw[0] if charging else tw[1]
         j, t, inv = _segment(tab.soc, soc)
-        if tw is None:
-            return _row_value(tab.rows[0], j, t, inv, 0)
-        k, w = tw
-        v0, s0 = _row_value(tab.rows[k], j, t, inv, 0)
-        v1, s1 = _row_value(tab.rows[k + 1], j, t, inv, 0)
-        return v0 + (v1 - v0) * w, s0 + (s1 - s0) * w
+        if tw_d is None:
+            out = _row_value(tab.rows[0], j, t, inv, 0)
+        else:
+            k, w = tw_d
+            v0, s0 = _row_value(tab.rows[k], j, t, inv, 0)
+            v1, s1 = _row_value(tab.rows[k + 1], j, t, inv, 0)
+            out = v0 + (v1 - v0) * w, s0 + (s1 - s0) * w
+        self._r0_last = (charging, soc, tw, out)
+        return out
 
     def dc_resistance(self, x: list[float], aux, tw, tw_ocv, tfac: float = 1.0) -> float:
         """r0 g0 + sum of r_j g_j at state ``x`` (sample k, ``aux`` from :meth:`predict`):
