@@ -1,5 +1,6 @@
-"""Candidates of ``diagnose`` that are faults of the record, not of the model: a current
-sensor's offset and gain, and an OCV table that is off. Each looks like a model effect on
+"""Candidates of ``diagnose`` that are faults of the record or of its OCV table, not effects
+of the model: a current sensor's offset and gain, an OCV table that is off, and one that
+lacks the OCV's move with temperature. Each looks like a model effect on
 a cycle (a gain or an OCV table's SOC scale moves the SOC as a capacity error does; an OCV
 offset or an offset current shifts the voltage as a hysteresis band can), so diagnose
 fits them as candidates beside the effects and names one only where the held-out test
@@ -7,7 +8,8 @@ tells it from the rest.
 
 A sensor fault is corrected in the data, never in the model (model.json and the C stay
 as they are; the verdict says how the current reads). An OCV error corrects the OCV table
-model.json carries. Measured = what the logger wrote:
+model.json carries (and an entropic term makes it an OCV over temperature). Measured =
+what the logger wrote:
 
 - ``current_offset``  measured current = true + offset_a
 - ``current_gain``    measured current = true * (1 + gain)
