@@ -29,6 +29,13 @@ EFFECT_WORDS = {
                      "that 10 s pulses cannot see",
     fx.CapacityError.name: "the capacity used for coulomb counting is off",
     fx.TemperatureDependence.name: "resistances falling as the cell warms (Arrhenius)",
+    "current_offset": "a fault of the record, corrected in the data (model.json is the model "
+                      "without it)",
+    "current_gain": "a fault of the record, corrected in the data (model.json is the model "
+                    "without it)",
+    "ocv_error": "the OCV table is off; model.json carries it corrected",
+    "entropic_ocv": "the OCV table lacks its move with temperature (entropic); model.json "
+                    "carries it as an OCV over temperature",
 }
 
 
@@ -197,12 +204,18 @@ def report_text(result: DiagnoseResult, model_name: str = "model.json") -> str:
                      "than noise explains:")
         lines.append("")
         for k, st in enumerate(result.steps, 1):
-            lines.append(f"{k}. **{st.name}** - {EFFECT_WORDS[st.name]}. Held-out MAE "
+            words = EFFECT_WORDS[st.name]
+            if hasattr(st.effect, "words"):
+                words = f"{st.effect.words()}: {words}"
+            lines.append(f"{k}. **{st.name}** - {words}. Held-out MAE "
                          f"{mv(st.mae_before_v)} -> {mv(st.mae_after_v)} "
                          f"({100 * (1 - st.mae_after_v / st.mae_before_v):.0f} % lower; "
                          f"99 % lower bound of the gain {mv(st.ci_low_v)}).")
         lines += ["", f"Held-out MAE of the base model {mv(result.mae_before_v)}, of the "
                       f"augmented model ({model_name}) {mv(result.mae_after_v)}."]
+    elif result.cannot_tell:
+        lines.append(f"Cannot tell: {result.verdict}. {model_name} is the model without "
+                     "them.")
     elif result.not_named:
         tried = ", ".join(st.name for st in result.not_named)
         lines.append(f"Unexplained: {tried} passed the held-out test but left "
@@ -222,6 +235,9 @@ def report_text(result: DiagnoseResult, model_name: str = "model.json") -> str:
         lines.append(f"Nothing is missing that this data can show: no effect lowered the "
                      f"held-out MAE ({mv(result.mae_before_v)}) by more than noise explains. "
                      f"{model_name} is the base model unchanged.")
+    if result.steps and result.cannot_tell:
+        lines += ["", f"Then: {' or '.join(result.cannot_tell[0])} - the data cannot tell them "
+                      f"apart; {model_name} has neither."]
     if result.steps and result.unexplained:
         lines += ["", f"Unexplained: after them the held-out MAE ({mv(result.mae_after_v)}) is "
                       f"still {result.mae_after_v / result.floor_v:.0f} x "

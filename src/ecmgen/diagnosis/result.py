@@ -18,6 +18,33 @@ from ..model.simulate import SimResult
 UNEXPLAINED_RATIO = 3.0
 
 
+# what each candidate's signature needs in a record (the look-alike verdict: "a record with
+# ... would tell them apart")
+TELLS = {
+    "hysteresis": "long rests after a charge and after a discharge at one SOC",
+    "extra_rc": "a rest of an hour after a long current",
+    "current_dependent_resistance": "pulses at several C-rates",
+    "capacity_error": "a full charge and discharge between rested voltages",
+    "temperature_dependence": "the same pulses at two temperatures",
+    "current_offset": "a long rest with its current logged",
+    "current_gain": "pulses of equal charge at two currents",
+    "ocv_error": "a slow (C/20) OCV test of this cell",
+    "entropic_ocv": "rests at one SOC at two temperatures",
+}
+
+
+def _is_correction(effect) -> bool:
+    """A fault of the record (a sensor's, the OCV table's), not an effect in the model."""
+    return hasattr(effect, "words")
+
+
+def _correction_words(st) -> str:
+    where = ("corrected in the data" if st.effect.kind == "sensor"
+             else "model.json carries the OCV corrected")
+    return (f"{st.name}: {st.effect.words()}; {where}, the held-out error is "
+            f"{st.mae_after_v * 1e3:.2f} mV")
+
+
 def explained_floor(noise_v: float, misfit_v: float | None) -> float:
     """What a model that misses nothing leaves: the noise, or the base's own misfit on the
     test that made it where that is larger and known."""
@@ -89,6 +116,10 @@ class DiagnoseResult:
     notes: tuple[str, ...] = ()
     misfit_v: float | None = None      # the base's RMS on the test that made it
     not_named: tuple[DiagnoseStep, ...] = ()   # passed, but left the error unexplained
+    # look-alikes the held-out part could not tell apart (each a tuple of names, the
+    # winner first), and the held-out error the winner left
+    cannot_tell: tuple[tuple[str, ...], ...] = ()
+    cannot_tell_mae_v: float | None = None
 
     @property
     def effects(self) -> tuple[str, ...]:
@@ -101,8 +132,10 @@ class DiagnoseResult:
 
     @property
     def unexplained(self) -> bool:
-        """The held-out error left is well above the floor (UNEXPLAINED_RATIO)."""
-        return bool(self.floor_v > 0 and self.mae_after_v > UNEXPLAINED_RATIO * self.floor_v)
+        """The held-out error left is well above the floor (UNEXPLAINED_RATIO); where
+        look-alikes could not be told apart, the error the best of them left."""
+        left = self.cannot_tell_mae_v if self.cannot_tell else self.mae_after_v
+        return bool(self.floor_v > 0 and left > UNEXPLAINED_RATIO * self.floor_v)
 
     @property
     def verdict(self) -> str:
@@ -111,7 +144,15 @@ class DiagnoseResult:
                 f"{self.noise_v * 1e3:.2f} mV noise")
         if self.misfit_v is not None:
             left += f" and the base's {self.misfit_v * 1e3:.2f} mV RMS on its pulse test"
-        named = f"added {', '.join(self.effects)}; " if self.steps else ""
+        added = [st.name for st in self.steps if not _is_correction(st.effect)]
+        named = (f"added {', '.join(added)}; " if added else "") + "".join(
+            f"{_correction_words(st)}; " for st in self.steps if _is_correction(st.effect))
+        if self.cannot_tell:
+            group = self.cannot_tell[0]
+            return (f"{named}{' or '.join(group)} - the data cannot tell them apart (the "
+                    f"first leaves {self.cannot_tell_mae_v * 1e3:.2f} mV held out against "
+                    f"{self.noise_v * 1e3:.2f} mV noise); a record with "
+                    f"{' or '.join(TELLS.get(n, n) for n in group)} would; none is named")
         if self.not_named:
             tried = ", ".join(st.name for st in self.not_named)
             return (f"unexplained: {left}; {tried} lowered it to "
@@ -130,7 +171,8 @@ class DiagnoseResult:
             return None if x is None or not math.isfinite(x) else float(x)
 
         return {
-            "effects": [{"name": s.name, "mae_before_v": f(s.mae_before_v),
+            "effects": [{"name": s.name, "correction": _is_correction(s.effect),
+                         "mae_before_v": f(s.mae_before_v),
                          "mae_after_v": f(s.mae_after_v), "gain_ci_low_v": f(s.ci_low_v),
                          "params": s.effect.params()} for s in self.steps],
             "mae_before_v": f(self.mae_before_v),
@@ -141,6 +183,8 @@ class DiagnoseResult:
             "base_misfit_v": f(self.misfit_v),
             "not_named": [{"name": s.name, "mae_after_v": f(s.mae_after_v),
                            "params": s.effect.params()} for s in self.not_named],
+            "cannot_tell": [list(g) for g in self.cannot_tell],
+            "cannot_tell_mae_v": f(self.cannot_tell_mae_v),
             "unexplained": self.unexplained,
             "verdict": self.verdict,
             "held_out": self.split,

@@ -24,6 +24,14 @@
    parts) is added, and all added effects are refitted jointly; when none passes, the
    search stops and nothing more is named.
 
+Besides the model's effects, the faults of the record are candidates
+(:mod:`ecmgen.diagnosis.corrections`: a current sensor's offset and gain, an OCV table
+that is off); one that is added corrects the data the later rounds fit and judge. A
+candidate is named only where it beats its look-alikes (the other candidates that passed
+in its round, each judged again in its place among all that was added at the end) by the
+held-out test; otherwise the verdict is "X or Y - the data cannot tell them apart"
+(:mod:`ecmgen.diagnosis.lookalike`).
+
 The held-out part is ``judge_series`` when given (a second cycle), else the last
 ``1 - split`` of the fit cycle's duration (the model is simulated over the whole cycle;
 only the first part is fitted).
@@ -50,6 +58,8 @@ from ..model.model import EcmModel
 from ..model.rc import rc_recurrence
 from ..model.simulate import SimResult, initial_soc, simulate
 from ..parallel import one_blas_thread
+from . import corrections as cx
+from .lookalike import block_bootstrap_low, lookalikes, rivals, told_apart  # noqa: F401
 from .problems import _Problem, _Spec, _fit, _fixed, _neutral, _specs
 from .refits import PulseRefit, hysteresis_on_refitted_base
 from .result import (UNEXPLAINED_RATIO, Candidate, DiagnoseResult, DiagnoseStep,  # noqa: F401
@@ -89,23 +99,6 @@ def noise_std(series: TimeSeries, rest_a: float) -> float:
     # largest 2 % (relaxation right after a current edge)
     sq = np.sort(dv * dv)[: max(1, int(0.98 * dv.size))]
     return max(mad, math.sqrt(float(np.mean(sq)))) / math.sqrt(2.0)
-
-
-def block_bootstrap_low(d: np.ndarray, block: int, confidence: float, n_boot: int = 2000,
-                        seed: int = 0) -> float:
-    """Lower ``confidence`` bound of mean(d) by a circular block bootstrap."""
-    n = d.size
-    if n == 0:
-        return float("nan")
-    block = int(min(max(block, 1), n))
-    nb = int(math.ceil(n / block))
-    ext = np.concatenate([d, d[:block]])
-    csum = np.concatenate([[0.0], np.cumsum(ext)])
-    block_sum = csum[block:block + n] - csum[:n]          # sum of d[s:s+block] (circular)
-    rng = np.random.default_rng(seed)
-    starts = rng.integers(0, n, size=(n_boot, nb))
-    means = block_sum[starts].sum(axis=1) / (nb * block)
-    return float(np.quantile(means, 1.0 - confidence))
 
 
 def decimate(series: TimeSeries, factor: int) -> TimeSeries:
@@ -277,6 +270,8 @@ def _mae(e: np.ndarray) -> float:
     return float(np.mean(np.abs(e))) if e.size else float("nan")
 
 
+# the effects of the model and the faults of the record (corrected in the data)
+CANDIDATE_NAMES = fx.EFFECT_NAMES + cx.CORRECTION_NAMES
 JUDGE_SOC_MIN = 0.1      # held-out samples at or below this SOC are not judged
 MIN_JUDGED = 50          # fewer held-out samples above JUDGE_SOC_MIN: nothing to judge
 
@@ -302,7 +297,7 @@ def _judged_samples(soc: np.ndarray, soc_min: float) -> tuple[np.ndarray, int]:
 def diagnose(base_model: EcmModel, fit_series: TimeSeries,
              judge_series: TimeSeries | None = None, soc0: float | None = None,
              judge_soc0: float | None = None, *, split: float = 0.6,
-             candidates=fx.EFFECT_NAMES, max_effects: int = 4, min_rel_gain: float = 0.08,
+             candidates=CANDIDATE_NAMES, max_effects: int = 4, min_rel_gain: float = 0.08,
              min_gain_noise: float = 1.0, min_gain_v: float = 2e-4, confidence: float = 0.99,
              block_s: float | None = None, judge_soc_min: float = JUDGE_SOC_MIN,
              max_fit_samples: int = 12000, max_nfev: int = 40,
@@ -347,9 +342,9 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
     refits = dict(base_refits or {})
     refitted: dict = {}
     base_notes: dict[str, str] = {}
-    unknown = [c for c in candidates if c not in fx.EFFECT_TYPES]
+    unknown = [c for c in candidates if c not in CANDIDATE_NAMES]
     if unknown:
-        raise ValueError(f"unknown effect(s) {unknown}; known: {list(fx.EFFECT_NAMES)}")
+        raise ValueError(f"unknown effect(s) {unknown}; known: {list(CANDIDATE_NAMES)}")
     if soc0 is None:
         soc0 = initial_soc(base_model, fit_series)
     soc0 = float(soc0)
@@ -385,13 +380,15 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
         block_s = max(60.0, (tj[-1] - tj[0]) / 20.0)
     block = max(1, int(round(block_s / max(np.median(np.diff(tj)), 1e-6))))
 
-    def sim_judge(model):
-        return simulate(model, judge.time_s, judge.current_a, judge_soc0, judge.temperature_c)
+    def sim_judge(model, series=None):
+        s = judge if series is None else series
+        return simulate(model, s.time_s, s.current_a, judge_soc0, s.temperature_c)
 
-    def sim_fit(model):
-        return simulate(model, fit_series.time_s, fit_series.current_a, soc0,
-                        fit_series.temperature_c)
+    def sim_fit(model, series=None):
+        s = fit_series if series is None else series
+        return simulate(model, s.time_s, s.current_a, soc0, s.temperature_c)
 
+    fit_record, judge_record = fit_series, judge      # as read (the faults found are not)
     base_fit_sim = sim_fit(base_model)
     base_judge_sim = base_fit_sim if same else sim_judge(base_model)
     keep, below = _judged_samples(base_judge_sim.soc[judge_start:], judge_soc_min)
@@ -410,6 +407,8 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
     existing = {e.name for e in base_model.effects}
     order = [n for n in sorted(sigs, key=lambda n: -sigs[n].r2)
              if n in candidates and sigs[n].applicable and n not in existing]
+    order += [n for n in cx.CORRECTION_NAMES if n in candidates and cx.applicable(
+        n, base_model, sigs[fx.TemperatureDependence.name].applicable)]
     for n in sorted(sigs, key=lambda n: -sigs[n].r2):
         say(f"signature {n}: {sigs[n].r2:.3f}  {sigs[n].detail}")
 
@@ -421,11 +420,12 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
     f_scale = (loss_scale_v if loss_scale_v is not None
                else max(3.0 * noise, 0.5 * fit_mae0, 1e-3))
 
+    cap_scale = sigs[fx.CapacityError.name].guess.get("capacity_scale", 1.0)
     # effects already in the base model stay as they are (fixed parameters)
     fixed_effects = [(e.name, e.params(), {}) for e in base_model.effects]
     added: list[tuple[str, dict, dict]] = []       # (name, values, specs) fitted so far
     current = base_model
-    e_cur = e_j0
+    e_cur, ef_cur = e_j0, e_fit0
     mae_cur = mae0
     steps: list[DiagnoseStep] = []
     cands: list[Candidate] = []
@@ -433,6 +433,8 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
     fit_mae_cur = fit_mae0
     rnd = 0
     notes: list[str] = []
+    applied: list = []       # the record's faults found so far (corrected in the data)
+    alikes: list = []        # per step: (its look-alikes in its round, on a refitted base)
 
     def refit_on(base, layout, name, start):
         """``name`` fitted on ``base`` from ``start`` (an effect): (the effect, the fit
@@ -444,19 +446,31 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
         j = judged(effects_b, base)
         return effects_b[-1], j[4], ((vals_b, effects_b, specs_b), j)
 
-    def judged(effects, base=None):
-        model = (base_model if base is None else base).with_effects(effects)
-        sj = sim_judge(model)
+    def judged(effects, base=None, fixes=None):
+        """The model with ``effects`` on ``base``, the record's faults ``fixes`` (default:
+        those found so far) corrected, simulated on the held-out and fit parts: (model,
+        held-out simulation, held-out error, its MAE, the fit part's MAE)."""
+        fixes = applied if fixes is None else fixes
+        model = cx.corrected_model(base_model if base is None else base,
+                                   fixes).with_effects(effects)
+        sj = sim_judge(model, cx.apply_all(judge_record, fixes))
         e1 = sj.voltage_v[judge_start:][keep] - vj
-        sf = sj if same else sim_fit(model)
-        fit_mae1 = _mae(sf.voltage_v[:fit_stop] - fit_series.voltage_v[:fit_stop])
-        return model, sj, e1, _mae(e1), fit_mae1
+        sf = sj if same else sim_fit(model, cx.apply_all(fit_record, fixes))
+        ef = sf.voltage_v[:fit_stop] - fit_record.voltage_v[:fit_stop]
+        return model, sj, e1, _mae(e1), _mae(ef), ef
 
-    def fitted(layout, starts_native, fixed, base=None):
+    def fit_data_for(fixes):
+        return decimate(cx.apply_all(fit_record, fixes).slice(0, fit_stop), factor)
+
+    def fitted(layout, starts_native, fixed, base=None, fixes=None):
         """Fit the free parameters of the last layout entry (and of any other entry
-        that has specs) from the best of the starts; returns the effects."""
+        that has specs) from the best of the starts, on the record with ``fixes``
+        (default: the faults found so far) corrected; returns the effects."""
         name, _, specs = layout[-1]
-        prob = _Problem((base or base_model).with_effects(()), fit_data, soc0,
+        prob = _Problem(cx.corrected_model(base or base_model,
+                                           applied if fixes is None else fixes
+                                           ).with_effects(()),
+                        fit_data if fixes is None else fit_data_for(fixes), soc0,
                         layout[:-1] + [(name, dict(starts_native[0], **fixed), specs)])
         z_starts = []
         for st in starts_native:
@@ -470,35 +484,41 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
         tried = []
         for name in order:
             t0 = _time.perf_counter()
-            specs = _specs(name, base_model, ctx)
-            fixed = _fixed(name, ctx)
-            starts = _starts(name, sigs[name], ctx, specs)
             # the effects added so far keep their parameters while a candidate is fitted
             layout = fixed_effects + [(n, dict(v), {}) for n, v, _ in added]
             if name in refits and name not in refitted:
                 refitted[name] = refits[name]()
-            new_base = None
+            new_base = corr = None
             try:
-                if refitted.get(name) is not None:
+                if name in cx.CORRECTION_TYPES:
+                    corr = cx.fit(name, current, fit_data, soc0, rows, cap_scale, f_scale,
+                                  max_nfev, ctx["t_ref_c"])
+                    specs = cx.specs(name, base_model.capacity_ah)
+                    vals = [dict(v) for _, v, _ in layout] + [corr.params()]
+                    effects = list(current.effects)
+                elif refitted.get(name) is not None:
                     new_base, effect, note = refitted[name]
                     specs = {}
                     vals = [dict(v) for _, v, _ in layout] + [effect.params()]
                     effects = list(current.effects) + [effect]
                 else:
-                    vals, effects = fitted(layout + [(name, None, specs)], starts, fixed)
+                    specs, fixed = _specs(name, base_model, ctx), _fixed(name, ctx)
+                    vals, effects = fitted(layout + [(name, None, specs)],
+                                           _starts(name, sigs[name], ctx, specs), fixed)
             except (ValueError, ArithmeticError, RuntimeError) as exc:
                 cands.append(Candidate(rnd, name, None, float("nan"), float("nan"), float("nan"),
                                        float("nan"), float("nan"), False,
                                        _time.perf_counter() - t0, f"fit failed: {exc}"))
                 continue
-            model, sj, e1, mae1, fit_mae1 = judged(effects, new_base)
+            model, sj, e1, mae1, fit_mae1, ef1 = judged(
+                effects, new_base, None if corr is None else applied + [corr])
             if name == fx.Hysteresis.name and pulse_refit is not None and base_model is base0:
                 alt = hysteresis_on_refitted_base(
                     pulse_refit, base0.ocv, effects[-1],
                     lambda b, start: refit_on(b, layout, name, start))
                 if alt is not None and alt[2][1][4] < fit_mae1:
                     new_base, base_notes[name] = alt[0], alt[1]
-                    (vals, effects, specs), (model, sj, e1, mae1, fit_mae1) = alt[2]
+                    (vals, effects, specs), (model, sj, e1, mae1, fit_mae1, ef1) = alt[2]
             d = np.abs(e_cur) - np.abs(e1)
             d = np.where(np.isfinite(d), d, 0.0)
             low = block_bootstrap_low(d, block, confidence, seed=seed + rnd)
@@ -520,14 +540,15 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
                 why = f"held-out gain below {floor_v * 1e3:.2f} mV (noise level)"
             else:
                 why = f"held-out gain {100 * rel:.1f} % < {100 * min_rel_gain:.0f} %"
-            new = effects[-1]
+            new = corr if corr is not None else effects[-1]
             cands.append(Candidate(rnd, name, new, fit_mae1, mae1, gain, rel, low, ok,
                                    _time.perf_counter() - t0, why))
             say(f"round {rnd} {name}: held-out MAE {mae1 * 1e3:.2f} mV (gain "
                 f"{gain * 1e3:.2f} mV, {100 * rel:.1f} %, lower bound {low * 1e3:.2f} mV), "
                 f"fit MAE {fit_mae1 * 1e3:.2f} mV [{_time.perf_counter() - t0:.1f} s] "
                 f"{new.summary()}")
-            tried.append((ok, mae1, name, vals, specs, model, sj, e1, low, fit_mae1, new_base))
+            tried.append((ok, mae1, name, vals, specs, model, sj, e1, low, fit_mae1, new_base,
+                          new, ef1))
         passing = [c for c in tried if c[0]]
         if not passing:
             break
@@ -543,14 +564,24 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
             # wins over one on the base as it is only by the held-out test any candidate
             # must pass
             passing.insert(0, plain[0])
-        _, mae1, name, vals, specs, model, sj, e1, low, fit_mae1, new_base = passing[0]
+        _, mae1, name, vals, specs, model, sj, e1, low, fit_mae1, new_base, new, ef1 = passing[0]
+        # the others that passed are judged again at the end, each in the winner's place
+        # among all that was added (a winner on a refitted base: its look-alikes here)
+        alikes.append((lookalikes(passing, block, confidence, seed + rnd) if new_base
+                       is not None else rivals(passing), new_base is not None))
         if new_base is not None:
             # the effect came with its own base tables: later candidates build on them
             base_model = new_base
             notes.append(base_notes.get(name) or refitted[name][2])
         n_fixed = len(fixed_effects)
-        new_added = [(n, v, sp) for (n, _, sp), v in
-                     zip(added + [(name, None, specs)], vals[n_fixed:])]
+        if name in cx.CORRECTION_TYPES:
+            # a fault of the record: the data corrected, later candidates fitted on it
+            applied.append(new)
+            fit_data = fit_data_for(applied)
+            new_added = [(n, v, sp) for (n, _, sp), v in zip(added, vals[n_fixed:])]
+        else:
+            new_added = [(n, v, sp) for (n, _, sp), v in
+                         zip(added + [(name, None, specs)], vals[n_fixed:])]
         if added:
             # refit all added effects jointly, from where they are; kept if the held-out
             # error does not get worse
@@ -564,16 +595,18 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
                 bound_j = any(_on_bound(v, sp) for (_, _, sp), v in
                               zip(new_added, vals_j[n_fixed:]))
                 if judged_j[3] <= mae1 and not bound_j:
-                    model, sj, e1, mae1, fit_mae1 = judged_j
+                    model, sj, e1, mae1, fit_mae1, ef1 = judged_j
                     new_added = [(n, v, sp) for (n, _, sp), v in
                                  zip(new_added, vals_j[n_fixed:])]
                     say(f"joint refit: held-out MAE {mae1 * 1e3:.2f} mV")
             except (ValueError, ArithmeticError, RuntimeError):
                 pass
         added = new_added
-        steps.append(DiagnoseStep(name, model.effects[-1], mae_cur, mae1, low))
+        steps.append(DiagnoseStep(name, new if name in cx.CORRECTION_TYPES
+                                  else model.effects[-1], mae_cur, mae1, low))
         say(f"added {name}: held-out MAE {mae_cur * 1e3:.2f} -> {mae1 * 1e3:.2f} mV")
         current, e_cur, mae_cur, judge_sim, fit_mae_cur = model, e1, mae1, sj, fit_mae1
+        ef_cur = ef1
         order = [n for n in order if n != name]
 
     # each step reports the effect as it is in the final model (parameters refitted jointly)
@@ -583,6 +616,7 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
         notes.append(f"fit on {len(fit_data)} samples (block averages of {factor})")
     misfit = None if pulse_refit is None else pulse_refit.rms_v
     not_named: tuple = ()
+    cannot_tell: list = []
     if steps and misfit is not None and mae_cur > UNEXPLAINED_RATIO * explained_floor(noise,
                                                                                       misfit):
         # what was added lowers the error but does not explain it: naming it would send a
@@ -592,14 +626,60 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
         say(f"not named: {', '.join(st.name for st in not_named)} left "
             f"{not_named[-1].mae_after_v * 1e3:.2f} mV, above {UNEXPLAINED_RATIO:g}x "
             f"max(noise, the base's misfit on its pulse test)")
+
+    def swapped(k, other):
+        """(held-out error, fit part's error) with step k's effect replaced by ``other``,
+        refitted with the other effects added (a fault of the record: fitted with them as
+        they are, then they refitted on the record it corrects); None where a fit fails or
+        ends on a bound."""
+        drop = steps[k].name
+        fixes = [c for c in applied if c.name != drop]
+        kept = [e for e in current.effects if e.name != drop]
+        layout = fixed_effects + [(n, dict(v), sp) for n, v, sp in added if n != drop]
+        try:
+            if other in cx.CORRECTION_TYPES:
+                corr = cx.fit(other, cx.corrected_model(base_model, fixes).with_effects(kept),
+                              fit_data_for(fixes), soc0, rows, cap_scale, f_scale, max_nfev,
+                              ctx["t_ref_c"])
+                if _on_bound(corr.params(), cx.specs(other, base_model.capacity_ah)):
+                    return None
+                fixes = fixes + [corr]
+                if any(sp for _, _, sp in layout):
+                    vals, kept = fitted(layout, [layout[-1][1]], {}, fixes=fixes)
+                    if any(_on_bound(v, sp) for (_, _, sp), v in zip(layout, vals)):
+                        return None
+                return judged(kept, None, fixes)[2::3]
+            specs = _specs(other, base_model, ctx)
+            layout = layout + [(other, None, specs)]
+            vals, effects = fitted(layout, _starts(other, sigs[other], ctx, specs),
+                                   _fixed(other, ctx), fixes=fixes)
+        except (ValueError, ArithmeticError, RuntimeError):
+            return None
+        if any(_on_bound(v, sp) for (_, _, sp), v in zip(layout, vals)):
+            return None
+        return judged(effects, None, fixes)[2::3]
+
+    if steps:
+        cannot_tell = told_apart(steps, alikes, swapped, (e_cur, ef_cur), block, confidence,
+                                 seed)
+        for group in cannot_tell:
+            say(f"{' or '.join(group)}: the data cannot tell them apart")
+    if cannot_tell:
+        # nothing named singly: model.json is the base (what was named beside them was
+        # fitted with one of them)
+        left_v = mae_cur
+        current, mae_cur, fit_mae_cur, judge_sim = base0, mae0, fit_mae0, base_judge_sim
+        tied = {n for g in cannot_tell for n in g}
+        steps = [st for st in steps if st.name not in tied]
     return DiagnoseResult(
         base_model=base0, model=current, steps=tuple(steps), candidates=tuple(cands),
         signatures=sigs, mae_before_v=mae0, mae_after_v=mae_cur, fit_mae_before_v=fit_mae0,
-        fit_mae_after_v=fit_mae_cur, noise_v=noise, split=split_words, fit_series=fit_series,
-        judge_series=judge, fit_stop=fit_stop, judge_start=judge_start, soc0=soc0,
+        fit_mae_after_v=fit_mae_cur, noise_v=noise, split=split_words, fit_series=fit_record,
+        judge_series=judge_record, fit_stop=fit_stop, judge_start=judge_start, soc0=soc0,
         judge_soc0=judge_soc0, base_fit_sim=base_fit_sim, base_judge_sim=base_judge_sim,
         judge_sim=judge_sim, seconds=_time.perf_counter() - t_start, notes=tuple(notes),
-        misfit_v=misfit, not_named=not_named)
+        misfit_v=misfit, not_named=not_named, cannot_tell=tuple(cannot_tell),
+        cannot_tell_mae_v=left_v if cannot_tell else None)
 
 
 # -- the [diagnose] section of the build config ----------------------------------------------
@@ -620,7 +700,7 @@ def diagnose_options(table, path=None) -> dict:
         base = "out/model.json"   # the model to start from (default: the base fitted
                                   # from the config's data, the plain 2RC)
         split = 0.6               # fraction of data.cycle that is fitted without a judge
-        effects = ["hysteresis", "extra_rc"]   # candidates (default: all five)
+        effects = ["hysteresis", "extra_rc"]   # candidates (default: all eight)
         max_effects = 4
         min_rel_gain = 0.08       # held-out MAE must fall by at least this fraction
         confidence = 0.99         # of the block-bootstrap bound on the held-out gain
@@ -657,12 +737,12 @@ def diagnose_options(table, path=None) -> dict:
         out["split"] = number("split", 0.1, 0.9)
     if "effects" in table:
         eff = table["effects"]
-        if not isinstance(eff, list) or not eff or any(e not in fx.EFFECT_TYPES for e in eff):
+        if not isinstance(eff, list) or not eff or any(e not in CANDIDATE_NAMES for e in eff):
             raise InputError(path, f"diagnose.effects must be a non-empty list from "
-                                   f"{list(fx.EFFECT_NAMES)}, got {eff!r}")
+                                   f"{list(CANDIDATE_NAMES)}, got {eff!r}")
         out["candidates"] = tuple(eff)
     if "max_effects" in table:
-        out["max_effects"] = number("max_effects", 1, len(fx.EFFECT_NAMES), integer=True)
+        out["max_effects"] = number("max_effects", 1, len(CANDIDATE_NAMES), integer=True)
     if "min_rel_gain" in table:
         out["min_rel_gain"] = number("min_rel_gain", 0.0, 0.9)
     if "confidence" in table:

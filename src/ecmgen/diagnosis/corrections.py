@@ -1,0 +1,230 @@
+"""Candidates of ``diagnose`` that are faults of the record or of its OCV table, not effects
+of the model: a current sensor's offset and gain, an OCV table that is off, and one that
+lacks the OCV's move with temperature. Each looks like a model effect on
+a cycle (a gain or an OCV table's SOC scale moves the SOC as a capacity error does; an OCV
+offset or an offset current shifts the voltage as a hysteresis band can), so diagnose
+fits them as candidates beside the effects and names one only where the held-out test
+tells it from the rest.
+
+A sensor fault is corrected in the data, never in the model (model.json and the C stay
+as they are; the verdict says how the current reads). An OCV error corrects the OCV table
+model.json carries (and an entropic term makes it an OCV over temperature). Measured =
+what the logger wrote:
+
+- ``current_offset``  measured current = true + offset_a
+- ``current_gain``    measured current = true * (1 + gain)
+- ``ocv_error``       true OCV(soc) = table(1 - (1 - soc) * soc_scale) + offset_v (the
+                      SOC scale anchored at full, where a charge ends)
+- ``entropic_ocv``    the table lacks the OCV's move with temperature: true OCV(soc, T) =
+                      table(soc) + dOCV/dT(soc) (T - t_ref_c), dOCV/dT linear between its
+                      values at ENTROPIC_SOC (a shape the record's SOC range can pin down
+                      where it goes, and leaves at 0 where it does not); model.json carries
+                      it as an OCV over temperature (rows at ENTROPIC_T_C, linear between)
+
+Each has a few parameters: they are fitted by scipy's bounded least squares (the
+soft-L1 loss of the effects' fits) on the simulator itself, with finite differences.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+from typing import ClassVar
+
+import numpy as np
+
+from ..data.measure import TimeSeries
+from ..model.model import EcmModel, OcvOverTemperature
+from ..model.simulate import simulate
+from .problems import _Spec
+
+
+class _Correction:
+    name: ClassVar[str] = ""
+    kind: ClassVar[str] = ""          # "sensor" (the data corrected) or "ocv" (the table)
+
+    def params(self) -> dict[str, float]:
+        return {f.name: float(getattr(self, f.name)) for f in fields(self)}
+
+    def summary(self) -> str:
+        return f"{self.name}(" + ", ".join(f"{k}={v:.4g}" for k, v in self.params().items()) + ")"
+
+
+@dataclass(frozen=True)
+class CurrentOffset(_Correction):
+    offset_a: float
+    name: ClassVar[str] = "current_offset"
+    kind: ClassVar[str] = "sensor"
+
+    def words(self) -> str:
+        return f"the current reads {1e3 * self.offset_a:+.0f} mA off (an offset at any current)"
+
+
+@dataclass(frozen=True)
+class CurrentGain(_Correction):
+    gain: float
+    name: ClassVar[str] = "current_gain"
+    kind: ClassVar[str] = "sensor"
+
+    def words(self) -> str:
+        return (f"the current reads {100 * abs(self.gain):.1f} % "
+                f"{'high' if self.gain > 0 else 'low'}")
+
+
+@dataclass(frozen=True)
+class OcvError(_Correction):
+    offset_v: float
+    soc_scale: float
+    name: ClassVar[str] = "ocv_error"
+    kind: ClassVar[str] = "ocv"
+
+    def words(self) -> str:
+        return (f"the OCV table is off: {1e3 * self.offset_v:+.1f} mV and its SOC axis "
+                f"scaled by {self.soc_scale:.3f} from full")
+
+
+@dataclass(frozen=True)
+class EntropicOcv(_Correction):
+    at0_v_per_k: float
+    at25_v_per_k: float
+    at50_v_per_k: float
+    at75_v_per_k: float
+    at100_v_per_k: float
+    t_ref_c: float
+    name: ClassVar[str] = "entropic_ocv"
+    kind: ClassVar[str] = "ocv"
+
+    def words(self) -> str:
+        return (f"the OCV moves with temperature: {1e3 * self.at50_v_per_k:+.3f} mV/K at 50 % "
+                "SOC")
+
+    def d_v_per_k(self, soc) -> np.ndarray:
+        return np.interp(soc, ENTROPIC_SOC, [getattr(self, k) for k in ENTROPIC_KEYS])
+
+
+# the temperature rows of an OCV with an entropic term (linear between: a cell's range), and
+# the SOC nodes of its dOCV/dT
+ENTROPIC_T_C = (-40.0, 80.0)
+ENTROPIC_SOC = (0.0, 0.25, 0.5, 0.75, 1.0)
+ENTROPIC_KEYS = ("at0_v_per_k", "at25_v_per_k", "at50_v_per_k", "at75_v_per_k",
+                 "at100_v_per_k")
+
+CORRECTION_TYPES: dict[str, type] = {c.name: c for c in (CurrentOffset, CurrentGain, OcvError,
+                                                          EntropicOcv)}
+CORRECTION_NAMES: tuple[str, ...] = tuple(CORRECTION_TYPES)
+
+def specs(name: str, capacity_ah: float) -> dict[str, _Spec]:
+    """Free parameters and bounds: beyond them the fault is not a sensor's or a table's
+    (a 20 % gain, an offset of 5 % of 1C, 50 mV or a 20 % SOC scale are a wrong record)."""
+    if name == CurrentOffset.name:
+        q = 0.05 * capacity_ah
+        return {"offset_a": _Spec(-q, q, False, limit_lo=True, limit_hi=True)}
+    if name == CurrentGain.name:
+        return {"gain": _Spec(-0.2, 0.2, False, limit_lo=True, limit_hi=True)}
+    if name == OcvError.name:
+        return {"offset_v": _Spec(-0.05, 0.05, False, limit_lo=True, limit_hi=True),
+                "soc_scale": _Spec(0.8, 1.25, False, limit_lo=True, limit_hi=True)}
+    if name == EntropicOcv.name:
+        # the entropic dOCV/dT of Li-ion cells is within a mV/K at any SOC
+        return {k: _Spec(-1.5e-3, 1.5e-3, False, limit_lo=True, limit_hi=True)
+                for k in ENTROPIC_KEYS}
+    raise ValueError(name)
+
+
+def applicable(name: str, model: EcmModel, temperature_applies: bool) -> bool:
+    """An entropic term needs a record whose temperature moves and an OCV table without a
+    temperature axis; the others apply to any record."""
+    if name == EntropicOcv.name:
+        return temperature_applies and model.ocv.n_temperatures == 1
+    return True
+
+
+def corrected_series(series: TimeSeries, corr: _Correction) -> TimeSeries:
+    """The record with a sensor fault taken out (an OCV error leaves it as it is)."""
+    q = series.charge_ah
+    if isinstance(corr, CurrentOffset):
+        if q is not None:
+            q = q - corr.offset_a * (series.time_s - series.time_s[0]) / 3600.0
+        return replace(series, current_a=series.current_a - corr.offset_a, charge_ah=q)
+    if isinstance(corr, CurrentGain):
+        return replace(series, current_a=series.current_a / (1.0 + corr.gain),
+                       charge_ah=None if q is None else q / (1.0 + corr.gain))
+    return series
+
+
+def apply_all(series: TimeSeries, corrections) -> TimeSeries:
+    """The record with every sensor fault among ``corrections`` taken out, in order."""
+    for corr in corrections:
+        series = corrected_series(series, corr)
+    return series
+
+
+def corrected_model(model: EcmModel, corrections) -> EcmModel:
+    """The model with its OCV table corrected by the ``ocv_error`` among ``corrections``
+    (on the table's own SOC grid, each row kept non-decreasing)."""
+    for corr in corrections:
+        if isinstance(corr, EntropicOcv):
+            o = model.ocv
+            d_v_per_k = corr.d_v_per_k(o.soc)
+            rows = [np.maximum.accumulate(o.ocv_v[0] + d_v_per_k * (t - corr.t_ref_c))
+                    for t in ENTROPIC_T_C]
+            model = replace(model, ocv=OcvOverTemperature(np.array(ENTROPIC_T_C), o.soc,
+                                                          np.vstack(rows)))
+        if isinstance(corr, OcvError):
+            o = model.ocv
+            shifted = 1.0 - (1.0 - o.soc) * corr.soc_scale
+            rows = [o.ocv_at(shifted, None if o.n_temperatures == 1 else o.temperature_c[k])
+                    + corr.offset_v for k in range(o.n_temperatures)]
+            rows = [np.maximum.accumulate(r) for r in rows]
+            model = replace(model, ocv=OcvOverTemperature(o.temperature_c, o.soc,
+                                                          np.vstack(rows)))
+    return model
+
+
+def starts(name: str, capacity_scale: float) -> list[dict[str, float]]:
+    """Starting values: neutral, and where SOC moves as the capacity signature implies."""
+    k = float(np.clip(capacity_scale, 0.85, 1.15))
+    if name == CurrentOffset.name:
+        return [{"offset_a": 0.0}]
+    if name == CurrentGain.name:
+        return [{"gain": 0.0}, {"gain": k - 1.0}]
+    if name == EntropicOcv.name:
+        return [dict.fromkeys(ENTROPIC_KEYS, 0.0)]
+    return [{"offset_v": 0.0, "soc_scale": 1.0}, {"offset_v": 0.0, "soc_scale": 1.0 / k}]
+
+
+def fit(name: str, model: EcmModel, data: TimeSeries, soc0: float, rows: np.ndarray,
+        capacity_scale: float, f_scale: float, max_nfev: int = 40,
+        t_ref_c: float = 25.0) -> _Correction:
+    """The correction ``name`` that best fits ``data`` (its ``rows``) with ``model``
+    (an entropic term about ``t_ref_c``)."""
+    from scipy.optimize import least_squares
+
+    sp = specs(name, model.capacity_ah)
+    keys = list(sp)
+    lo = np.array([sp[k].lo for k in keys])
+    hi = np.array([sp[k].hi for k in keys])
+    span = hi - lo
+    cls = CORRECTION_TYPES[name]
+
+    fixed = {"t_ref_c": t_ref_c} if name == EntropicOcv.name else {}
+
+    def make(z):
+        return cls(**dict(zip(keys, lo + span * np.asarray(z, dtype=np.float64))), **fixed)
+
+    def residual(z):
+        corr = make(z)
+        s = corrected_series(data, corr)
+        sim = simulate(corrected_model(model, [corr]), s.time_s, s.current_a, soc0,
+                       s.temperature_c)
+        r = (sim.voltage_v - data.voltage_v)[rows]
+        return np.where(np.isfinite(r), r, 1.0)
+
+    best = None
+    for st in starts(name, capacity_scale):
+        z0 = np.clip((np.array([st[k] for k in keys]) - lo) / span, 1e-6, 1 - 1e-6)
+        sol = least_squares(residual, z0, bounds=(0.0, 1.0), method="trf", loss="soft_l1",
+                            f_scale=f_scale, max_nfev=max_nfev, diff_step=1e-4,
+                            xtol=1e-8, ftol=1e-8)
+        if best is None or sol.cost < best.cost:
+            best = sol
+    return make(best.x)
