@@ -738,13 +738,14 @@ def _diffusion_on_bound(prob: _Problem, ranges: dict, taus: dict, fit: tuple, no
     taus2, _, _, n_eval, more = _cr.remembered(_search, prob, two)
     z, lam, cv = _held_out(prob, list(two), taus2)
     prob.penalty, prob.cv_sse = lam, cv
-    x, cost = _solve_at(prob, list(two), taus2, z)
     where = f"{taus['diff']:.3g} s, on its bound ({lo:.3g} .. {hi:.3g} s)"
     r_diff = fit[0][prob.layout(list(ranges))["start"]["diff"]:][:prob.ndir]
     lower = taus["diff"] <= lo * 1.01
     better = with_diff[4] < (1.0 - CV_TIE) * cv and np.all(r_diff > 0)
-    drift = None if lower else rests_still_relax(prob.rec, prob.rows,
-                                                 (prob.yw - z[0] @ x) / prob.w)
+    two_fit = drift = None
+    if not lower:       # the rests judged on the two pairs' residual
+        two_fit = _solve_at(prob, list(two), taus2, z)
+        drift = rests_still_relax(prob.rec, prob.rows, (prob.yw - z[0] @ two_fit[0]) / prob.w)
     ratio = f"({with_diff[4] / cv:.3g} x their error)"
     if better and (lower or drift.shown):
         taus, x, cost, prob.penalty, prob.cv_sse = with_diff
@@ -755,6 +756,7 @@ def _diffusion_on_bound(prob: _Problem, ranges: dict, taus: dict, fit: tuple, no
                         f"{drift.words()}, and the pair predicts a left-out level better "
                         f"{ratio}: kept there, a lower bound on its time constant"))
         return taus, x, cost, n_eval, ranges
+    x, cost = two_fit if two_fit is not None else _solve_at(prob, list(two), taus2, z)
     notes.extend(more)
     why = ("it predicts a left-out level no better than the two pairs alone" if lower else
            f"the test does not resolve it ({drift.words()}"
