@@ -56,9 +56,10 @@ __all__ = ["C_EFFECTS", "NUMERICS", "CDir", "CGrid", "CSpec", "c_float", "descri
            "_as_model"]
 
 # the runtime headers a model's .c needs, the one it includes last
-RUNTIME_FILES = {"float": ("ecmrt.h", "ecmrt_config.h", "ecmrt_state.h", "ecmrt_f32.h"),
+RUNTIME_FILES = {"float": ("ecmrt.h", "ecmrt_config.h", "ecmrt_state.h", "ecmrt_f32_step.h",
+                           "ecmrt_f32.h"),
                  "fixed": ("ecmrt.h", "ecmrt_config.h", "ecmrt_state.h", "ecmrt_q_exp.h",
-                           "ecmrt_q.h")}
+                           "ecmrt_q_step.h", "ecmrt_q.h")}
 
 
 def prepare(model, numeric: str = "float", dt_s: float | None = None, prefix: str = "ecm",

@@ -1,9 +1,10 @@
 """Python references of exactly what the generated C computes.
 
-``simulate_f32``    float32, operation for operation as ``c_runtime/ecmrt_f32.h``
+``simulate_f32``    float32, operation for operation as ``c_runtime/ecmrt_f32_step.h`` (its
+                    units by the same names; the maths in :mod:`ecmgen.c.cref_math`)
                     (numpy float32 arithmetic is IEEE binary32 with one rounding per
                     operation, as is the C built with -ffp-contract=off);
-``simulate_fixed``  bit-true integers (numpy int64 / Python int) as ``c_runtime/ecmrt_q.h``,
+``simulate_fixed``  bit-true integers (numpy int64 / Python int) as ``c_runtime/ecmrt_q_step.h``,
                     with the same rounding (half up) and saturation.
 
 Both read a :class:`ecmgen.c.spec.CSpec` - the very numbers written into the C - so a
@@ -18,27 +19,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .cref_math import (  # noqa: F401  (the float32 maths, re-exported)
+    F_INVLN2, F_LN2_HI, F_LN2_LO, F_TAYLOR, F_XMAX, F_HALF_LN2, F_SERIES_X, F_SMALL, F_KELVIN,
+    F_ARR_T, F_SQRT_MAGIC, F_LOG1P_SPLIT, F_SQRT2, F_ATANH, F_X_MIN, _exp_neg_parts_f32,
+    one_minus_exp_neg_f32, arrhenius_f32, sqrt_f32, log1p_f32, asinh_f32, cdr_factor_f32)
 from .qformat import DT_MAX_S, Q30, Q_D, Q_TEMP, SOC_LIM, quantize, rate_q, recip_q  # noqa: F401
 from .spec import CSpec
+
 
 F32 = np.float32
 PARAMS = ("r0", "r_fast", "r_slow", "k_fast", "k_slow")
 RESISTANCES = ("r0", "r_fast", "r_slow")
-
-# --- constants of ecmrt_f32.h (same decimal text, hence the same float32) -------------
-F_INVLN2 = F32("1.44269502")
-F_LN2_HI = F32("0.693145752")
-F_LN2_LO = F32("1.42860677e-06")
-F_TAYLOR = tuple(F32(s) for s in ("1.98412701e-04", "1.38888892e-03", "8.33333377e-03",
-                                  "4.16666679e-02", "1.66666672e-01", "0.5", "1.0"))
-F_XMAX = F32(87.0)
-F_HALF_LN2 = F32("0.346573591")
-F_SERIES_X = F32("0.25")           # bits 0x3E800000: below, the polynomial F_SMALL
-# 1 - exp(-x) = x (1 - b1 x + b2 x^2 - b3 x^3 + b4 x^4) on [0, 1/4]: (b4, b3, b2, b1)
-F_SMALL = tuple(F32(s) for s in ("7.53017003e-03", "4.15001325e-02", "1.66652888e-01",
-                                 "4.99999642e-01"))
-F_KELVIN = F32("273.149994")
-F_ARR_T = (F32(-40.0), F32(85.0))
 
 # --- constants of ecmrt_q.h --------------------------------------------------------------
 ONE30 = 1 << 30
@@ -104,112 +95,6 @@ def _temperatures(spec: CSpec, temperature_c, n: int, dtype):
 # =====================================================================================
 # float32
 # =====================================================================================
-
-def _exp_neg_parts_f32(x):
-    """ecmrt_f32_exp_neg_parts: (q, s) with exp(-x) = s (1 + q), 0 <= x < 87."""
-    x = np.asarray(x, dtype=F32)
-    with np.errstate(all="ignore"):
-        n = np.where(x < F_HALF_LN2, 0, (x * F_INVLN2 + F32(0.5)).astype(np.int32))
-        n = np.where((x >= 0) & (x < F_XMAX), n, 0).astype(np.int32)
-        fn = n.astype(F32)
-        r = np.where(n == 0, x, (x - fn * F_LN2_HI) - fn * F_LN2_LO).astype(F32)
-        t = -r
-        q = np.full_like(t, F_TAYLOR[0])
-        for c in F_TAYLOR[1:]:
-            q = c + t * q
-        q = t * q
-    return q.astype(F32), np.ldexp(F32(1.0), -n).astype(F32)
-
-
-def one_minus_exp_neg_f32(x) -> np.ndarray:
-    """ecmrt_f32_one_minus_exp_neg: 1 - exp(-x) for float32 x >= 0."""
-    x = np.asarray(x, dtype=F32)
-    q, s = _exp_neg_parts_f32(x)
-    with np.errstate(all="ignore"):
-        out = (F32(1.0) - s) - s * q
-        # +0 <= x < 1/4: the minimax polynomial, as in C
-        b4, b3, b2, b1 = F_SMALL
-        q = x * b4 - b3
-        q = x * q + b2
-        q = x * q - b1
-        q = x * q + F32(1.0)
-        small = x * q
-    out = np.where((x < F_SERIES_X) & (x >= 0), small, out)    # -0 and x < 0 give 0 below
-    out = np.where(x >= F_XMAX, F32(1.0), out)
-    return np.where(x > 0, out, F32(0.0)).astype(F32)
-
-
-def arrhenius_f32(temp, a_k, a_inv_ref) -> np.ndarray:
-    """ecmrt_f32_arrhenius: exp(a_k (1/(T + 273.15) - inv_ref)), T saturated to [-40, 85]."""
-    t = np.asarray(temp, dtype=F32)
-    t = np.where(t >= F_ARR_T[0], t, F_ARR_T[0])
-    t = np.where(t > F_ARR_T[1], F_ARR_T[1], t).astype(F32)
-    y = ((F32(1.0) / (t + F_KELVIN)) - F32(a_inv_ref)) * F32(a_k)
-    pos = y > 0
-    q, s = _exp_neg_parts_f32(np.where(pos, y, -y))
-    e = s + s * q
-    with np.errstate(all="ignore"):
-        return np.where(pos, F32(1.0) / e, e).astype(F32)
-
-
-# --- asinh (ecmrt_f32.h, effects and Butler-Volmer) ----------------------------------------
-F_SQRT_MAGIC = np.uint32(0x1FBD1DF5)
-F_LOG1P_SPLIT = F32("0.414213568")
-F_SQRT2 = F32("1.41421354")
-F_ATANH = tuple(F32(s) for s in ("0.0769230798", "0.0909090936", "0.111111112", "0.142857149",
-                                 "0.200000003", "0.333333343"))
-F_X_MIN = F32("1.0e-12")
-
-
-def sqrt_f32(w) -> np.ndarray:
-    """ecmrt_f32_sqrt: bit-trick start and four Newton steps, for 1 <= w and 1e-12 < w <= 1."""
-    w = np.asarray(w, dtype=F32)
-    r = ((w.view(np.uint32) >> np.uint32(1)) + F_SQRT_MAGIC).astype(np.uint32).view(F32)
-    half = F32(0.5)
-    for _ in range(4):
-        r = half * (r + w / r)
-    return r.astype(F32)
-
-
-def log1p_f32(y) -> np.ndarray:
-    """ecmrt_f32_log1p: log(1 + y) for y >= 0."""
-    y = np.atleast_1d(np.asarray(y, dtype=F32))
-    z = (F32(1.0) + y).astype(F32)
-    zb = z.view(np.uint32)
-    n = ((zb >> np.uint32(23)) & np.uint32(0xFF)).astype(np.int32) - 127
-    m = ((zb & np.uint32(0x007FFFFF)) | np.uint32(0x3F800000)).astype(np.uint32).view(F32)
-    big = m > F_SQRT2
-    m = np.where(big, m * F32(0.5), m).astype(F32)
-    n = np.where(big, n + 1, n)
-    f = (m - F32(1.0)).astype(F32)
-    small = y < F_LOG1P_SPLIT
-    f = np.where(small, y, f).astype(F32)
-    n = np.where(small, 0, n).astype(np.int32)
-    t = f / (F32(2.0) + f)
-    t2 = t * t
-    p = np.full_like(t, F_ATANH[0])
-    for c in F_ATANH[1:]:
-        p = c + t2 * p
-    tt = F32(2.0) * t
-    p = tt + tt * (t2 * p)
-    fn = n.astype(F32)
-    big_out = (fn * F_LN2_HI + p) + fn * F_LN2_LO
-    return np.where(n == 0, p, big_out).astype(F32)
-
-
-def asinh_f32(x):
-    """ecmrt_f32_asinh: (asinh(x'), x') with x' = max(x, 1e-12)."""
-    x = np.asarray(x, dtype=F32)
-    x = np.where(x > F_X_MIN, x, F_X_MIN).astype(F32)
-    x2 = x * x
-    return log1p_f32(x + x2 / (sqrt_f32(x2 + F32(1.0)) + F32(1.0))), x
-
-
-def cdr_factor_f32(ai, g_scale, g_inv_i0) -> np.ndarray:
-    """current_dependent_resistance, float: scale * asinh(x) / x, x = max(|i| / i0, 1e-12)."""
-    a, x = asinh_f32(np.asarray(ai, dtype=F32) * F32(g_inv_i0))
-    return ((F32(g_scale) * a) / x).astype(F32)
-
 
 def _weight_f32(grid, v, uniform: bool = False):
     if uniform:          # ecmrt_f32_ulocate
@@ -317,6 +202,80 @@ def _u_diff_f32(spec: CSpec, per_dir, chg, i, dt, age_r=None) -> np.ndarray:
     return _rc_f32(kd, t, divide=True)
 
 
+# The step's units (c_runtime/ecmrt_f32_step.h), one per stage and effect, over the whole
+# record at once; an effect that is off leaves p as it is or gives -0.0 (NO_TERM_F32).
+NO_TERM_F32 = F32(-0.0)
+
+
+def _fx_cdr_f32(fx: dict, ai, p: dict) -> None:
+    """ecmrt_f32_fx_cdr: r0, r_fast times scale asinh(x)/x (current_dependent_resistance)."""
+    if fx.get("cdr"):
+        g = cdr_factor_f32(ai, fx["g_scale"], fx["g_inv_i0"])
+        p["r0"], p["r_fast"] = (p["r0"] * g).astype(F32), (p["r_fast"] * g).astype(F32)
+
+
+def _fx_arr_f32(fx: dict, temp, p: dict) -> None:
+    """ecmrt_f32_fx_arr: r0, r_fast, r_slow times the Arrhenius factor."""
+    if fx.get("arr"):
+        f = arrhenius_f32(temp, fx["a_k"], fx["a_inv_ref"])
+        for name in ("r0", "r_fast", "r_slow"):
+            p[name] = (p[name] * f).astype(F32)
+
+
+def _bv_f32(spec: CSpec, ai, p: dict) -> None:
+    """ecmrt_f32_bv: r_fast times asinh(x)/x, x = |i| / i0(T)."""
+    if spec.has_bv:
+        with np.errstate(all="ignore"):
+            a, x = asinh_f32(ai / p["i0"])
+            p["r_fast"] = (p["r_fast"] * (a / x)).astype(F32)
+
+
+def _age_r_f32(age_r, p: dict) -> None:
+    """ecmrt_f32_age_r: every resistance times the age's scale."""
+    if age_r is not None:
+        for name in RESISTANCES:
+            p[name] = (p[name] * age_r).astype(F32)
+
+
+def _rc_pair_f32(spec: CSpec, k, t, dt) -> np.ndarray:
+    """ECMRT_F32_ZOH with ECMRT_F32_COEF: one pair's voltage after every step, k its 1/tau or
+    c (ECMRT_TAU_T), its tau (variable dt) or its D."""
+    if spec.tau_t:
+        if spec.variable_dt:
+            with np.errstate(all="ignore"):
+                k = one_minus_exp_neg_f32(dt * k)
+        return _rc_f32(k, t)
+    if spec.variable_dt:
+        with np.errstate(all="ignore"):
+            return _rc_f32(one_minus_exp_neg_f32(dt / k), t)
+    return _rc_f32(k, t, divide=True)
+
+
+def _fx_hyst_f32(spec: CSpec, fx: dict, chg, ai, dt, out: dict):
+    """ecmrt_f32_fx_hyst: the hysteresis term (its state into out["h"])."""
+    if not fx.get("hyst"):
+        return NO_TERM_F32
+    sg = np.where(chg == 1, F32(1.0), F32(-1.0)).astype(F32)
+    x = (ai * dt) * F32(fx["h_k"]) if spec.variable_dt else ai * F32(fx["h_k"])
+    h = out["h"] = _rc_f32(one_minus_exp_neg_f32(x), sg, u0=fx["h_init"])
+    return F32(fx["h_m"]) * (h - F32(fx["h_ref"])) + F32(fx["h_m0"]) * (sg - F32(fx["h_ref"]))
+
+
+def _fx_xrc_f32(spec: CSpec, fx: dict, i, dt, out: dict):
+    """ecmrt_f32_fx_xrc: the extra pair's voltage (into out["u_x"] too)."""
+    if not fx.get("xrc"):
+        return NO_TERM_F32
+    t = F32(fx["x_r"]) * i
+    if spec.variable_dt:
+        with np.errstate(all="ignore"):
+            ux = _rc_f32(one_minus_exp_neg_f32(dt / F32(fx["x_k"])), t)
+    else:
+        ux = _rc_f32(np.full(i.size, F32(fx["x_k"]), dtype=F32), t, divide=True)
+    out["u_x"] = ux
+    return ux
+
+
+
 def simulate_f32(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0,
                  temperature_c=None, efc=None) -> RefResult:
     """Float32 reference of a numeric="float" spec. ``dt_s``: per-step dt array (variable-dt
@@ -373,67 +332,26 @@ def simulate_f32(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0,
     p = {name: _pick(chg, per_dir, name).astype(F32) for name in per_dir[0]}
     fx = spec.fx
     ai = np.abs(i).astype(F32)
-    if fx.get("cdr"):
-        g = cdr_factor_f32(ai, fx["g_scale"], fx["g_inv_i0"])
-        p["r0"], p["r_fast"] = (p["r0"] * g).astype(F32), (p["r_fast"] * g).astype(F32)
-    if fx.get("arr"):
-        f = arrhenius_f32(temp, fx["a_k"], fx["a_inv_ref"])
-        for name in ("r0", "r_fast", "r_slow"):
-            p[name] = (p[name] * f).astype(F32)
-    if spec.has_bv:
-        with np.errstate(all="ignore"):
-            a, x = asinh_f32(ai / p["i0"])
-            p["r_fast"] = (p["r_fast"] * (a / x)).astype(F32)
-    if age_r is not None:
-        for name in RESISTANCES:
-            p[name] = (p[name] * age_r).astype(F32)
-    if spec.tau_t:
-        if spec.variable_dt:
-            with np.errstate(all="ignore"):
-                cf = one_minus_exp_neg_f32(dt * p["k_fast"])
-                cs = one_minus_exp_neg_f32(dt * p["k_slow"])
-        else:
-            cf, cs = p["k_fast"], p["k_slow"]
-        uf = _rc_f32(cf, p["r_fast"] * i)
-        us = _rc_f32(cs, p["r_slow"] * i)
-    elif spec.variable_dt:
-        with np.errstate(all="ignore"):
-            cf = one_minus_exp_neg_f32(dt / p["k_fast"])
-            cs = one_minus_exp_neg_f32(dt / p["k_slow"])
-        uf = _rc_f32(cf, p["r_fast"] * i)
-        us = _rc_f32(cs, p["r_slow"] * i)
-    else:
-        uf = _rc_f32(p["k_fast"], p["r_fast"] * i, divide=True)
-        us = _rc_f32(p["k_slow"], p["r_slow"] * i, divide=True)
+    # 3'. parameter effects, in ecmrt_f32_step's order
+    _fx_cdr_f32(fx, ai, p)
+    _fx_arr_f32(fx, temp, p)
+    _bv_f32(spec, ai, p)
+    _age_r_f32(age_r, p)
+    # 4. the two pairs
+    uf = _rc_pair_f32(spec, p["k_fast"], p["r_fast"] * i, dt)
+    us = _rc_pair_f32(spec, p["k_slow"], p["r_slow"] * i, dt)
+    # 3''. the OCV at the mean SOC; 5. the voltage, the diffusion pair's, the effects' terms
     k, w = (_weight_f32(spec.dirs[0].grid, soc, spec.rc_uniform) if spec.ocv_shared else
             _weight_f32(spec.ocv_grid, soc, spec.ocv_uniform))
     ocv = _lerp_f32(spec.ocv, k, w, kt, wt)
     v = ((ocv + p["r0"] * i) + uf) + us
     out = {}
     if spec.diff:
-        ud = _u_diff_f32(spec, per_dir, chg, i, dt, age_r)
-        v = v + ud
-        out["u_diff"] = ud
-    if fx.get("hyst"):
-        sg = np.where(chg == 1, F32(1.0), F32(-1.0)).astype(F32)
-        x = (ai * dt) * F32(fx["h_k"]) if spec.variable_dt else ai * F32(fx["h_k"])
-        h = _rc_f32(one_minus_exp_neg_f32(x), sg, u0=fx["h_init"])
-        vh = F32(fx["h_m"]) * (h - F32(fx["h_ref"])) + F32(fx["h_m0"]) * (sg - F32(fx["h_ref"]))
-        out["h"] = h
-    if fx.get("xrc"):
-        t = F32(fx["x_r"]) * i
-        if spec.variable_dt:
-            with np.errstate(all="ignore"):
-                ux = _rc_f32(one_minus_exp_neg_f32(dt / F32(fx["x_k"])), t)
-        else:
-            ux = _rc_f32(np.full(n, F32(fx["x_k"]), dtype=F32), t, divide=True)
-        out["u_x"] = ux
-    if fx.get("hyst") and fx.get("xrc"):
-        v = v + (vh + ux)
-    elif fx.get("hyst"):
-        v = v + vh
-    elif fx.get("xrc"):
-        v = v + ux
+        out["u_diff"] = _u_diff_f32(spec, per_dir, chg, i, dt, age_r)
+        v = v + out["u_diff"]
+    vh = _fx_hyst_f32(spec, fx, chg, ai, dt, out)
+    ux = _fx_xrc_f32(spec, fx, i, dt, out)
+    v = v + (vh + ux)           # an effect that is off adds -0.0 (x + -0.0 is x, bit for bit)
     return RefResult(v.astype(F32), soc, uf, us, chg, **out)
 
 
