@@ -299,6 +299,98 @@ static inline int ecmrt_est_f32_joseph(float *P, const float *k, const float *c,
     return 1;
 }
 
+#include "ecmrt_est_f32_rows.h"   /* the model's rows of F, Q and H, one unit per state */
+
+/* P = F P F^T + Q, F = diag(a) + f e_0^T (+ o e_offset^T) (+ g e_3^T), exactly symmetric */
+static inline void ecmrt_est_f32_predict(float *P, const ecmrt_est_f32_lin_t *L)
+{
+    float fp[ECMRT_EST_N * ECMRT_EST_N];
+    unsigned u, v;
+    float r;
+    ECMRT_EST_UNROLL
+    for (u = 0u; u < ECMRT_EST_N; u++) {
+        ECMRT_EST_UNROLL
+        for (v = 0u; v < ECMRT_EST_N; v++) {
+            fp[ECMRT_EST_N * u + v] = L->a[u] * P[ECMRT_EST_N * u + v] + L->f[u] * P[v];
+#if ECMRT_EST_OFFSET
+            fp[ECMRT_EST_N * u + v] = fp[ECMRT_EST_N * u + v] + L->o[u] * P[ECMRT_EST_N * ECMRT_EST_IB + v];
+#endif
+#if ECMRT_SURFACE
+            fp[ECMRT_EST_N * u + v] = fp[ECMRT_EST_N * u + v] + L->g[u] * P[ECMRT_EST_N * 3u + v];
+#endif
+        }
+    }
+    ECMRT_EST_UNROLL
+    for (u = 0u; u < ECMRT_EST_N; u++) {
+        ECMRT_EST_UNROLL
+        for (v = u; v < ECMRT_EST_N; v++) {
+            r = L->a[v] * fp[ECMRT_EST_N * u + v] + L->f[v] * fp[ECMRT_EST_N * u];
+#if ECMRT_EST_OFFSET
+            r = r + L->o[v] * fp[ECMRT_EST_N * u + ECMRT_EST_IB];
+#endif
+#if ECMRT_SURFACE
+            r = r + L->g[v] * fp[ECMRT_EST_N * u + 3u];
+#endif
+            if (u == v) {
+                r = r + L->q[u];
+            }
+            P[ECMRT_EST_N * u + v] = r;
+            P[ECMRT_EST_N * v + u] = r;
+        }
+    }
+}
+
+/* The update with innovation vm - vp, iterated (relinearised at the updated SOC, at most
+ * ECMRT_EST_ITER times) while it moves the SOC, then the Joseph form; the updated state in
+ * xu and 1 returned only when all of it is finite. */
+static inline int ecmrt_est_f32_correct(const ecmrt_f32_model_t *m,
+                                        const ecmrt_est_f32_noise_t *nz, const ECMRT_STATE *s,
+                                        unsigned dir, float *P, ecmrt_est_f32_par_t *p,
+                                        ecmrt_est_f32_lin_t *L,
+                                        const float *x0, float i, float r, float vp, float vm,
+                                        float *xu)
+{
+    ecmrt_est_f32_vec_t c, k, xn;
+    unsigned u;
+    float e, da;
+    int it, ok = ecmrt_est_f32_gain(P, L->h, r, x0, vm - vp, c, k, xu);
+    for (it = 0; ok && it < ECMRT_EST_ITER; it++) {
+        xu[0] = ecmrt_est_f32_clamp(xu[0]);
+#if ECMRT_FX_HYST
+        xu[ECMRT_EST_IH] = ecmrt_est_f32_clamp_h(xu[ECMRT_EST_IH]);
+#endif
+        if (ecmrt_est_f32_abs(xu[0] - x0[0]) < ECMRT_EST_ITER_SOC) {
+            break;
+        }
+        ecmrt_est_f32_params(m, s, dir, xu[0], p, 0);
+#if ECMRT_EST_OFFSET
+        L->rb0 = p->r0;
+#if ECMRT_FX_ARR
+        L->rb0 = L->rb0 * L->fa;
+#endif
+#endif
+#if ECMRT_FX_CDR || ECMRT_FX_ARR
+        ecmrt_est_f32_fx(p, L->gc, L->fa, 0);
+#endif
+        ecmrt_est_f32_h_soc(m, nz, s, dir, xu[0], P, i, p, L);
+        e = vm - ecmrt_est_f32_voltage(m, dir, p, i, xu);
+        for (u = 0u; u < ECMRT_EST_N; u++) {
+            e = e - L->h[u] * (x0[u] - xu[u]);
+        }
+        ok = ecmrt_est_f32_gain(P, L->h, r, x0, e, c, k, xn);
+        if (ok) {
+            da = ecmrt_est_f32_abs(xn[0] - xu[0]);
+            for (u = 0u; u < ECMRT_EST_N; u++) {
+                xu[u] = xn[u];
+            }
+            if (da < ECMRT_EST_ITER_TOL) {
+                break;
+            }
+        }
+    }
+    return ok && ecmrt_est_f32_joseph(P, k, c, L->h, r, xu);
+}
+
 /* After the model's step s (current i, dt as sanitised by ecmrt_est_f32_prior, the cell
  * temperature temp as given to the step, predicted voltage vp): the covariance prediction
  * and the update with the measured voltage vm (not finite: no update). P is the N x N
@@ -310,424 +402,69 @@ static inline void ecmrt_est_f32_update(const ecmrt_f32_model_t *m,
                                         float dt, float vp, float vm, float *ob)
 {
     const unsigned dir = s->charging;
-    ecmrt_est_f32_vec_t a, f, q, h, x0, xu, xn, c, k;
-    float fp[ECMRT_EST_N * ECMRT_EST_N];
     const float ai = i < 0.0f ? -i : i;
-    float r, e, kk, b, one_a, da, rg, vi, ps, dv;
-    float gf = 1.0f;
+    ecmrt_est_f32_lin_t L;
     ecmrt_est_f32_par_t p;
-    unsigned u, v;
-    int it, ok;
-#if ECMRT_BV || ECMRT_DIFF
-#if ECMRT_TEMP
-    unsigned kt = s->k_t;
-    const float wt = s->w_t;
+    ecmrt_est_f32_vec_t x0, xu;
     const float *br;
-#else
-    const float *br = m->dir[dir].branch;
-    const float wt = 0.0f;          /* one row: no weight */
-#endif
-#endif
-#if ECMRT_BV
-    float xb;
-#endif
-#if ECMRT_DIFF
-    float rd, ad;
-#endif
-#if ECMRT_FX_CDR || ECMRT_FX_ARR
-    float gc = 1.0f, fa = 1.0f;
-#endif
-#if ECMRT_FX_CDR
-    float xc;
-#endif
-#if ECMRT_FX_HYST
-    const float sg = dir == ECMRT_CHARGE ? 1.0f : -1.0f;
-    float ch, vx;
-#endif
-#if ECMRT_EST_OFFSET
-    /* the offset column o of F (d x' / d offset: the filter's current is i_seen - offset),
-     * the resistances before the current's factors, d(i g)/di of those factors */
-    float o[ECMRT_EST_N], ds_di, rb0, rbf, dg0 = 1.0f, dgf = 1.0f;
-#else
-    float rdc;                        /* the resistance the current offset sees (R) */
-#endif
-#if ECMRT_SURFACE
-    /* the u_diff column g of F (d x' / d u_diff through the surface SOC, besides a_diff) */
-    float g[ECMRT_EST_N];
-#endif
-#if !ECMRT_FX_ARR
-    (void)temp;
-#endif
-#if !ECMRT_EST_OFFSET
-    (void)ob;
-#endif
-#if ECMRT_TEMP && (ECMRT_BV || ECMRT_DIFF)
-    if (kt > (unsigned)m->t.n - 2u) {
-        kt = (unsigned)m->t.n - 2u;
-    }
-    br = m->dir[dir].branch + 2u * ECMRT_NB * kt;
-#endif
+    float wt, r;
+    unsigned u;
 
-    /* 1. the Jacobian of the step, at the new SOC (where the step looked its tables up) */
-    x0[0] = s->soc;
-    x0[1] = s->u_fast;
-    x0[2] = s->u_slow;
-#if ECMRT_DIFF
-    x0[3] = s->u_diff;
-#endif
-#if ECMRT_FX_XRC
-    x0[ECMRT_EST_IX] = s->u_x;
-#endif
-#if ECMRT_FX_HYST
-    x0[ECMRT_EST_IH] = s->h;
-#endif
-#if ECMRT_EST_OFFSET
-    x0[ECMRT_EST_IB] = *ob;
-#endif
+    /* 1. F and Q, at the new SOC (where the step looked its tables up), row by row */
+    ecmrt_est_f32_state(s, ob, x0);
+    br = ecmrt_est_f32_branch(m, s, dir, &wt);
 #if ECMRT_SURFACE
     p.up = pr->u[3];
     for (u = 0u; u < ECMRT_EST_N; u++) {
-        g[u] = 0.0f;
+        L.g[u] = 0.0f;
     }
 #endif
-    ecmrt_est_f32_params(m, s, dir, x0[0], &p, 1);
-    /* the parameter effects' factors, as the step computes them */
-#if ECMRT_FX_CDR
-    xc = ai * m->g_inv_i0;
-    gc = m->g_scale * ecmrt_f32_asinh(&xc);
-    gc = gc / xc;
-#endif
-#if ECMRT_FX_ARR
-    fa = ecmrt_f32_arrhenius(m, temp);
-#endif
-#if ECMRT_EST_OFFSET
-    rb0 = p.r0;
-    rbf = p.rf;
-#if ECMRT_FX_ARR
-    rb0 = rb0 * fa;
-    rbf = rbf * fa;
-#endif
-#if ECMRT_FX_CDR
-    dg0 = m->g_scale / ecmrt_f32_sqrt(xc * xc + 1.0f);  /* d(i g)/di = scale / sqrt(1 + x^2) */
-    dgf = dg0;
-#endif
-    ds_di = dt * m->k_soc;           /* d x' / d offset = -(d x' / d i), d soc' / d i = dt k */
-    o[0] = -ds_di;
-#endif
-#if ECMRT_FX_CDR || ECMRT_FX_ARR
-    ecmrt_est_f32_fx(&p, gc, fa, 1);
-#endif
-#if ECMRT_BV
-    xb = ai / ecmrt_est_f32_tv(br, ECMRT_B_I0, wt);           /* the step's factor asinh(x)/x */
-    gf = ecmrt_f32_asinh(&xb);
-    gf = gf / xb;
-#if ECMRT_EST_OFFSET && ECMRT_FX_CDR
-    /* d(i gc gf)/di, the product rule as ecmgen.estimate.process.current_factors */
-    dgf = (gc * (1.0f / ecmrt_f32_sqrt(xb * xb + 1.0f)) + gf * dg0) - gc * gf;
-#elif ECMRT_EST_OFFSET
-    dgf = 1.0f / ecmrt_f32_sqrt(xb * xb + 1.0f);
-#endif
-#endif
-    a[0] = 1.0f;
-    f[0] = 0.0f;
-    q[0] = 0.0f;
-    /* fast and slow pairs: u' = a u + r g (1 - a) i, a = exp(-dt / tau(soc)); da/dsoc */
-#if ECMRT_TAU_T
-    one_a = ecmrt_f32_one_minus_exp_neg(dt * ECMRT_KC(s, dir, ECMRT_K_F));
-    a[1] = 1.0f - one_a;
-    da = 0.0f;                                        /* tau of the temperature only */
-#else
-    one_a = ecmrt_f32_one_minus_exp_neg(dt / p.tf);
-    a[1] = 1.0f - one_a;
-    da = ((a[1] * dt) / (p.tf * p.tf)) * p.dtf;
-#endif
-    f[1] = da * pr->u[1] + ((p.drf * one_a - p.rf * da) * gf) * i;
-#if ECMRT_SURFACE
-    g[1] = f[1] * p.du;                               /* by the tables' SOC, then chained */
-    f[1] = f[1] * p.ds;
-#endif
-#if ECMRT_EST_OFFSET
-    o[1] = -((rbf * one_a) * dgf) - f[1] * ds_di;
-#endif
-    /* the RC noise's factor: s^2 / (s^2 + P_soc) with polarization_soc_sigma s (pol_s2 = s^2),
-     * 1 without: while the SOC is far less certain than s, a slow voltage offset is taken
-     * as SOC error rather than as polarisation */
-    ps = nz->pol_s2 > 0.0f ? nz->pol_s2 / (nz->pol_s2 + P[0]) : 1.0f;
-    rg = p.rf * gf;
-    e = (nz->pol * rg) * i;
-    q[1] = ((e * e) * (1.0f - a[1] * a[1])) * ps;
-#if ECMRT_TAU_T
-    one_a = ecmrt_f32_one_minus_exp_neg(dt * ECMRT_KC(s, dir, ECMRT_K_S));
-    a[2] = 1.0f - one_a;
-#else
-    one_a = ecmrt_f32_one_minus_exp_neg(dt / p.ts);
-    a[2] = 1.0f - one_a;
-    da = ((a[2] * dt) / (p.ts * p.ts)) * p.dts;
-#endif
-    f[2] = da * pr->u[2] + (p.drs * one_a - p.rs * da) * i;
-#if ECMRT_SURFACE
-    g[2] = f[2] * p.du;
-    f[2] = f[2] * p.ds;
-#endif
-#if ECMRT_EST_OFFSET
-    o[2] = -(p.rs * one_a) - f[2] * ds_di;
-#endif
-    e = (nz->pol * p.rs) * i;
-    q[2] = ((e * e) * (1.0f - a[2] * a[2])) * ps;
-#if ECMRT_DIFF
-    rd = ecmrt_est_f32_tv(br, ECMRT_B_RD, wt);        /* r_diff, tau_diff: no SOC slope */
-#if ECMRT_TAU_T
-    one_a = ecmrt_f32_one_minus_exp_neg(dt * ECMRT_KC(s, dir, ECMRT_K_D));
-#else
-    one_a = ecmrt_f32_one_minus_exp_neg(dt / ecmrt_est_f32_tv(br, ECMRT_B_KD, wt));
-#endif
-    ad = 1.0f - one_a;
-    a[3] = ad;
-#if ECMRT_EST_OFFSET
-    o[3] = -(rd * one_a);
-#endif
-    f[3] = 0.0f;
-    e = (nz->pol * rd) * i;
-    q[3] = ((e * e) * (1.0f - ad * ad)) * ps;
-#endif
-#if ECMRT_FX_XRC
-    /* extra_rc: u_x' = a_x u_x + r_x (1 - a_x) i, no SOC slope */
-    one_a = ecmrt_f32_one_minus_exp_neg(dt / m->x_k);
-    a[ECMRT_EST_IX] = 1.0f - one_a;
-#if ECMRT_EST_OFFSET
-    o[ECMRT_EST_IX] = -(m->x_r * one_a);
-#endif
-    f[ECMRT_EST_IX] = 0.0f;
-    e = (nz->pol * m->x_r) * i;
-    q[ECMRT_EST_IX] = ((e * e) * (1.0f - a[ECMRT_EST_IX] * a[ECMRT_EST_IX])) * ps;
-#endif
-#if !ECMRT_EST_OFFSET
-    /* the resistance a steady error in the current sees, r0 g0 + sum r_j g_j: the sensor's
-     * offset through it joins the model's error in R (with the offset state it is a state) */
-    rdc = p.r0 + rg;
-    rdc = rdc + p.rs;
-#if ECMRT_DIFF
-    rdc = rdc + rd;
-#endif
-#if ECMRT_FX_XRC
-    rdc = rdc + m->x_r;
-#endif
-#endif
-#if ECMRT_FX_HYST
-    /* hysteresis: h' = a_h h + (1 - a_h) s, a_h = exp(-|i| dt / (3600 decay_ah)); its noise
-     * sigma_h^2 (1 - a_h^2), 1 - a_h^2 written c_h (2 - c_h) */
-    ch = ecmrt_f32_one_minus_exp_neg((ai * dt) * m->h_k);
-    a[ECMRT_EST_IH] = 1.0f - ch;
-    f[ECMRT_EST_IH] = 0.0f;
-    q[ECMRT_EST_IH] = nz->p0_h * (ch * (2.0f - ch));
-#endif
-#if ECMRT_EST_OFFSET
-#if ECMRT_FX_HYST
-    /* d h' / d i = -(h - s) sign(i) c a_h, c = dt / (3600 decay_ah) */
-    o[ECMRT_EST_IH] = (((pr->u[ECMRT_EST_IH] - sg) * (i > 0.0f ? 1.0f : (i < 0.0f ? -1.0f : 0.0f)))
-                       * (dt * m->h_k)) * a[ECMRT_EST_IH];
-#endif
-    o[ECMRT_EST_IB] = 0.0f;
-    a[ECMRT_EST_IB] = 1.0f;
-    f[ECMRT_EST_IB] = 0.0f;
-#endif
-    /* SOC: the sensor's bias over the drift horizon, (b k dt)^2 (horizon / dt) written
-     * (b k)^2 (dt horizon) (no 0 * inf for a denormal dt), and white current noise; with
-     * the offset state the offset is a state (a random walk over the horizon) instead */
-    if (dt > 0.0f) {
-        kk = dt * m->k_soc;
-#if ECMRT_EST_OFFSET
-        b = nz->gain * ai;
-        q[ECMRT_EST_IB] = (nz->p0_b * dt) / nz->horizon_s;
-#else
-        b = nz->gain * ai + nz->offset_a;
-#endif
-        e = b * m->k_soc;
-        r = nz->noise_a * kk;
-        q[0] = (e * e) * (dt * nz->horizon_s) + r * r;
-    } else {
-        for (u = 0u; u < ECMRT_EST_N; u++) {
-            q[u] = 0.0f;
-        }
-    }
-    /* the first sample: the RC voltages are unknown (a record may start under load or
-     * mid-relaxation), sigma r_j start_a with the resistances at the start */
+    ecmrt_est_f32_factors(m, s, dir, x0[0], ai, temp, dt, br, wt, &p, &L);
+    /* the RC noise's factor: s^2 / (s^2 + P_soc) with polarization_soc_sigma s (pol_s2 =
+     * s^2), 1 without: while the SOC is far less certain than s, a slow voltage offset is
+     * taken as SOC error rather than as polarisation */
+    L.ps = nz->pol_s2 > 0.0f ? nz->pol_s2 / (nz->pol_s2 + P[0]) : 1.0f;
+    ecmrt_est_f32_rows_rc(nz, s, dir, pr, i, dt, &p, &L);
+    ecmrt_est_f32_row_diff(nz, s, dir, br, wt, i, dt, &L);
+    ecmrt_est_f32_row_xrc(m, nz, i, dt, &L);
+    ecmrt_est_f32_row_hyst(m, nz, dir, pr, i, ai, dt, &L);
+    ecmrt_est_f32_rows_soc(m, nz, ai, dt, &L);        /* last: no noise at all for dt <= 0 */
     if (*first == 1u) {             /* (2: a rested start, as start_a = 0) */
-        e = rg * nz->start_a;
-        q[1] = q[1] + e * e;
-        e = p.rs * nz->start_a;
-        q[2] = q[2] + e * e;
-#if ECMRT_DIFF
-        e = rd * nz->start_a;
-        q[3] = q[3] + e * e;
-#endif
-#if ECMRT_FX_XRC
-        e = m->x_r * nz->start_a;
-        q[ECMRT_EST_IX] = q[ECMRT_EST_IX] + e * e;
-#endif
+        ecmrt_est_f32_start_noise(m, nz, &p, &L);
     }
-    /* 2. P = F P F^T + Q (F: diagonal a, SOC column f, offset column o) */
-    ECMRT_EST_UNROLL
-    for (u = 0u; u < ECMRT_EST_N; u++) {
-        ECMRT_EST_UNROLL
-        for (v = 0u; v < ECMRT_EST_N; v++) {
-            fp[ECMRT_EST_N * u + v] = a[u] * P[ECMRT_EST_N * u + v] + f[u] * P[v];
-#if ECMRT_EST_OFFSET
-            fp[ECMRT_EST_N * u + v] = fp[ECMRT_EST_N * u + v] + o[u] * P[ECMRT_EST_N * ECMRT_EST_IB + v];
-#endif
-#if ECMRT_SURFACE
-            fp[ECMRT_EST_N * u + v] = fp[ECMRT_EST_N * u + v] + g[u] * P[ECMRT_EST_N * 3u + v];
-#endif
-        }
-    }
-    ECMRT_EST_UNROLL
-    for (u = 0u; u < ECMRT_EST_N; u++) {
-        ECMRT_EST_UNROLL
-        for (v = u; v < ECMRT_EST_N; v++) {
-            r = a[v] * fp[ECMRT_EST_N * u + v] + f[v] * fp[ECMRT_EST_N * u];
-#if ECMRT_EST_OFFSET
-            r = r + o[v] * fp[ECMRT_EST_N * u + ECMRT_EST_IB];
-#endif
-#if ECMRT_SURFACE
-            r = r + g[v] * fp[ECMRT_EST_N * u + 3u];
-#endif
-            if (u == v) {
-                r = r + q[u];
-            }
-            P[ECMRT_EST_N * u + v] = r;
-            P[ECMRT_EST_N * v + u] = r;
-        }
-    }
-    /* 3. the measurement: h = dv/dx, R (the OCV's slope over the SOC's spread: the
-     * predicted P, here and in every relinearisation) */
-#if ECMRT_EST_SPREAD
-    dv = ecmrt_est_f32_ocv_slope(m, s, dir, x0[0], P[0], nz->ocv_k, &p);
-#else
-    dv = p.docv;
-#endif
-#if ECMRT_SURFACE
-    h[0] = dv + (p.dr0 * p.ds) * i;                   /* r0 at the surface SOC */
-#else
-    h[0] = dv + p.dr0 * i;
-#endif
+    /* 2. P = F P F^T + Q */
+    ecmrt_est_f32_predict(P, &L);
+    /* 3. the measurement: h = dv/dx (its SOC entry at the predicted P), R */
     for (u = 1u; u < ECMRT_EST_N; u++) {
-        h[u] = 1.0f;
+        L.h[u] = 1.0f;
     }
 #if ECMRT_FX_HYST
-    h[ECMRT_EST_IH] = m->h_m;
+    L.h[ECMRT_EST_IH] = m->h_m;
 #endif
-#if ECMRT_EST_OFFSET
-    h[ECMRT_EST_IB] = -(rb0 * dg0);                   /* d v / d offset = -r0 d(i g0)/di */
-#endif
-    /* the overpotential the model's error scales with: |vp - ocv|, or (mem_k > 0) the one
-     * held in *eta from before, decayed by exp(-dt / error_memory_s), when that is larger
-     * (eta may be a null pointer when mem_k is 0) */
-    e = vp - p.ocv;
-    e = e < 0.0f ? -e : e;
-    if (nz->mem_k > 0.0f) {
-        r = *eta - *eta * ecmrt_f32_one_minus_exp_neg(dt * nz->mem_k);
-        if (r > e) {
-            e = r;
-        }
-        *eta = e;
-    }
-    e = nz->model_error * e;
-    r = nz->vn2 + e * e;
-#if !ECMRT_EST_OFFSET
-    e = nz->offset_a * rdc;
-    r = r + e * e;
-#endif
-    /* a record taken to start rested (start_a = 0, or first 2): its first sample counts fully */
-    if (!(*first == 2u || (*first != 0u && nz->start_a == 0.0f)) && dt < nz->corr_s) {
-        r = dt > 0.0f ? r * (nz->corr_s / dt) : 0.0f;
-    }
-    *first = 0u;
-    if (!(vm >= -ECMRT_EST_V_MAX && vm <= ECMRT_EST_V_MAX)) {
-        r = 0.0f;                                     /* no measurement (NaN, inf, absurd) */
-    }
-    /* 4. the update, iterated while it moves the SOC */
-    if (r > 0.0f) {
-        ok = ecmrt_est_f32_gain(P, h, r, x0, vm - vp, c, k, xu);
-        for (it = 0; ok && it < ECMRT_EST_ITER; it++) {
-            xu[0] = ecmrt_est_f32_clamp(xu[0]);
-#if ECMRT_FX_HYST
-            xu[ECMRT_EST_IH] = ecmrt_est_f32_clamp_h(xu[ECMRT_EST_IH]);
-#endif
-            if (ecmrt_est_f32_abs(xu[0] - x0[0]) < ECMRT_EST_ITER_SOC) {
-                break;
-            }
-            ecmrt_est_f32_params(m, s, dir, xu[0], &p, 0);
-#if ECMRT_EST_OFFSET
-            rb0 = p.r0;
-#if ECMRT_FX_ARR
-            rb0 = rb0 * fa;
-#endif
-            h[ECMRT_EST_IB] = -(rb0 * dg0);
-#endif
-#if ECMRT_FX_CDR || ECMRT_FX_ARR
-            ecmrt_est_f32_fx(&p, gc, fa, 0);
-#endif
-            vi = ((p.ocv + p.r0 * i) + xu[1]) + xu[2];
+    ecmrt_est_f32_h_soc(m, nz, s, dir, x0[0], P, i, &p, &L);
+    r = ecmrt_est_f32_r(m, nz, &p, &L, first, eta, dt, vp, vm);
+    /* 4. the update, iterated while it moves the SOC; applied only when all of it is finite */
+    if (r > 0.0f && ecmrt_est_f32_correct(m, nz, s, dir, P, &p, &L, x0, i, r, vp, vm, xu)) {
+        s->u_fast = xu[1];
+        s->u_slow = xu[2];
 #if ECMRT_DIFF
-            vi = vi + xu[3];
-#endif
-#if ECMRT_FX_HYST
-            vx = m->h_m * (xu[ECMRT_EST_IH] - m->h_ref) + m->h_m0 * (sg - m->h_ref);
-#if ECMRT_FX_XRC
-            vx = vx + xu[ECMRT_EST_IX];
-#endif
-            vi = vi + vx;
-#elif ECMRT_FX_XRC
-            vi = vi + xu[ECMRT_EST_IX];
-#endif
-#if ECMRT_EST_SPREAD
-            dv = ecmrt_est_f32_ocv_slope(m, s, dir, xu[0], P[0], nz->ocv_k, &p);
-#else
-            dv = p.docv;
-#endif
-#if ECMRT_SURFACE
-            h[0] = dv + (p.dr0 * p.ds) * i;
-#else
-            h[0] = dv + p.dr0 * i;
-#endif
-            e = vm - vi;
-            for (u = 0u; u < ECMRT_EST_N; u++) {
-                e = e - h[u] * (x0[u] - xu[u]);
-            }
-            ok = ecmrt_est_f32_gain(P, h, r, x0, e, c, k, xn);
-            if (ok) {
-                da = ecmrt_est_f32_abs(xn[0] - xu[0]);
-                for (u = 0u; u < ECMRT_EST_N; u++) {
-                    xu[u] = xn[u];
-                }
-                if (da < ECMRT_EST_ITER_TOL) {
-                    break;
-                }
-            }
-        }
-        if (ok) {                      /* applied only when all of it is finite */
-            ok = ecmrt_est_f32_joseph(P, k, c, h, r, xu);
-        }
-        if (ok) {
-            s->u_fast = xu[1];
-            s->u_slow = xu[2];
-#if ECMRT_DIFF
-            s->u_diff = xu[3];
+        s->u_diff = xu[3];
 #endif
 #if ECMRT_FX_XRC
-            s->u_x = xu[ECMRT_EST_IX];
+        s->u_x = xu[ECMRT_EST_IX];
 #endif
 #if ECMRT_FX_HYST
-            s->h = ecmrt_est_f32_clamp_h(xu[ECMRT_EST_IH]);
+        s->h = ecmrt_est_f32_clamp_h(xu[ECMRT_EST_IH]);
 #endif
 #if ECMRT_EST_OFFSET
-            *ob = xu[ECMRT_EST_IB];
+        *ob = xu[ECMRT_EST_IB];
 #endif
-            x0[0] = xu[0];
-        }
+        x0[0] = xu[0];
     }
     s->soc = ecmrt_est_f32_clamp(x0[0]);
     s->soc_c = 0.0f;          /* the filter's SOC is its estimate, not a compensated sum */
+    (void)temp;
+    (void)ob;
 }
 
 #endif /* ECMRT_EST_F32_H */

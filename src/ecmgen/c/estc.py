@@ -35,7 +35,7 @@ from .names import c_names
 from .spec import CSpec, state_bytes
 
 ESTIMATORS = ("ekf",)
-RUNTIME_FILES = ("ecmrt_est_f32_tables.h", "ecmrt_est_f32.h")
+RUNTIME_FILES = ("ecmrt_est_f32_tables.h", "ecmrt_est_f32_rows.h", "ecmrt_est_f32.h")
 # ecmrt_est_f32_noise_t, in order: field, comment
 NOISE_FIELDS = (("p0_soc", "initial SOC variance, soc0_sigma^2"),
                 ("p0_u", "initial RC voltage variance, u0_sigma_v^2, V^2"),
