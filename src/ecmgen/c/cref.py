@@ -567,6 +567,70 @@ def _u_diff_q(spec: CSpec, per_dir, chg, i, dt, age_r=None) -> np.ndarray:
     return _rc_q(cd, _aged_q(spec, t, age_r), qcd)
 
 
+# The fixed-point step's units (c_runtime/ecmrt_q_step.h), over the whole record; an
+# effect that is off leaves r i as it is or adds 0.
+
+def _coef_q(spec: CSpec, p: dict, dt, name: str, pair: str):
+    """ECMRT_Q_COEF: the pair's coefficient c of ECMRT_Q_RC and its Q (1/tau in the state
+    with ECMRT_TAU_T, the time constant at variable dt, c = 1/D at fixed dt)."""
+    q = spec.q
+    if spec.tau_t and spec.variable_dt:
+        return c_kr_q(dt, p[name], q["Q_KR"]), Q30
+    if spec.variable_dt:
+        return c_dt_tau_q(dt, p[name], q["Q_T"]), Q30
+    qc = q[f"Q_C{pair}"]
+    return inv_d_q(p[name], qc + q[f"Q_D{pair}"]), qc
+
+
+def _fx_cdr_q(fx: dict, ai, t0, tf):
+    """ecmrt_q_fx_cdr: r0 i, r_fast i times the g table at |i| / i0."""
+    if not fx.get("cdr"):
+        return t0, tf
+    g = cdr_factor_q(ai, fx)
+    return _rshr(t0 * g, fx["CDR_QG"]), _rshr(tf * g, fx["CDR_QG"])
+
+
+def _fx_arr_q(fx: dict, temp, t0, tf, ts):
+    """ecmrt_q_fx_arr: r0 i, r_fast i, r_slow i times the Arrhenius factor."""
+    if not fx.get("arr"):
+        return t0, tf, ts
+    g = arrhenius_q(temp, fx)
+    return tuple(_rshr(t * g, fx["ARR_QF"]) for t in (t0, tf, ts))
+
+
+def _bv_q(spec: CSpec, ai, p: dict, tf):
+    """ecmrt_q_bv: r_fast i times asinh(x)/x, x = |i| / i0(T)."""
+    if not spec.has_bv:
+        return tf
+    r, sh = recip_q(p["i0"])
+    x = _sat32(_rshr(ai * r, sh - spec.bv["K"]))
+    return _rshr(tf * gtab_q(spec.bv["tab"], x, spec.bv["QX"]), 30)
+
+
+def _fx_hyst_q(spec: CSpec, fx: dict, chg, ai, dt, out: dict):
+    """ecmrt_q_fx_hyst: the hysteresis term in Q_V (its state into out["h"]), or 0."""
+    if not fx.get("hyst"):
+        return 0
+    sg = np.where(chg == 1, ONE30, -ONE30).astype(np.int64)
+    if spec.variable_dt:
+        x = _rshr(_sat32(_rshr(ai * fx["h_k"], fx["SH_HR"])) * dt, fx["SH_HX"])
+    else:
+        x = _rshr(ai * fx["h_k"], fx["SH_HX"])
+    h = out["h"] = _rc_q(one_minus_exp_neg_q26(x), sg, Q30, fx["h_init"])
+    return (_rshr(fx["h_m"] * (h - fx["h_ref"]), fx["SH_HM"])
+            + _rshr(fx["h_m0"] * (sg - fx["h_ref"]), fx["SH_HM"]))
+
+
+def _fx_xrc_q(spec: CSpec, fx: dict, i, dt, out: dict):
+    """ecmrt_q_fx_xrc: the extra pair's voltage in Q_V (into out["u_x"] too), or 0."""
+    if not fx.get("xrc"):
+        return 0
+    cx = (c_dt_tau_q(dt, np.full(i.size, fx["x_k"]), spec.q["Q_T"]) if spec.variable_dt
+          else fx["x_k"])
+    ux = out["u_x"] = _rc_q(cx, _rshr(np.int64(fx["x_r"]) * i, fx["SH_XR"]), Q30)
+    return ux
+
+
 def simulate_fixed_raw(spec: CSpec, i_raw, dt_raw=None, soc0_raw: int = ONE30,
                        temp_raw=None, efc_raw=None) -> RefResult:
     """Bit-true reference of a numeric="fixed" spec on raw integers: i in Q_I, dt in Q16
@@ -617,33 +681,19 @@ def simulate_fixed_raw(spec: CSpec, i_raw, dt_raw=None, soc0_raw: int = ONE30,
                     p[name] = rate_q(p[name], q["Q_T"], q["Q_KR"])
         per_dir.append(p)
     p = {name: _pick(chg, per_dir, name) for name in per_dir[0]}
-    if spec.tau_t and spec.variable_dt:
-        cf = c_kr_q(dt, p["k_fast"], q["Q_KR"])
-        cs = c_kr_q(dt, p["k_slow"], q["Q_KR"])
-        qcf = qcs = Q30
-    elif spec.variable_dt:
-        cf, cs = c_dt_tau_q(dt, p["k_fast"], q["Q_T"]), c_dt_tau_q(dt, p["k_slow"], q["Q_T"])
-        qcf = qcs = Q30
-    else:
-        qcf, qcs = q["Q_CF"], q["Q_CS"]
-        cf, cs = inv_d_q(p["k_fast"], qcf + q["Q_DF"]), inv_d_q(p["k_slow"], qcs + q["Q_DS"])
+    (cf, qcf), (cs, qcs) = _coef_q(spec, p, dt, "k_fast", "F"), _coef_q(spec, p, dt, "k_slow", "S")
     q_i, q_v = q["Q_I"], q["Q_V"]
     fx = spec.fx
     ai = np.abs(i)
     t0 = _rshr(p["r0"] * i, q["Q_R0"] + q_i - q_v)
     tf = _rshr(p["r_fast"] * i, q["Q_RF"] + q_i - q_v)
     ts = _rshr(p["r_slow"] * i, q["Q_RS"] + q_i - q_v)
-    if fx.get("cdr"):
-        g = cdr_factor_q(ai, fx)
-        t0, tf = _rshr(t0 * g, fx["CDR_QG"]), _rshr(tf * g, fx["CDR_QG"])
-    if fx.get("arr"):
-        g = arrhenius_q(temp, fx)
-        t0, tf, ts = (_rshr(t * g, fx["ARR_QF"]) for t in (t0, tf, ts))
-    if spec.has_bv:
-        r, sh = recip_q(p["i0"])
-        x = _sat32(_rshr(ai * r, sh - spec.bv["K"]))
-        tf = _rshr(tf * gtab_q(spec.bv["tab"], x, spec.bv["QX"]), 30)
+    # 3'. parameter effects, in ecmrt_q_step's order, each scaling r i
+    t0, tf = _fx_cdr_q(fx, ai, t0, tf)
+    t0, tf, ts = _fx_arr_q(fx, temp, t0, tf, ts)
+    tf = _bv_q(spec, ai, p, tf)
     t0, tf, ts = (_aged_q(spec, t, age_r) for t in (t0, tf, ts))
+    # 4. the two pairs; 3''. the OCV; 5. the voltage and the voltage effects' terms
     uf = _rc_q(cf, tf, qcf)
     us = _rc_q(cs, ts, qcs)
     k, w = (_weight_q(spec.dirs[0].grid, soc, q["Q_G"], spec.rc_uniform) if spec.ocv_shared else
@@ -652,24 +702,10 @@ def simulate_fixed_raw(spec: CSpec, i_raw, dt_raw=None, soc0_raw: int = ONE30,
     v = ((ocv + t0) + uf) + us
     out = {}
     if spec.diff:
-        ud = _u_diff_q(spec, per_dir, chg, i, dt, age_r)
-        v = v + ud
-        out["u_diff"] = ud
-    if fx.get("hyst"):
-        sg = np.where(chg == 1, ONE30, -ONE30).astype(np.int64)
-        if spec.variable_dt:
-            x = _rshr(_sat32(_rshr(ai * fx["h_k"], fx["SH_HR"])) * dt, fx["SH_HX"])
-        else:
-            x = _rshr(ai * fx["h_k"], fx["SH_HX"])
-        h = _rc_q(one_minus_exp_neg_q26(x), sg, Q30, fx["h_init"])
-        v = v + (_rshr(fx["h_m"] * (h - fx["h_ref"]), fx["SH_HM"])
-                 + _rshr(fx["h_m0"] * (sg - fx["h_ref"]), fx["SH_HM"]))
-        out["h"] = h
-    if fx.get("xrc"):
-        cx = c_dt_tau_q(dt, np.full(n, fx["x_k"]), q["Q_T"]) if spec.variable_dt else fx["x_k"]
-        ux = _rc_q(cx, _rshr(np.int64(fx["x_r"]) * i, fx["SH_XR"]), Q30)
-        v = v + ux
-        out["u_x"] = ux
+        out["u_diff"] = _u_diff_q(spec, per_dir, chg, i, dt, age_r)
+        v = v + out["u_diff"]
+    v = v + _fx_hyst_q(spec, fx, chg, ai, dt, out)
+    v = v + _fx_xrc_q(spec, fx, i, dt, out)
     return RefResult(_sat32(v).astype(np.int64), soc, uf, us, chg, **out)
 
 
