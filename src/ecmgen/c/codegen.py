@@ -299,36 +299,34 @@ def _api_types(spec: CSpec) -> dict[str, str]:
             "dt": f"{p}_sec_q16_t", "soc": f"{p}_soc_q30_t", "efc": f"{p}_efc_q8_t"}
 
 
-def _context(spec: CSpec) -> dict:
-    p = spec.prefix
-    fixed = spec.fixed
-    nm = c_names(p, spec.numeric)
-    qfmt: list = []
-    fmt = (lambda v: str(int(v))) if fixed else c_float
-    arrays = _Arrays("int32_t" if fixed else "float", fmt, 5)
-    kname = ("tau_fast_s", "tau_slow_s") if spec.variable_dt else ("inv_c_fast", "inv_c_slow")
-
-    def grid(g: CGrid, tag: str, what: str, xname: str = "soc", uniform: bool = False) -> dict:
-        if uniform:             # ecmrt_*_ugrid_t: located in O(1), no arrays
-            if fixed:
-                return {"init": f"{{ {(g.n - 1) << 30}, {int(g.x0)}, {int(g.inv_h)}, {g.n}u }}",
-                        "n": g.n}
-            return {"init": f"{{ {c_float(g.x0)}, {c_float(g.inv_h)}, {c_float(g.n - 1)}, {g.n}u }}",
+def _grid(arrays: "_Arrays", fixed: bool, g: CGrid, tag: str, what: str, xname: str = "soc",
+          uniform: bool = False) -> dict:
+    """One grid's initialiser (its arrays added to ``arrays``)."""
+    if uniform:             # ecmrt_*_ugrid_t: located in O(1), no arrays
+        if fixed:
+            return {"init": f"{{ {(g.n - 1) << 30}, {int(g.x0)}, {int(g.inv_h)}, {g.n}u }}",
                     "n": g.n}
-        x = arrays.add(f"{tag}_{xname}", g.x, f"{tag}: {what} breakpoints")
-        inv = arrays.add(f"{tag}_inv_dx", g.inv_dx, f"{tag}: 1 / breakpoint spacing")
-        return {"init": f"{{ {x}, {inv}, {g.n}u }}", "n": g.n}
+        return {"init": f"{{ {c_float(g.x0)}, {c_float(g.inv_h)}, {c_float(g.n - 1)}, {g.n}u }}",
+                "n": g.n}
+    x = arrays.add(f"{tag}_{xname}", g.x, f"{tag}: {what} breakpoints")
+    inv = arrays.add(f"{tag}_inv_dx", g.inv_dx, f"{tag}: 1 / breakpoint spacing")
+    return {"init": f"{{ {x}, {inv}, {g.n}u }}", "n": g.n}
 
-    n_t = spec.ocv.shape[0]
-    rows_note = f", {n_t} temperature rows" if spec.temp else ""
-    pair = "" if fixed else (" (each with the difference to the next temperature row)" if spec.temp
-                             else " (each with the difference to the next SOC breakpoint)")
-    temp = grid(spec.temp_grid, "temp", "temperature (degC" + (" Q8)" if fixed else ")"),
-                "c") if spec.temp else None
-    shared = spec.ocv_shared
-    ocv_grid = None if shared else grid(spec.ocv_grid, "ocv", "SOC", uniform=spec.ocv_uniform)
-    ocv = None if shared else arrays.add("ocv_v", ocv_rows(spec), "open-circuit voltage" + pair +
-                                         rows_note)
+
+def _table_notes(spec: CSpec) -> tuple[str, str]:
+    """What the tables' comments add: the pairs' second value, the temperature rows."""
+    rows_note = f", {spec.ocv.shape[0]} temperature rows" if spec.temp else ""
+    pair = "" if spec.fixed else (" (each with the difference to the next temperature row)"
+                                  if spec.temp else
+                                  " (each with the difference to the next SOC breakpoint)")
+    return pair, rows_note
+
+
+def _dir_contexts(spec: CSpec, arrays: "_Arrays") -> list[dict]:
+    """Each direction's grid, rows, time-constant and branch tables."""
+    fixed, shared = spec.fixed, spec.ocv_shared
+    pair, rows_note = _table_notes(spec)
+    kname = ("tau_fast_s", "tau_slow_s") if spec.variable_dt else ("inv_c_fast", "inv_c_slow")
     dirs = []
     for d, tag in zip(spec.dirs, ("dis", "chg")):
         br = branch_rows(spec, d)
@@ -337,7 +335,7 @@ def _context(spec: CSpec) -> dict:
                                 "inv_c_diff", d.k_diff), ("i0_a", d.i0)) if v is not None]
         params = "r0, r_fast, r_slow" if spec.tau_t else f"r0, r_fast, {kname[0]}, r_slow, {kname[1]}"
         dirs.append({
-            "g": grid(d.grid, tag, "SOC", uniform=spec.rc_uniform),
+            "g": _grid(arrays, fixed, d.grid, tag, "SOC", uniform=spec.rc_uniform),
             "rows": arrays.add(f"{tag}_rows", table_rows(spec, d),
                                f"{tag}: per SOC breakpoint {params}" + (", ocv" if shared else "")
                                + pair + rows_note),
@@ -348,6 +346,13 @@ def _context(spec: CSpec) -> dict:
                 f"{tag}_branch", br, f"{tag}: per temperature row {', '.join(names)}" +
                 ("" if fixed else " (each with the difference to the next row)")),
         })
+    return dirs
+
+
+def _scalars(spec: CSpec, arrays: "_Arrays") -> list[tuple[str, str, str]]:
+    """The model struct's scalar members (and the tables they point to), in order."""
+    fixed = spec.fixed
+    pair, rows_note = _table_notes(spec)
     if fixed:
         scalars = [("deadband", str(int(spec.deadband)), f"Q{spec.q['Q_I']} A"),
                    ("k_soc", str(int(spec.k_soc)), f"Q{spec.q['Q_K']}")]
@@ -366,33 +371,59 @@ def _context(spec: CSpec) -> dict:
         scalars.append(("sv", arrays.add("surface_per_volt", sv, what), ""))
     scalars += _fx_scalars(spec, arrays)
     if spec.age is not None:
-        scalars.append(("age", grid(spec.age["grid"], "age", "equivalent full cycles" +
-                                    (" (Q8)" if fixed else ""), "efc")["init"], ""))
+        scalars.append(("age", _grid(arrays, fixed, spec.age["grid"], "age", "equivalent full "
+                                     "cycles" + (" (Q8)" if fixed else ""), "efc")["init"], ""))
         scalars.append(("age_scale", arrays.add(
             "age_scale", age_rows(spec), "ageing law: per breakpoint the resistance scale, "
             "1 / capacity scale" + (f" (Q{spec.q['Q_AR']}, Q{spec.q['Q_AQ']})" if fixed else
                                     " (each with the difference to the next breakpoint)")), ""))
+    return scalars
+
+
+def _fixed_macros(spec: CSpec, nm: dict, macros: dict) -> list:
+    """The fixed-point formats' macros (into ``macros``); returns (macro, Q) of the formats
+    the report lists."""
+    names = ["Q_I", "Q_V", "Q_G", "Q_R0", "Q_RF", "Q_RS", "SH_DSOC"]
+    names += ["Q_T", "SH_RATE"] if spec.variable_dt else ["Q_DF", "Q_DS", "Q_CF", "Q_CS"]
+    names += ["Q_GT"] if spec.temp else []
+    names += ["Q_KR"] if spec.tau_t and spec.variable_dt else []
+    names += ["Q_GU"] if spec.rc_uniform else []
+    names += ["Q_GUO"] if spec.ocv_uniform else []
+    names += (["Q_RD"] + ([] if spec.variable_dt else ["Q_DD", "Q_CD"])) if spec.diff else []
+    names += ["Q_I0"] if spec.has_bv else []
+    names += ["Q_SV"] if spec.surface is not None else []
+    names += ["Q_GA", "Q_AR", "Q_AQ"] if spec.age is not None else []
+    fmts = {n: f"{nm['M']}_{n[2:] if n.startswith('Q_') else n}" for n in names}
+    macros.update({f"ECMRT_{n}": v for n, v in fmts.items()})
+    if spec.has_bv:
+        macros.update(ECMRT_BV_QX=spec.bv["QX"], ECMRT_BV_K=spec.bv["K"])
+    macros.update({f"ECMRT_FX_{k}": v for k, v in spec.fx.items()
+                   if k.startswith(("SH_", "CDR_Q", "ARR_Q"))})
+    return [(v, spec.q[n]) for n, v in fmts.items() if n not in ("Q_I", "Q_V")]
+
+
+def _context(spec: CSpec) -> dict:
+    """What the templates render: the model's tables as C arrays, its scalars and macros."""
+    p = spec.prefix
+    fixed = spec.fixed
+    nm = c_names(p, spec.numeric)
+    fmt = (lambda v: str(int(v))) if fixed else c_float
+    arrays = _Arrays("int32_t" if fixed else "float", fmt, 5)
+    n_t = spec.ocv.shape[0]
+    pair, rows_note = _table_notes(spec)
+    temp = _grid(arrays, fixed, spec.temp_grid, "temp", "temperature (degC" +
+                 (" Q8)" if fixed else ")"), "c") if spec.temp else None
+    shared = spec.ocv_shared
+    ocv_grid = None if shared else _grid(arrays, fixed, spec.ocv_grid, "ocv", "SOC",
+                                         uniform=spec.ocv_uniform)
+    ocv = None if shared else arrays.add("ocv_v", ocv_rows(spec), "open-circuit voltage" + pair +
+                                         rows_note)
+    dirs = _dir_contexts(spec, arrays)
+    scalars = _scalars(spec, arrays)
     # an optional switch is written only when on: the C of a model without it is as before
     macros = {f"ECMRT_{k}": v for k, v in spec.switches.items()
               if v or k not in optional_switches()}
-    if fixed:
-        names = ["Q_I", "Q_V", "Q_G", "Q_R0", "Q_RF", "Q_RS", "SH_DSOC"]
-        names += ["Q_T", "SH_RATE"] if spec.variable_dt else ["Q_DF", "Q_DS", "Q_CF", "Q_CS"]
-        names += ["Q_GT"] if spec.temp else []
-        names += ["Q_KR"] if spec.tau_t and spec.variable_dt else []
-        names += ["Q_GU"] if spec.rc_uniform else []
-        names += ["Q_GUO"] if spec.ocv_uniform else []
-        names += (["Q_RD"] + ([] if spec.variable_dt else ["Q_DD", "Q_CD"])) if spec.diff else []
-        names += ["Q_I0"] if spec.has_bv else []
-        names += ["Q_SV"] if spec.surface is not None else []
-        names += ["Q_GA", "Q_AR", "Q_AQ"] if spec.age is not None else []
-        fmts = {n: f"{nm['M']}_{n[2:] if n.startswith('Q_') else n}" for n in names}
-        macros.update({f"ECMRT_{n}": v for n, v in fmts.items()})
-        qfmt = [(v, spec.q[n]) for n, v in fmts.items() if n not in ("Q_I", "Q_V")]
-        if spec.has_bv:
-            macros.update(ECMRT_BV_QX=spec.bv["QX"], ECMRT_BV_K=spec.bv["K"])
-        macros.update({f"ECMRT_FX_{k}": v for k, v in spec.fx.items()
-                       if k.startswith(("SH_", "CDR_Q", "ARR_Q"))})
+    qfmt = _fixed_macros(spec, nm, macros) if fixed else []
     return {
         "p": p, "P": p.upper(), "nm": nm, "M": nm["M"], "fixed": fixed,
         "qtypes": _qtypes(spec) if fixed else [], "qfmt_macros": qfmt,

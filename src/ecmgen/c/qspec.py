@@ -150,67 +150,49 @@ def _fx_fixed(by_name: dict, q: dict, dt_s: float | None, i_lim: float) -> dict:
     return fx if any(fx[k] for k in ("hyst", "xrc", "cdr", "arr")) else {}
 
 
-def prepare_fixed(ctx: SimpleNamespace) -> CSpec:
-    """The fixed-point spec (ctx from :func:`ecmgen.c.spec.begin`)."""
-    src, by_name, dt_s, variable_dt = ctx.src, ctx.by_name, ctx.dt_s, ctx.variable_dt
-    q_i, i_lim, notes = ctx.q_i, ctx.i_lim, ctx.notes
-    dirs_raw = src.dirs
+def _vmax(dirs_raw, key: str) -> float:
+    return max(float(np.max(c[key])) for _, c, _ in dirs_raw)
 
-    def vmax(key):
-        return max(float(np.max(c[key])) for _, c, _ in dirs_raw)
 
-    def bmax(key, f=np.max):
-        return float(f([f(b[key]) for _, _, b in dirs_raw]))
+def _bmax(dirs_raw, key: str, f=np.max) -> float:
+    return float(f([f(b[key]) for _, _, b in dirs_raw]))
 
-    diff, bv = "r_diff_ohm" in dirs_raw[0][2], "i0_a" in dirs_raw[0][2]
+
+def _q_voltage_and_resistances(ctx: SimpleNamespace, q: dict, diff: bool) -> None:
+    """Q_V (holding the OCV plus every drop the largest current makes, with the effects'
+    largest factors and the age's) and the resistances' formats."""
+    dirs_raw, by_name, q_i, i_lim = ctx.src.dirs, ctx.by_name, ctx.q_i, ctx.i_lim
     hyst, xrc = by_name.get("hysteresis"), by_name.get("extra_rc")
     cdr, arr = by_name.get("current_dependent_resistance"), by_name.get("temperature_dependence")
-    q = {"Q_I": q_i}
     # largest factors of r0 / r_fast (current_dependent_resistance) and of every resistance
     # (temperature_dependence); the Butler-Volmer factor is <= 1
     g_max = max(1.0, float(np.max(cdr_table(cdr.scale_at_zero, 1)))) if cdr is not None else 1.0
     f_max = max(1.0, arrhenius_range(arr)[0]) if arr is not None else 1.0
     law = ctx.model.ageing      # its largest scales widen Q_V and k_soc's formats
     r_age = 1.0 if law is None else float(np.max(law.resistance_scale))
-    q_age = 1.0 if law is None else float(np.max(1.0 / law.capacity_scale))
-    v_bound = float(np.max(src.ocv_v)) + i_lim * (
-        ((vmax("r0_ohm") + vmax("r_fast_ohm")) * g_max * f_max + vmax("r_slow_ohm") * f_max
-         + (bmax("r_diff_ohm") if diff else 0.0)) * r_age + (xrc.r_ohm if xrc is not None else 0.0))
+    r0_max, rf_max, rs_max = (_vmax(dirs_raw, k) for k in ("r0_ohm", "r_fast_ohm", "r_slow_ohm"))
+    v_bound = float(np.max(ctx.src.ocv_v)) + i_lim * (
+        ((r0_max + rf_max) * g_max * f_max + rs_max * f_max
+         + (_bmax(dirs_raw, "r_diff_ohm") if diff else 0.0)) * r_age + (xrc.r_ohm if xrc is not None else 0.0))
     if hyst is not None:
         v_bound += 2.0 * (hyst.m_v + hyst.m0_v)
     q["Q_V"] = min(30, _q_fit(v_bound * 1.001))
-    keys = [("r0_ohm", "Q_R0", vmax("r0_ohm")), ("r_fast_ohm", "Q_RF", vmax("r_fast_ohm")),
-            ("r_slow_ohm", "Q_RS", vmax("r_slow_ohm"))]
+    keys = [("r0_ohm", "Q_R0", r0_max), ("r_fast_ohm", "Q_RF", rf_max),
+            ("r_slow_ohm", "Q_RS", rs_max)]
     if diff:
-        keys.append(("r_diff_ohm", "Q_RD", bmax("r_diff_ohm")))
+        keys.append(("r_diff_ohm", "Q_RD", _bmax(dirs_raw, "r_diff_ohm")))
     for key, name, top in keys:
         q[name] = min(_q_fit(top), 62 - q_i + q["Q_V"], 40 if top == 0 else 62)
         sh = q[name] + q_i - q["Q_V"]
         if not 1 <= sh <= 62:
             raise InputError(None, f"cannot choose a fixed-point format for {key} (shift {sh})")
 
-    if src.surface is not None:
-        # sv = lam / max(dOCV/dSOC, 0.3 V) in [0, lam / 0.3 V] (1/V): the largest Q holding
-        # its largest value; the product sv u_diff (Q_SV + Q_V) is rounded to the Q30 SOC
-        q["Q_SV"] = _q_fit(float(np.max(src.surface)), cap=62 - q["Q_V"] + Q30)
-        if q["Q_SV"] + q["Q_V"] - Q30 < 1:
-            raise InputError(None, "cannot choose a fixed-point format for the surface SOC "
-                                   f"table (surface_soc_gain {ctx.model.surface_soc_gain:g})")
-    xs = [quantize(src.ocv_soc, Q30)] + [quantize(soc, Q30) for soc, _, _ in dirs_raw]
-    q["Q_G"] = _grid_shift(xs, "SOC")
-    u_rc = _uniform_shift([soc for soc, _, _ in dirs_raw])
-    shared = src.surface is None and all(np.array_equal(x, xs[0]) for x in xs[1:])  # CSpec.ocv_shared
-    u_ocv = None if shared else _uniform_shift([src.ocv_soc])
-    if u_rc is not None:
-        q["Q_GU"] = u_rc[1]
-    if u_ocv is not None:
-        q["Q_GUO"] = u_ocv[1]
-    temp_grid = None
-    if src.temps is not None:
-        tq = quantize(src.temps, Q_TEMP)
-        q["Q_GT"] = _grid_shift([tq], "temperature")
-        temp_grid = _qgrid(tq, q["Q_GT"])
 
+def _q_time_and_soc(ctx: SimpleNamespace, q: dict, diff: bool, q_age: float) -> int:
+    """The time constants' (variable dt) or D's and c's (fixed dt) formats and the SOC
+    update's; returns k_soc in Q_K."""
+    dirs_raw, by_name, dt_s, q_i, i_lim = ctx.src.dirs, ctx.by_name, ctx.dt_s, ctx.q_i, ctx.i_lim
+    variable_dt, notes, xrc = ctx.variable_dt, ctx.notes, by_name.get("extra_rc")
     k_soc64 = ctx.k_soc64
     k_top = k_soc64 * q_age     # the largest k_soc of the step: at the most faded capacity
     taus = [("tau_fast_s", "Q_DF", "Q_CF"), ("tau_slow_s", "Q_DS", "Q_CS")]
@@ -255,29 +237,37 @@ def prepare_fixed(ctx: SimpleNamespace) -> CSpec:
     if "SH_RATE" in q:
         k_raw = int(quantize([k_top], q["Q_K"])[0])
         assert (2**31 * k_raw + (1 << (q["SH_RATE"] - 1))) >> q["SH_RATE"] <= INT32_MAX
+    return k_soc
 
-    bv_spec: dict = {}
-    if bv:
-        i0_min = bmax("i0_a", np.min)
-        q["Q_I0"] = _q_fit(bmax("i0_a"))
-        i0_raw_min = int(quantize([i0_min], q["Q_I0"])[0])
-        r_max, sh_min = recip_q(i0_raw_min)
 
-        def x_raw(e):
-            k = int(sh_min) - (q["Q_I0"] - q_i + 31 - e)
-            return None if not 1 <= k <= 62 else (2**31 * int(r_max) + (1 << (k - 1))) >> k
+def _bv_fixed(ctx: SimpleNamespace, q: dict) -> dict:
+    """The Butler-Volmer branch's i0 format and asinh(x)/x table."""
+    dirs_raw, q_i, i_lim = ctx.src.dirs, ctx.q_i, ctx.i_lim
+    i0_min = _bmax(dirs_raw, "i0_a", np.min)
+    q["Q_I0"] = _q_fit(_bmax(dirs_raw, "i0_a"))
+    i0_raw_min = int(quantize([i0_min], q["Q_I0"])[0])
+    r_max, sh_min = recip_q(i0_raw_min)
 
-        e_bins = _g_table_bins(i_lim, i0_min, x_raw)
-        if e_bins < 0:
-            raise InputError(None, f"Butler-Volmer i0_a = {i0_min:g} A is too small for the "
-                                   f"fixed-point current range {i_lim:g} A (|i|/i0_a must stay "
-                                   f"below 2^{CDR_E_MAX}); use numeric=\"float\"")
-        tab = cdr_table(1.0, e_bins)
-        bv_spec = {"tab": quantize(tab, Q30), "QX": 31 - e_bins, "E": e_bins,
-                   "K": q["Q_I0"] - q_i + 31 - e_bins}
+    def x_raw(e):
+        k = int(sh_min) - (q["Q_I0"] - q_i + 31 - e)
+        return None if not 1 <= k <= 62 else (2**31 * int(r_max) + (1 << (k - 1))) >> k
 
+    e_bins = _g_table_bins(i_lim, i0_min, x_raw)
+    if e_bins < 0:
+        raise InputError(None, f"Butler-Volmer i0_a = {i0_min:g} A is too small for the "
+                               f"fixed-point current range {i_lim:g} A (|i|/i0_a must stay "
+                               f"below 2^{CDR_E_MAX}); use numeric=\"float\"")
+    tab = cdr_table(1.0, e_bins)
+    bv_spec = {"tab": quantize(tab, Q30), "QX": 31 - e_bins, "E": e_bins,
+               "K": q["Q_I0"] - q_i + 31 - e_bins}
+    return bv_spec
+
+
+def _dirs_fixed(ctx: SimpleNamespace, q: dict, diff: bool, bv: bool, u_rc) -> list:
+    """Each direction's tables in their formats."""
+    dt_s, variable_dt = ctx.dt_s, ctx.variable_dt
     dirs = []
-    for soc, cols, br in dirs_raw:
+    for soc, cols, br in ctx.src.dirs:
         if variable_dt:
             kf, ks = quantize(cols["tau_fast_s"], q["Q_T"]), quantize(cols["tau_slow_s"], q["Q_T"])
             if np.any(kf <= 0) or np.any(ks <= 0):
@@ -297,16 +287,59 @@ def prepare_fixed(ctx: SimpleNamespace) -> CSpec:
                          quantize(cols["r0_ohm"], q["Q_R0"]),
                          quantize(cols["r_fast_ohm"], q["Q_RF"]), kf,
                          quantize(cols["r_slow_ohm"], q["Q_RS"]), ks, **extra))
+    return dirs
+
+
+def _q_kr(q: dict, dirs: list, diff: bool) -> int:
+    """CSpec.tau_t: the state holds 1/tau in Q_KR, the largest Q with 1/tau of the smallest
+    quantised tau below 2^31 (interpolated taus are not smaller)."""
+    ks = [k for d in dirs for k in (d.k_fast, d.k_slow) + ((d.k_diff,) if diff else ())]
+    tau_raw_min = min(int(np.min(k)) for k in ks)
+    q_kr = min(62, math.floor(math.log2(INT32_MAX * tau_raw_min)) - q["Q_T"])
+    while int(rate_q(tau_raw_min, q["Q_T"], q_kr)) > INT32_MAX:
+        q_kr -= 1
+    if q_kr < 15:
+        raise InputError(None, "time constants too small for the fixed-point format")
+    return q_kr
+
+
+def prepare_fixed(ctx: SimpleNamespace) -> CSpec:
+    """The fixed-point spec (ctx from :func:`ecmgen.c.spec.begin`)."""
+    src, by_name, dt_s, variable_dt = ctx.src, ctx.by_name, ctx.dt_s, ctx.variable_dt
+    q_i, i_lim, notes = ctx.q_i, ctx.i_lim, ctx.notes
+    dirs_raw = src.dirs
+    diff, bv = "r_diff_ohm" in dirs_raw[0][2], "i0_a" in dirs_raw[0][2]
+    law = ctx.model.ageing      # its largest scales widen Q_V and k_soc's formats
+    q_age = 1.0 if law is None else float(np.max(1.0 / law.capacity_scale))
+    q = {"Q_I": q_i}
+    _q_voltage_and_resistances(ctx, q, diff)
+    if src.surface is not None:
+        # sv = lam / max(dOCV/dSOC, 0.3 V) in [0, lam / 0.3 V] (1/V): the largest Q holding
+        # its largest value; the product sv u_diff (Q_SV + Q_V) is rounded to the Q30 SOC
+        q["Q_SV"] = _q_fit(float(np.max(src.surface)), cap=62 - q["Q_V"] + Q30)
+        if q["Q_SV"] + q["Q_V"] - Q30 < 1:
+            raise InputError(None, "cannot choose a fixed-point format for the surface SOC "
+                                   f"table (surface_soc_gain {ctx.model.surface_soc_gain:g})")
+    xs = [quantize(src.ocv_soc, Q30)] + [quantize(soc, Q30) for soc, _, _ in dirs_raw]
+    q["Q_G"] = _grid_shift(xs, "SOC")
+    u_rc = _uniform_shift([soc for soc, _, _ in dirs_raw])
+    shared = src.surface is None and all(np.array_equal(x, xs[0]) for x in xs[1:])  # CSpec.ocv_shared
+    u_ocv = None if shared else _uniform_shift([src.ocv_soc])
+    if u_rc is not None:
+        q["Q_GU"] = u_rc[1]
+    if u_ocv is not None:
+        q["Q_GUO"] = u_ocv[1]
+    temp_grid = None
+    if src.temps is not None:
+        tq = quantize(src.temps, Q_TEMP)
+        q["Q_GT"] = _grid_shift([tq], "temperature")
+        temp_grid = _qgrid(tq, q["Q_GT"])
+
+    k_soc = _q_time_and_soc(ctx, q, diff, q_age)
+    bv_spec = _bv_fixed(ctx, q) if bv else {}
+    dirs = _dirs_fixed(ctx, q, diff, bv, u_rc)
     if variable_dt and all(np.all(k == k[:, :1]) for d in dirs for k in (d.k_fast, d.k_slow)):
-        # CSpec.tau_t: the state holds 1/tau in Q_KR, the largest Q with 1/tau of the smallest
-        # quantised tau below 2^31 (interpolated taus are not smaller)
-        ks = [k for d in dirs for k in (d.k_fast, d.k_slow) + ((d.k_diff,) if diff else ())]
-        tau_raw_min = min(int(np.min(k)) for k in ks)
-        q["Q_KR"] = min(62, math.floor(math.log2(INT32_MAX * tau_raw_min)) - q["Q_T"])
-        while int(rate_q(tau_raw_min, q["Q_T"], q["Q_KR"])) > INT32_MAX:
-            q["Q_KR"] -= 1
-        if q["Q_KR"] < 15:
-            raise InputError(None, "time constants too small for the fixed-point format")
+        q["Q_KR"] = _q_kr(q, dirs, diff)
     db = int(quantize([ctx.model.direction_deadband_a], q_i)[0])
     fx = _fx_fixed(by_name, q, dt_s, i_lim)
     return CSpec(ocv_grid=_qgrid(xs[0], q["Q_G"], None if u_ocv is None else (u_ocv[0][0], u_ocv[1])),

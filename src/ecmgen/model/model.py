@@ -549,31 +549,36 @@ def model_from_json_dict(raw: Any, path=None) -> EcmModel:
     return model
 
 
-def _model_from_checked_json(raw: dict, path, version: int) -> EcmModel:
-    """model_from_json_dict once the types and keys are known to be right."""
-    def need(d, key, where):
+class _Reader:
+    """Reads a checked model.json's values, naming the file and the key in each error."""
+
+    def __init__(self, path, version: int):
+        self.path, self.version = path, version
+
+    def need(self, d, key, where):
         if not isinstance(d, dict) or key not in d:
-            raise InputError(path, f"missing {where}{key}")
+            raise InputError(self.path, f"missing {where}{key}")
         return d[key]
 
-    def temps(d, n_rows: int, where: str) -> np.ndarray:
+    def temps(self, d, n_rows: int, where: str) -> np.ndarray:
         """Version 1 has no temperature axis: one row, temperature unknown."""
-        if version == 1:
+        if self.version == 1:
             return np.array([np.nan])
-        t = need(d, "temperature_c", where)
+        t = self.need(d, "temperature_c", where)
         if not isinstance(t, list) or len(t) != n_rows:
-            raise InputError(path, f"{where}temperature_c must list one temperature per row "
-                                   f"({n_rows} rows)")
+            raise InputError(self.path, f"{where}temperature_c must list one temperature per row "
+                                        f"({n_rows} rows)")
         if n_rows == 1 and t[0] is None:
             return np.array([np.nan])
-        out = _f64(t, where + "temperature_c", path)
+        out = _f64(t, where + "temperature_c", self.path)
         if np.any(np.diff(out) <= 0):
-            raise InputError(path, f"{where}temperature_c must be strictly increasing")
+            raise InputError(self.path, f"{where}temperature_c must be strictly increasing")
         return out
 
-    def rows(d, key, where, n_soc: int, dtype=np.float64) -> np.ndarray:
+    def rows(self, d, key, where, n_soc: int, dtype=np.float64) -> np.ndarray:
         """A (n_t, n_soc) table; version 1 (and a flat list) is one row."""
-        v = need(d, key, where)
+        path = self.path
+        v = self.need(d, key, where)
         if not isinstance(v, list) or not v:
             raise InputError(path, f"{where}{key} must be a non-empty list")
         if not isinstance(v[0], list):
@@ -590,22 +595,12 @@ def _model_from_checked_json(raw: dict, path, version: int) -> EcmModel:
             raise InputError(path, f"{where}{key} has shape {a.shape}, expected (rows, {n_soc})")
         return a
 
-    capacity = float(_f64([need(raw, "capacity_ah", "")], "capacity_ah", path)[0])
-    if capacity <= 0:
-        raise InputError(path, f"capacity_ah must be positive, got {capacity}")
-    ocv_raw = need(raw, "ocv", "")
-    ocv_soc = _f64(need(ocv_raw, "soc", "ocv."), "ocv.soc", path)
-    ocv_v = rows(ocv_raw, "ocv_v", "ocv.", ocv_soc.size)
-    for row in ocv_v:
-        check_ocv(ocv_soc, row, path)
-    ocv = OcvOverTemperature(temps(ocv_raw, ocv_v.shape[0], "ocv."), ocv_soc, ocv_v)
-
-    rc = need(raw, "rc", "")
-    tables = {}
-    for direction in DIRECTIONS:
-        t = need(rc, direction, "rc.")
+    def rc_table(self, rc: dict, direction: str) -> RcTable:
+        """One direction's RC table."""
+        path, rows = self.path, self.rows
+        t = self.need(rc, direction, "rc.")
         where = f"rc.{direction}."
-        soc = _f64(need(t, "soc", where), where + "soc", path)
+        soc = _f64(self.need(t, "soc", where), where + "soc", path)
         if np.any(np.diff(soc) <= 0) or soc[0] < 0 or soc[-1] > 1:
             raise InputError(path, f"{where}soc must be strictly increasing within [0, 1]")
         cols = {}
@@ -622,7 +617,13 @@ def _model_from_checked_json(raw: dict, path, version: int) -> EcmModel:
                      else np.ones((n_t, soc.size), bool))
         if fit_error.shape != (n_t, soc.size) or converged.shape != (n_t, soc.size):
             raise InputError(path, f"{where}fit_error/converged do not match the table shape")
-        branch = {}
+        branch = self.branch(t, where, n_t)
+        return RcTable(soc=soc, fit_error=fit_error, converged=converged,
+                       temperature_c=self.temps(t, n_t, where), **branch, **cols)
+
+    def branch(self, t: dict, where: str, n_t: int) -> dict:
+        """The per-temperature values of a direction (diffusion pair, Butler-Volmer i0)."""
+        path, branch = self.path, {}
         for k in BRANCH_FIELDS:
             if k in t:
                 branch[k] = _f64(t[k] if isinstance(t[k], list) else [t[k]], where + k, path)
@@ -633,8 +634,24 @@ def _model_from_checked_json(raw: dict, path, version: int) -> EcmModel:
                     raise InputError(path, f"{where}{k} must be positive")
         if ("r_diff_ohm" in branch) != ("tau_diff_s" in branch):
             raise InputError(path, f"{where}r_diff_ohm and tau_diff_s go together")
-        tables[direction] = RcTable(soc=soc, fit_error=fit_error, converged=converged,
-                                    temperature_c=temps(t, n_t, where), **branch, **cols)
+        return branch
+
+
+def _model_from_checked_json(raw: dict, path, version: int) -> EcmModel:
+    """model_from_json_dict once the types and keys are known to be right."""
+    read = _Reader(path, version)
+    need = read.need
+    capacity = float(_f64([need(raw, "capacity_ah", "")], "capacity_ah", path)[0])
+    if capacity <= 0:
+        raise InputError(path, f"capacity_ah must be positive, got {capacity}")
+    ocv_raw = need(raw, "ocv", "")
+    ocv_soc = _f64(need(ocv_raw, "soc", "ocv."), "ocv.soc", path)
+    ocv_v = read.rows(ocv_raw, "ocv_v", "ocv.", ocv_soc.size)
+    for row in ocv_v:
+        check_ocv(ocv_soc, row, path)
+    ocv = OcvOverTemperature(read.temps(ocv_raw, ocv_v.shape[0], "ocv."), ocv_soc, ocv_v)
+    rc = need(raw, "rc", "")
+    tables = {direction: read.rc_table(rc, direction) for direction in DIRECTIONS}
 
     effects_raw = raw.get("effects", [])
     effects: tuple = ()
