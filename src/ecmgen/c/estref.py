@@ -2,30 +2,32 @@
 the model's step of ``ecmrt_f32.h``), operation for operation: bit-identical to the C at
 every step (tests/test_codegen_estimator.py, through cffi and under QEMU).
 
-The model's step is mirrored here per sample (the filter changes the state between
-steps, so :func:`ecmgen.c.cref.simulate_f32`, which runs a whole record at once, cannot
-drive it); what does not depend on the state (the sanitised inputs, the direction, the
+Written as the C is: one function per unit of ``ecmrt_est_f32_update`` and
+``ecmrt_est_f32_rows.h`` (``_factors``, ``_rows_rc``, ``_rows_states``, ``_rows_soc``,
+``_predict``, ``_measurement``, ``_relinearise``, ``_correct``) around ``_model_step``. The
+model's step is mirrored here per sample (the filter changes the state between steps, so
+:func:`ecmgen.c.cref.simulate_f32`, which runs a whole record at once, cannot drive it); what does not depend on the state (the sanitised inputs, the direction, the
 temperature row and weight, the per-temperature branch values, the Butler-Volmer factor,
 the effects' factors and the hysteresis and extra RC coefficients) is computed for the
 whole record at once, as cref does; with the offset state the current depends on the
 state, and what depends on the current is computed per sample (``_current_terms``). With
 the surface SOC the step's RC tables and the accessor's are read at the surface SOC from the
-u_diff before the step (``_Tables.surface``), F gets its u_diff column. numpy float32 scalars round once
+u_diff before the step (``estref_tables.Tables.surface``), F gets its u_diff column. numpy float32 scalars round once
 per operation, as the C built with -ffp-contract=off.
 """
 
 from __future__ import annotations
 
 import math
-from bisect import bisect_right
 from dataclasses import dataclass
 
 import numpy as np
 
 from . import cref
-from .codegen import branch_rows, ocv_rows, surface_rows, table_rows
+from .codegen import branch_rows
 from ..estimate.ekf import HYSTERESIS_START_VAR
 from .estc import EstSpec
+from .estref_tables import Tables, locate_vec
 from .qformat import DT_MAX_S, SOC_LIM
 from .spec import CSpec
 
@@ -33,13 +35,7 @@ F32 = np.float32
 ZERO, ONE, HALF = F32(0.0), F32(1.0), F32(0.5)
 ITER, ITER_SOC, ITER_TOL = 5, F32("1.0e-3"), F32("1.0e-5")
 V_MAX = F32(1000.0)          # ECMRT_EST_V_MAX: a reading beyond is no measurement
-
-
-def _offsets(spec: CSpec) -> dict:
-    """ECMRT_P_*: where each parameter's pair sits in a table row."""
-    if spec.tau_t:
-        return {"r0": 0, "rf": 2, "rs": 4, "ocv": 6}
-    return {"r0": 0, "rf": 2, "tf": 4, "rs": 6, "ts": 8, "ocv": 10}
+SOC_LO, SOC_HI = F32(-SOC_LIM), F32(SOC_LIM)     # the step's SOC saturation
 
 
 @dataclass(frozen=True)
@@ -58,120 +54,6 @@ class EstRef:
         return self.x[:, 0]
 
 
-class _Grid:
-    def __init__(self, g, uniform: bool = False):
-        self.n = g.n
-        self.uniform = uniform
-        if uniform:
-            self.x0, self.inv_h, self.um = F32(g.x0), F32(g.inv_h), F32(g.n - 1)
-            return
-        self.x = [F32(v) for v in g.x]
-        self.xf = [float(v) for v in g.x]
-        self.inv = [F32(v) for v in g.inv_dx]
-
-    def locate(self, v):
-        """ecmrt_f32_locate / ecmrt_f32_ulocate: (k, w)."""
-        last = self.n - 2
-        if self.uniform:
-            u = (v - self.x0) * self.inv_h
-            if not u >= ZERO:
-                return 0, ZERO
-            if not u < self.um:
-                return last, ONE
-            k = int(u)
-            return k, u - F32(k)
-        if not v >= self.x[0]:
-            return 0, ZERO
-        if v >= self.x[-1]:
-            return last, ONE
-        k = min(bisect_right(self.xf, float(v)) - 1, last)
-        return k, (v - self.x[k]) * self.inv[k]
-
-    def inv_at(self, k, v):
-        """ecmrt_est_f32_inv / _uinv: 1/spacing of segment k, 0 outside the grid."""
-        if self.uniform:
-            u = (v - self.x0) * self.inv_h
-            return self.inv_h if (u >= ZERO and u <= self.um) else ZERO
-        return self.inv[k] if (v >= self.x[0] and v <= self.x[-1]) else ZERO
-
-
-def _locate_vec(g, v: np.ndarray):
-    """ecmrt_f32_locate over an array (the temperature)."""
-    x = g.x
-    k = np.clip(np.searchsorted(x, v, side="right") - 1, 0, x.size - 2)
-    with np.errstate(all="ignore"):
-        w = ((v - x[k]) * g.inv_dx[k]).astype(F32)
-    w = np.where(v >= x[-1], ONE, w)
-    k = np.where(v >= x[-1], x.size - 2, k)
-    below = ~(v >= x[0])
-    return np.where(below, 0, k), np.where(below, ZERO, w).astype(F32)
-
-
-class _Tables:
-    """The spec's tables as the C holds them, as nested lists of float32 scalars."""
-
-    def __init__(self, spec: CSpec):
-        self.spec = spec
-        self.off = _offsets(spec)
-        rc_u = spec.rc_uniform
-        self.grids = [_Grid(d.grid, rc_u) for d in spec.dirs]
-        self.rows = [[[list(map(F32, pt)) for pt in row] for row in table_rows(spec, d)]
-                     for d in spec.dirs]
-        self.shared = spec.ocv_shared
-        if not self.shared:
-            self.ocv_grid = _Grid(spec.ocv_grid, spec.ocv_uniform)
-            self.ocv = [[list(map(F32, pt)) for pt in row] for row in ocv_rows(spec)]
-        self.sv = (None if spec.surface is None else
-                   [[list(map(F32, pt)) for pt in row] for row in surface_rows(spec)])
-
-    @staticmethod
-    def _vs(rows, kt, k, j, w, wt, inv, slope: bool):
-        """(value, SOC slope or None) of the pair at offset j of segment k."""
-        r1 = rows[kt][k]
-        if wt is None:                           # one row: pairs along SOC
-            return r1[j] + r1[j + 1] * w, (r1[j + 1] * inv if slope else None)
-        r2 = rows[kt][k + 1]                     # ecmrt_f32_segment, then along SOC
-        a = r1[j] + r1[j + 1] * wt
-        dd = (r2[j] + r2[j + 1] * wt) - a
-        return a + dd * w, (dd * inv if slope else None)
-
-    def surface(self, soc, up, kt, wt):
-        """The surface SOC from u_diff ``up`` (the step's ecmrt_f32_surface, the accessor's
-        reading of it) and its derivatives by soc and by up (0 where clamped): (soc_s, ds,
-        du); (soc, None, None) without the surface SOC."""
-        if self.sv is None:
-            return soc, None, None
-        g = self.ocv_grid
-        k, w = g.locate(soc)
-        inv = g.inv_at(k, soc)
-        sv, dsv = self._vs(self.sv, kt, k, 0, w, wt, inv, True)
-        r = soc + sv * up
-        if not r >= ZERO:
-            return ZERO, ZERO, ZERO
-        if r > ONE:
-            return ONE, ZERO, ZERO
-        return r, ONE + dsv * up, sv
-
-    def values(self, d, soc, kt, wt, fields, slope: bool, soc_rc=None):
-        """{field: (value, slope)} of direction d at soc (the step's lookups; with slope:
-        the accessor ecmrt_est_f32_params); fields of ("r0", "rf", "tf", "rs", "ts") at
-        ``soc_rc`` (the surface SOC; None: soc), and "ocv" always at soc."""
-        g = self.grids[d]
-        soc_rc = soc if soc_rc is None else soc_rc
-        k, w = g.locate(soc_rc)
-        inv = g.inv_at(k, soc_rc) if slope else None
-        off = self.off
-        out = {f: self._vs(self.rows[d], kt, k, off[f], w, wt, inv, slope)
-               for f in fields if f in off}
-        if self.shared:
-            out["ocv"] = self._vs(self.rows[d], kt, k, off["ocv"], w, wt, inv, slope)
-        else:
-            k, w = self.ocv_grid.locate(soc)
-            inv = self.ocv_grid.inv_at(k, soc) if slope else None
-            out["ocv"] = self._vs(self.ocv, kt, k, 0, w, wt, inv, slope)
-        return out
-
-
 def _inputs(spec: CSpec, current_a, temperature_c, dt_s, chg=None):
     """The record's sanitised float32 inputs and what depends on them alone; ``chg``: the
     direction of every sample instead of the current's (the offset state's per-direction
@@ -186,7 +68,7 @@ def _inputs(spec: CSpec, current_a, temperature_c, dt_s, chg=None):
                                       dtype=np.float64), (n,)).astype(F32)
     chg = cref._direction(i, spec.deadband) if chg is None else chg
     if spec.temp:
-        kt, wt = _locate_vec(spec.temp_grid, temp)
+        kt, wt = locate_vec(spec.temp_grid, temp)
     else:
         kt, wt = np.zeros(n, dtype=np.int64), None
     branch = {}
@@ -265,352 +147,432 @@ def simulate_estimator_f32(spec: CSpec, est: EstSpec, current_a, dt_s, voltage_v
                          jacobians)
 
 
+class _Run:
+    """One run of the filter: its constants (the spec's, the noise's, the effects') and its
+    state (the SOC, the RC voltages u, the covariance P, the start flags)."""
+
+    def __init__(self, spec, est, current_a, dt_s, voltage_v, soc0, temperature_c):
+        self.spec, self.tab, self.off = spec, Tables(spec), est.offset
+        if self.off:     # the current is the reading less the offset state: per sample
+            n0 = np.asarray(current_a).size
+            self.per = [_inputs(spec, np.zeros(n0), temperature_c, dt_s,
+                                np.full(n0, d, np.uint8)) for d in (0, 1)]
+            self.inp = self.per[0]
+            self.seen = np.asarray(current_a, dtype=np.float64).astype(F32)
+            self.imax, self.dband = F32(spec.i_lim_a), F32(spec.deadband)
+        else:
+            self.inp = _inputs(spec, current_a, temperature_c, dt_s)
+        self.vm_all = np.asarray(voltage_v, dtype=np.float64).astype(F32)
+        self.n, self.N = self.inp["i"].size, est.n
+        N = self.N
+        nz = self.nz = {k: F32(v) for k, v in est.noise.items()}
+        self.spread_k = nz.get("ocv_k", ZERO)      # ECMRT_EST_SPREAD 0: the tangent
+        self.diff, self.bv, self.tau_t = spec.diff, spec.has_bv, spec.tau_t
+        self.surf = spec.surface is not None        # ECMRT_SURFACE (with the diffusion pair)
+        self.flat = not est.settings.resistance_slopes
+        fx = self.fx = spec.fx
+        self.cdr, self.arr, self.hyst, self.xrc = (bool(fx.get(k))
+                                                   for k in ("cdr", "arr", "hyst", "xrc"))
+        self.ix = 3 + int(self.diff)                # ECMRT_EST_IX, ECMRT_EST_IH, ECMRT_EST_IB
+        self.ih = self.ix + int(self.xrc)
+        self.ib = N - 1
+        self.k_soc = F32(spec.k_soc)
+        # est_init: the model's init (SOC saturated to [-2, 2], NaN 0), then [0, 1]
+        s0 = F32(soc0)
+        s0 = ZERO if np.isnan(s0) else min(max(s0, F32(-SOC_LIM)), F32(SOC_LIM))
+        self.soc = _clamp(F32(s0))
+        self.u = [ZERO] * N                          # u[0] unused
+        P = self.P = [[ZERO] * N for _ in range(N)]
+        P[0][0] = nz["p0_soc"]
+        for r in range(1, N):
+            P[r][r] = nz["p0_u"]
+        if self.hyst:
+            anywhere = nz["start_a"] != ZERO         # a start anywhere: the direction unknown
+            P[self.ih][self.ih] = F32(HYSTERESIS_START_VAR) if anywhere else nz["p0_h"]
+            self.u[self.ih] = ZERO if anywhere else F32(fx["h_init"])
+            self.h_k, self.h_m, self.h_m0, self.h_ref = (F32(fx[k]) for k in
+                                                        ("h_k", "h_m", "h_m0", "h_ref"))
+        if self.xrc:
+            self.x_r = F32(fx["x_r"])
+        if self.off:
+            P[self.ib][self.ib] = nz["p0_b"]
+            self.d_prev = 0
+        self.first, self.held = True, ZERO           # est_t's eta_v
+
+
+class _Sample:
+    """One sample's inputs, the step's values the filter reads, and the linearisation:
+    F = diag(a) + f e_soc^T (+ o e_offset^T) (+ g e_u_diff^T), Q = diag(q), H = h, R."""
+
+    __slots__ = ("t", "i", "d", "ai", "dt", "kt", "wt", "src", "cur", "u_prev", "vp", "pa",
+                 "sds", "sdu", "ja", "gc", "fa", "gf", "sg", "ch", "cx", "r0a", "dr0a", "rf",
+                 "drf", "rs", "drs", "rb0", "rbf", "dg0", "dgf", "ds_di", "rg", "ps", "rdc",
+                 "a", "f", "q", "o", "g", "h", "R")
+
+
+def _sample_inputs(run: _Run, t: int) -> _Sample:
+    """The sample's current (with the offset state: the reading less the offset, its
+    direction and what depends on it), dt, temperature row and weight."""
+    s, inp = _Sample(), run.inp
+    s.t, s.dt, s.kt = t, inp["dt"][t], int(inp["kt"][t])
+    s.wt = None if inp["wt"] is None else inp["wt"][t]
+    if run.off:
+        s.i = _sanitise(run.seen[t] - run.u[run.ib], run.imax)
+        s.d = 1 if s.i > run.dband else (0 if s.i < -run.dband else run.d_prev)
+        run.d_prev = s.d
+        s.ai = -s.i if s.i < ZERO else s.i
+        s.src = run.per[s.d]
+        s.cur = _current_terms(run.spec, s.ai, s.dt, s.src, t)
+    else:
+        s.i, s.d = inp["i"][t], int(inp["chg"][t])
+        s.ai = -s.i if s.i < ZERO else s.i
+        s.src, s.cur = inp, {k: inp[k][t] for k in ("g_cdr", "g_bv", "c_h") if k in inp}
+    return s
+
+
+def _model_step(run: _Run, s: _Sample) -> None:
+    """ecmrt_f32_step on the run's state: the SOC, the RC voltages, the predicted voltage
+    s.vp; keeps what the filter reads (the tables at the new SOC with their slopes, the
+    coefficients, the effects' factors)."""
+    i, d, t, dt, kt, wt, src, u = s.i, s.d, s.t, s.dt, s.kt, s.wt, s.src, run.u
+    dsoc = (i * dt) * run.k_soc if run.off else run.inp["dsoc"][t]
+    s.u_prev = list(u)
+    sn = run.soc + (dsoc - ZERO)                         # soc_c is 0 after every est step
+    run.soc = SOC_LO if sn < SOC_LO else (SOC_HI if sn > SOC_HI else sn)
+    socr, s.sds, s.sdu = (run.tab.surface(run.soc, s.u_prev[3], kt, wt) if run.surf
+                          else (run.soc, None, None))
+    # the step's lookups (pv) and the accessor's (ecmrt_est_f32_params, pa) read the same
+    # tables at the same SOC: one lookup gives both (the accessor adds the slopes)
+    pa = pv = run.tab.values(d, run.soc, kt, wt, ("r0", "rf", "tf", "rs", "ts"), True, socr)
+    r0, rf, rs, ocv = pv["r0"][0], pv["rf"][0], pv["rs"][0], pv["ocv"][0]
+    s.gc = s.cur["g_cdr"] if run.cdr else ONE
+    s.fa = run.inp["f_arr"][t] if run.arr else ONE
+    if run.cdr:
+        r0, rf = r0 * s.gc, rf * s.gc
+    if run.arr:
+        r0, rf, rs = r0 * s.fa, rf * s.fa, rs * s.fa
+    if run.bv:
+        rf = rf * s.cur["g_bv"]
+    if run.flat:                     # ECMRT_EST_SLOPES 0: the RC tables flat in SOC
+        pa = {k: (v[0], ZERO) if k != "ocv" else v for k, v in pa.items()}
+    s.pa = pa
+    if run.tau_t:            # the state's coefficients kc = 1/tau(T), for step and filter
+        cf, cs = omexp(dt * src["kc_f"][t]), omexp(dt * src["kc_s"][t])
+        s.ja = (cf, cs)
+    else:
+        cf, cs = omexp(dt / pv["tf"][0]), omexp(dt / pv["ts"][0])
+        s.ja = (omexp(dt / pa["tf"][0]), omexp(dt / pa["ts"][0]))
+    u[1] = u[1] + cf * (rf * i - u[1])
+    u[2] = u[2] + cs * (rs * i - u[2])
+    vp = ((ocv + r0 * i) + u[1]) + u[2]
+    if run.diff:
+        u[3] = u[3] + src["c_diff"][t] * (src["r_diff"][t] * i - u[3])
+        vp = vp + u[3]
+    vh = vx = F32(-0.0)              # an effect that is off adds -0.0 (as the C step)
+    if run.hyst:
+        s.sg, s.ch = (ONE if d == 1 else F32(-1.0)), s.cur["c_h"]
+        u[run.ih] = u[run.ih] + s.ch * (s.sg - u[run.ih])
+        vh = run.h_m * (u[run.ih] - run.h_ref) + run.h_m0 * (s.sg - run.h_ref)
+    if run.xrc:
+        s.cx = run.inp["c_x"][t]
+        u[run.ix] = u[run.ix] + s.cx * (run.x_r * i - u[run.ix])
+        vx = u[run.ix]
+    s.vp = vp + (vh + vx)
+
+
+def _factors(run: _Run, s: _Sample) -> None:
+    """ecmrt_est_f32_factors: the accessor's resistances (and slopes) times the effects'
+    factors; with the offset state the resistances before them and d(i g)/di."""
+    (r0a, dr0a), (rf, drf), (rs, drs) = s.pa["r0"], s.pa["rf"], s.pa["rs"]
+    gc, fa = s.gc, s.fa
+    s.gf = s.cur["g_bv"] if run.bv else ONE
+    if run.off:                               # before the current's factors
+        s.rb0, s.rbf = (r0a * fa, rf * fa) if run.arr else (r0a, rf)
+        s.dg0 = (F32(run.fx["g_scale"]) / _s(cref.sqrt_f32(s.cur["xc"] * s.cur["xc"] + ONE))
+                 if run.cdr else ONE)
+        s.dgf = s.dg0
+        if run.bv:
+            xb = s.cur["xb"]
+            dbv = ONE / _s(cref.sqrt_f32(xb * xb + ONE))
+            s.dgf = (gc * dbv + s.gf * s.dg0) - gc * s.gf if run.cdr else dbv
+        s.ds_di = s.dt * run.k_soc
+    if run.cdr:                               # ecmrt_est_f32_fx
+        r0a, dr0a, rf, drf = r0a * gc, dr0a * gc, rf * gc, drf * gc
+    if run.arr:
+        r0a, dr0a, rf, drf = r0a * fa, dr0a * fa, rf * fa, drf * fa
+        rs, drs = rs * fa, drs * fa
+    s.r0a, s.dr0a, s.rf, s.drf, s.rs, s.drs = r0a, dr0a, rf, drf, rs, drs
+
+
+def _rows_rc(run: _Run, s: _Sample) -> None:
+    """ecmrt_est_f32_rows_rc: the rows of u_fast and u_slow (SOC column through da/dsoc and
+    dr/dsoc) and their noise."""
+    nz, i, dt, a, f, q = run.nz, s.i, s.dt, s.a, s.f, s.q
+    one_a = s.ja[0]
+    a[1] = ONE - one_a
+    if run.tau_t:
+        da = ZERO
+    else:
+        (tf_, dtf) = s.pa["tf"]
+        da = ((a[1] * dt) / (tf_ * tf_)) * dtf
+    f[1] = da * s.u_prev[1] + ((s.drf * one_a - s.rf * da) * s.gf) * i
+    if run.surf:
+        s.g[1], f[1] = f[1] * s.sdu, f[1] * s.sds
+    if run.off:
+        s.o[1] = -((s.rbf * one_a) * s.dgf) - f[1] * s.ds_di
+    s.rg = s.rf * s.gf
+    e = (nz["pol"] * s.rg) * i
+    q[1] = ((e * e) * (ONE - a[1] * a[1])) * s.ps
+    one_a = s.ja[1]
+    a[2] = ONE - one_a
+    if not run.tau_t:
+        (ts_, dts) = s.pa["ts"]
+        da = ((a[2] * dt) / (ts_ * ts_)) * dts
+    f[2] = da * s.u_prev[2] + (s.drs * one_a - s.rs * da) * i
+    if run.surf:
+        s.g[2], f[2] = f[2] * s.sdu, f[2] * s.sds
+    if run.off:
+        s.o[2] = -(s.rs * one_a) - f[2] * s.ds_di
+    e = (nz["pol"] * s.rs) * i
+    q[2] = ((e * e) * (ONE - a[2] * a[2])) * s.ps
+
+
+def _rows_states(run: _Run, s: _Sample) -> None:
+    """ecmrt_est_f32_row_diff, _row_xrc, _row_hyst: the rows of u_diff, u_x and h (no SOC
+    column) and their noise."""
+    nz, i, t, a, q = run.nz, s.i, s.t, s.a, s.q
+    if run.diff:
+        ad = ONE - s.src["c_diff"][t]
+        a[3] = ad
+        if run.off:
+            s.o[3] = -(s.src["r_diff"][t] * s.src["c_diff"][t])
+        e = (nz["pol"] * s.src["r_diff"][t]) * i
+        q[3] = ((e * e) * (ONE - ad * ad)) * s.ps
+    if run.xrc:
+        ix = run.ix
+        a[ix] = ONE - s.cx
+        if run.off:
+            s.o[ix] = -(run.x_r * s.cx)
+        e = (nz["pol"] * run.x_r) * i
+        q[ix] = ((e * e) * (ONE - a[ix] * a[ix])) * s.ps
+    if run.hyst:
+        ih = run.ih
+        a[ih] = ONE - s.ch
+        q[ih] = nz["p0_h"] * (s.ch * (F32(2.0) - s.ch))
+        if run.off:
+            si = ONE if i > ZERO else (F32(-1.0) if i < ZERO else ZERO)
+            s.o[ih] = (((s.u_prev[ih] - s.sg) * si) * (s.dt * run.h_k)) * a[ih]
+
+
+def _rows_soc(run: _Run, s: _Sample) -> None:
+    """ecmrt_est_f32_rows_soc: the SOC's noise (the sensor's bias over the drift horizon and
+    white noise; with the offset state its random walk instead), none for dt <= 0; then
+    ecmrt_est_f32_start_noise at the first sample."""
+    nz, dt = run.nz, s.dt
+    if run.off:
+        s.o[0] = -s.ds_di
+        s.o[run.ib], s.a[run.ib], s.f[run.ib] = ZERO, ONE, ZERO
+    if dt > ZERO:
+        kk = dt * run.k_soc
+        if run.off:
+            b = nz["gain"] * s.ai
+            s.q[run.ib] = (nz["p0_b"] * dt) / nz["horizon_s"]
+        else:
+            b = nz["gain"] * s.ai + nz["offset_a"]
+        e = b * run.k_soc
+        r = nz["noise_a"] * kk
+        s.q[0] = (e * e) * (dt * nz["horizon_s"]) + r * r
+    else:
+        s.q = [ZERO] * run.N
+    if run.first:                    # the RC voltages' start variance
+        for j, r_ in ((1, s.rg), (2, s.rs),
+                      (3, s.src["r_diff"][s.t] if run.diff else None),
+                      (run.ix, run.x_r if run.xrc else None)):
+            if r_ is not None:
+                e = r_ * nz["start_a"]
+                s.q[j] = s.q[j] + e * e
+
+
+def _predict(run: _Run, s: _Sample) -> None:
+    """ecmrt_est_f32_predict: P = F P F^T + Q, exactly symmetric (the loops over zipped
+    rows: the same float32 operations in the same order as indexed loops, at a third of
+    the interpreter's cost)."""
+    P, N, a, f, q, o, g, ib = run.P, run.N, s.a, s.f, s.q, s.o, s.g, run.ib
+    P0 = P[0]
+    fp = [[ar * prc + fr * p0c for prc, p0c in zip(pr, P0)] for ar, fr, pr in zip(a, f, P)]
+    if run.off:
+        pb = P[ib]
+        fp = [[v + orr * pbc for v, pbc in zip(row, pb)] for row, orr in zip(fp, o)]
+    if run.surf:
+        p3 = P[3]
+        fp = [[v + gr * p3c for v, p3c in zip(row, p3)] for row, gr in zip(fp, g)]
+    for r in range(N):
+        fr_, fr0 = fp[r], fp[r][0]
+        for c in range(r, N):
+            val = a[c] * fr_[c] + f[c] * fr0
+            if run.off:
+                val = val + o[c] * fr_[ib]
+            if run.surf:
+                val = val + g[c] * fr_[3]
+            if r == c:
+                val = val + q[r]
+            P[r][c] = P[c][r] = val
+
+
+def _measurement(run: _Run, s: _Sample) -> None:
+    """H (ecmrt_est_f32_h_soc at the predicted P) and R (ecmrt_est_f32_r)."""
+    nz, i, dt = run.nz, s.i, s.dt
+    up = s.u_prev[3] if run.surf else None
+    dv = _ocv_slope(run.tab, s.d, run.soc, run.P[0][0], run.spread_k, s.kt, s.wt, up,
+                    s.pa["ocv"][1])
+    h = s.h = [dv + (s.dr0a * s.sds if run.surf else s.dr0a) * i] + [ONE] * (run.N - 1)
+    if run.hyst:
+        h[run.ih] = run.h_m
+    if run.off:
+        h[run.ib] = -(s.rb0 * s.dg0)
+    e = _abs(s.vp - s.pa["ocv"][0])
+    if nz["mem_k"] > ZERO:
+        r = run.held - run.held * omexp(dt * nz["mem_k"])
+        if r > e:
+            e = r
+        run.held = e
+    e = nz["model_error"] * e
+    R = nz["vn2"] + e * e
+    if not run.off:                  # the offset through the resistances
+        rdc = s.r0a + s.rg
+        rdc = rdc + s.rs
+        if run.diff:
+            rdc = rdc + s.src["r_diff"][s.t]
+        if run.xrc:
+            rdc = rdc + run.x_r
+        e = nz["offset_a"] * rdc
+        R = R + e * e
+    if not (run.first and nz["start_a"] == ZERO) and dt < nz["corr_s"]:
+        R = R * (nz["corr_s"] / dt) if dt > ZERO else ZERO
+    run.first = False
+    vm = run.vm_all[s.t]
+    s.R = R if vm >= -V_MAX and vm <= V_MAX else ZERO
+
+
+def _relinearise(run: _Run, s: _Sample, xu: list, h: list):
+    """At the updated state xu: H's SOC (and offset) entry and the model's voltage h(x)
+    (ecmrt_est_f32_h_soc, ecmrt_est_f32_voltage)."""
+    i, kt, wt = s.i, s.kt, s.wt
+    socr, sds, _ = (run.tab.surface(xu[0], s.u_prev[3], kt, wt) if run.surf
+                    else (xu[0], None, None))
+    pi = run.tab.values(s.d, xu[0], kt, wt, ("r0",), True, socr)
+    if run.flat:
+        pi["r0"] = (pi["r0"][0], ZERO)
+    (r0i, dr0i) = pi["r0"]
+    if run.off:
+        h[run.ib] = -((r0i * s.fa if run.arr else r0i) * s.dg0)
+    if run.cdr:
+        r0i, dr0i = r0i * s.gc, dr0i * s.gc
+    if run.arr:
+        r0i, dr0i = r0i * s.fa, dr0i * s.fa
+    vi = ((pi["ocv"][0] + r0i * i) + xu[1]) + xu[2]
+    if run.diff:
+        vi = vi + xu[3]
+    vh = vx = F32(-0.0)
+    if run.hyst:
+        vh = run.h_m * (xu[run.ih] - run.h_ref) + run.h_m0 * (s.sg - run.h_ref)
+    if run.xrc:
+        vx = xu[run.ix]
+    up = s.u_prev[3] if run.surf else None
+    dv = _ocv_slope(run.tab, s.d, xu[0], run.P[0][0], run.spread_k, kt, wt, up, pi["ocv"][1])
+    h[0] = dv + (dr0i * sds if run.surf else dr0i) * i
+    return vi + (vh + vx)
+
+
+def _correct(run: _Run, s: _Sample, x0: list) -> None:
+    """ecmrt_est_f32_correct: the update, iterated while it moves the SOC, then the Joseph
+    form; the state and P written only when all of it is finite."""
+    P, h, R, N, vm = run.P, s.h, s.R, run.N, run.vm_all[s.t]
+    g = _gain(P, h, R, x0, vm - s.vp)
+    ok = g is not None
+    if ok:
+        c, k, xu = g
+    for _ in range(ITER):
+        if not ok:
+            break
+        xu[0] = _clamp(xu[0])
+        if run.hyst:
+            xu[run.ih] = _clamp_h(xu[run.ih])
+        if _abs(xu[0] - x0[0]) < ITER_SOC:
+            break
+        e = vm - _relinearise(run, s, xu, h)
+        for j in range(N):
+            e = e - h[j] * (x0[j] - xu[j])
+        g = _gain(P, h, R, x0, e)
+        ok = g is not None
+        if ok:
+            c, k, xn = g
+            dd = _abs(xn[0] - xu[0])
+            xu = xn
+            if dd < ITER_TOL:
+                break
+    if ok:
+        mm = [[prj - kr * cj for prj, cj in zip(pr, c)] for pr, kr in zip(P, k)]
+        dv = [_dot(mr, h) for mr in mm]
+        pn = [[(mrj - dvr * kj) + R * (kr * kj) for mrj, kj in zip(mr, k)]
+              for mr, dvr, kr in zip(mm, dv, k)]
+        ok = _finite(xu) and all(_finite(row) for row in pn)
+    if ok:
+        for r in range(N):
+            for j in range(r, N):
+                P[r][j] = P[j][r] = HALF * (pn[r][j] + pn[j][r])
+        run.u[1:] = xu[1:]
+        if run.hyst:
+            run.u[run.ih] = _clamp_h(xu[run.ih])
+        x0[0] = xu[0]
+
+
 def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobians
               ) -> EstRef:
-    tab = _Tables(spec)
-    off = est.offset
-    if off:        # the current is the reading less the offset state: per sample, below
-        n0 = np.asarray(current_a).size
-        per = [_inputs(spec, np.zeros(n0), temperature_c, dt_s, np.full(n0, d, np.uint8))
-               for d in (0, 1)]
-        inp = per[0]
-        seen = np.asarray(current_a, dtype=np.float64).astype(F32)
-    else:
-        inp = _inputs(spec, current_a, temperature_c, dt_s)
-    vm_all = np.asarray(voltage_v, dtype=np.float64).astype(F32)
-    n, N = inp["i"].size, est.n
-    nz = {k: F32(v) for k, v in est.noise.items()}
-    spread_k = nz.get("ocv_k", ZERO)             # ECMRT_EST_SPREAD 0: the tangent
-    diff, bv = spec.diff, spec.has_bv
-    surf = spec.surface is not None              # ECMRT_SURFACE (with the diffusion pair)
-    # est_init: the model's init (SOC saturated to [-2, 2], NaN 0), then [0, 1]
-    s0 = F32(soc0)
-    s0 = ZERO if np.isnan(s0) else min(max(s0, F32(-SOC_LIM)), F32(SOC_LIM))
-    soc = _clamp(F32(s0))
-    u = [ZERO] * N                   # u[0] unused
-    P = [[ZERO] * N for _ in range(N)]
-    fx = spec.fx
-    cdr, arr, hyst, xrc = (bool(fx.get(k)) for k in ("cdr", "arr", "hyst", "xrc"))
-    ix = 3 + int(diff)                       # ECMRT_EST_IX, ECMRT_EST_IH
-    ih = ix + int(xrc)
-    P[0][0] = nz["p0_soc"]
-    for r in range(1, N):
-        P[r][r] = nz["p0_u"]
-    if hyst:
-        anywhere = nz["start_a"] != ZERO       # a start anywhere: the direction unknown
-        P[ih][ih] = F32(HYSTERESIS_START_VAR) if anywhere else nz["p0_h"]
-        u[ih] = ZERO if anywhere else F32(fx["h_init"])
-        h_k, h_m, h_m0, h_ref = (F32(fx[k]) for k in ("h_k", "h_m", "h_m0", "h_ref"))
-    if xrc:
-        x_r = F32(fx["x_r"])
-    ib = N - 1                               # ECMRT_EST_IB (with the offset state)
-    if off:
-        P[ib][ib] = nz["p0_b"]
-        d_prev = 0
-        imax, dband = F32(spec.i_lim_a), F32(spec.deadband)
-    k_soc = F32(spec.k_soc)
-    first = True
-    held = ZERO                      # est_t's eta_v
-    flat = not est.settings.resistance_slopes
+    run = _Run(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c)
+    n, N = run.n, run.N
     v_out = np.empty(n, dtype=F32)
     x_out = np.empty((n, N), dtype=F32)
     p_out = np.empty((n, N, N), dtype=F32)
     f_out = np.zeros((n, N, N), dtype=F32) if jacobians else None
     h_out = np.zeros((n, N), dtype=F32) if jacobians else None
-    slo, shi = F32(-SOC_LIM), F32(SOC_LIM)
-    i_a, dt_a, chg, kt_a, wt_a = inp["i"], inp["dt"], inp["chg"], inp["kt"], inp["wt"]
-    fields_all = ("r0", "rf", "tf", "rs", "ts")
-    tau_t = spec.tau_t
     for t in range(n):
-        dt, kt = dt_a[t], int(kt_a[t])
-        wt = None if wt_a is None else wt_a[t]
-        if off:
-            i = _sanitise(seen[t] - u[ib], imax)
-            d = 1 if i > dband else (0 if i < -dband else d_prev)
-            d_prev = d
-            ai = -i if i < ZERO else i
-            src, cur = per[d], _current_terms(spec, ai, dt, per[d], t)
-            dsoc = (i * dt) * k_soc
-        else:
-            i, d = i_a[t], int(chg[t])
-            ai = -i if i < ZERO else i
-            src, cur = inp, {k: inp[k][t] for k in ("g_cdr", "g_bv", "c_h") if k in inp}
-            dsoc = inp["dsoc"][t]
-        # ---- the model's step (ecmrt_f32_step) ----
-        u_prev = list(u)
-        y = dsoc - ZERO                                    # soc_c is 0 after every est step
-        sn = soc + y
-        if sn < slo:
-            sn = slo
-        elif sn > shi:
-            sn = shi
-        soc = sn
-        socr, sds, sdu = tab.surface(soc, u_prev[3], kt, wt) if surf else (soc, None, None)
-        # the step's lookups (pv) and the accessor's (ecmrt_est_f32_params, pa) read the
-        # same tables at the same SOC: one lookup gives both (the values are the same
-        # operations; the accessor adds the slopes)
-        pa = pv = tab.values(d, soc, kt, wt, fields_all, True, socr)
-        r0, rf, rs, ocv = pv["r0"][0], pv["rf"][0], pv["rs"][0], pv["ocv"][0]
-        gc = cur["g_cdr"] if cdr else ONE
-        fa = inp["f_arr"][t] if arr else ONE
-        if cdr:
-            r0, rf = r0 * gc, rf * gc
-        if arr:
-            r0, rf, rs = r0 * fa, rf * fa, rs * fa
-        if bv:
-            rf = rf * cur["g_bv"]
-        if flat:                     # ECMRT_EST_SLOPES 0: the RC tables flat in SOC
-            pa = {k: (v[0], ZERO) if k != "ocv" else v for k, v in pa.items()}
-        if tau_t:            # the state's coefficients kc = 1/tau(T), for step and filter
-            cf, cs = omexp(dt * src["kc_f"][t]), omexp(dt * src["kc_s"][t])
-            ja = (cf, cs)
-        else:
-            cf, cs = omexp(dt / pv["tf"][0]), omexp(dt / pv["ts"][0])
-            ja = (omexp(dt / pa["tf"][0]), omexp(dt / pa["ts"][0]))
-        uf = u[1] + cf * (rf * i - u[1])
-        us = u[2] + cs * (rs * i - u[2])
-        vp = ((ocv + r0 * i) + uf) + us
-        u[1], u[2] = uf, us
-        if diff:
-            rd = src["r_diff"][t]
-            ud = u[3] + src["c_diff"][t] * (rd * i - u[3])
-            vp = vp + ud
-            u[3] = ud
-        if hyst:
-            sg = ONE if d == 1 else F32(-1.0)
-            ch = cur["c_h"]
-            hh = u[ih] + ch * (sg - u[ih])
-            u[ih] = hh
-            vh = h_m * (hh - h_ref) + h_m0 * (sg - h_ref)
-        if xrc:
-            cx = inp["c_x"][t]
-            ux = u[ix] + cx * (x_r * i - u[ix])
-            u[ix] = ux
-        if hyst and xrc:
-            vp = vp + (vh + ux)
-        elif hyst:
-            vp = vp + vh
-        elif xrc:
-            vp = vp + ux
-        # ---- the filter (ecmrt_est_f32_update) ----
-        x0 = [soc] + u[1:]
-        gf = cur["g_bv"] if bv else ONE
-        a, f, q = [ONE] + [ZERO] * (N - 1), [ZERO] * N, [ZERO] * N
-        (r0a, dr0a), (rf_, drf), (rs_, drs) = pa["r0"], pa["rf"], pa["rs"]
-        if off:                               # before the current's factors
-            rb0, rbf = (r0a * fa, rf_ * fa) if arr else (r0a, rf_)
-            dg0 = (F32(fx["g_scale"]) / _s(cref.sqrt_f32(cur["xc"] * cur["xc"] + ONE))
-                   if cdr else ONE)
-            dgf = dg0
-            if bv:
-                xb = cur["xb"]
-                dbv = ONE / _s(cref.sqrt_f32(xb * xb + ONE))
-                dgf = (gc * dbv + gf * dg0) - gc * gf if cdr else dbv
-            ds_di = dt * k_soc
-            o = [ZERO] * N
-            o[0] = -ds_di
-        if cdr:                               # ecmrt_est_f32_fx
-            r0a, dr0a, rf_, drf = r0a * gc, dr0a * gc, rf_ * gc, drf * gc
-        if arr:
-            r0a, dr0a, rf_, drf = r0a * fa, dr0a * fa, rf_ * fa, drf * fa
-            rs_, drs = rs_ * fa, drs * fa
-        one_a = ja[0]
-        a[1] = ONE - one_a
-        if tau_t:
-            da = ZERO
-        else:
-            (tf_, dtf) = pa["tf"]
-            da = ((a[1] * dt) / (tf_ * tf_)) * dtf
-        f[1] = da * u_prev[1] + ((drf * one_a - rf_ * da) * gf) * i
-        g = [ZERO] * N                        # F's u_diff column through the surface SOC
-        if surf:
-            g[1], f[1] = f[1] * sdu, f[1] * sds
-        if off:
-            o[1] = -((rbf * one_a) * dgf) - f[1] * ds_di
-        ps = nz["pol_s2"] / (nz["pol_s2"] + P[0][0]) if nz["pol_s2"] > ZERO else ONE
-        rg = rf_ * gf
-        e = (nz["pol"] * rg) * i
-        q[1] = ((e * e) * (ONE - a[1] * a[1])) * ps
-        one_a = ja[1]
-        a[2] = ONE - one_a
-        if not tau_t:
-            (ts_, dts) = pa["ts"]
-            da = ((a[2] * dt) / (ts_ * ts_)) * dts
-        f[2] = da * u_prev[2] + (drs * one_a - rs_ * da) * i
-        if surf:
-            g[2], f[2] = f[2] * sdu, f[2] * sds
-        if off:
-            o[2] = -(rs_ * one_a) - f[2] * ds_di
-        e = (nz["pol"] * rs_) * i
-        q[2] = ((e * e) * (ONE - a[2] * a[2])) * ps
-        if diff:
-            ad = ONE - src["c_diff"][t]
-            a[3] = ad
-            if off:
-                o[3] = -(src["r_diff"][t] * src["c_diff"][t])
-            e = (nz["pol"] * src["r_diff"][t]) * i
-            q[3] = ((e * e) * (ONE - ad * ad)) * ps
-        if xrc:
-            a[ix] = ONE - cx
-            if off:
-                o[ix] = -(x_r * cx)
-            e = (nz["pol"] * x_r) * i
-            q[ix] = ((e * e) * (ONE - a[ix] * a[ix])) * ps
-        if not off:                  # the resistance the current offset sees
-            rdc = r0a + rg
-            rdc = rdc + rs_
-            if diff:
-                rdc = rdc + src["r_diff"][t]
-            if xrc:
-                rdc = rdc + x_r
-        if hyst:
-            a[ih] = ONE - ch
-            q[ih] = nz["p0_h"] * (ch * (F32(2.0) - ch))
-        if off:
-            if hyst:
-                si = ONE if i > ZERO else (F32(-1.0) if i < ZERO else ZERO)
-                o[ih] = (((u_prev[ih] - sg) * si) * (dt * h_k)) * a[ih]
-            o[ib], a[ib], f[ib] = ZERO, ONE, ZERO
-        if dt > ZERO:
-            kk = dt * F32(spec.k_soc)
-            if off:
-                b = nz["gain"] * ai
-                q[ib] = (nz["p0_b"] * dt) / nz["horizon_s"]
-            else:
-                b = nz["gain"] * ai + nz["offset_a"]
-            e = b * F32(spec.k_soc)
-            r = nz["noise_a"] * kk
-            q[0] = (e * e) * (dt * nz["horizon_s"]) + r * r
-        else:
-            q = [ZERO] * N
-        if first:                    # the RC voltages' start variance
-            for s_, r_ in ((1, rg), (2, rs_), (3, src["r_diff"][t] if diff else None),
-                           (ix, x_r if xrc else None)):
-                if r_ is not None:
-                    e = r_ * nz["start_a"]
-                    q[s_] = q[s_] + e * e
-        # (the loops over zipped rows: the same float32 operations in the same order as
-        # indexed loops, at a third of the interpreter's cost)
-        P0 = P[0]
-        fp = [[ar * prc + fr * p0c for prc, p0c in zip(pr, P0)]
-              for ar, fr, pr in zip(a, f, P)]
-        if off:
-            pb = P[ib]
-            fp = [[v + orr * pbc for v, pbc in zip(row, pb)] for row, orr in zip(fp, o)]
-        if surf:
-            p3 = P[3]
-            fp = [[v + gr * p3c for v, p3c in zip(row, p3)] for row, gr in zip(fp, g)]
-        for r in range(N):
-            fr_, fr0 = fp[r], fp[r][0]
-            for c in range(r, N):
-                val = a[c] * fr_[c] + f[c] * fr0
-                if off:
-                    val = val + o[c] * fr_[ib]
-                if surf:
-                    val = val + g[c] * fr_[3]
-                if r == c:
-                    val = val + q[r]
-                P[r][c] = P[c][r] = val
-        up = u_prev[3] if surf else None
-        dv = _ocv_slope(tab, d, soc, P[0][0], spread_k, kt, wt, up, pa["ocv"][1])
-        h = [dv + (dr0a * sds if surf else dr0a) * i] + [ONE] * (N - 1)
-        if hyst:
-            h[ih] = h_m
-        if off:
-            h[ib] = -(rb0 * dg0)
+        s = _sample_inputs(run, t)
+        _model_step(run, s)                      # ecmrt_f32_step
+        x0 = [run.soc] + run.u[1:]               # ecmrt_est_f32_update from here
+        _factors(run, s)
+        s.a, s.f, s.q = [ONE] + [ZERO] * (N - 1), [ZERO] * N, [ZERO] * N
+        s.g = [ZERO] * N                         # F's u_diff column through the surface SOC
+        s.o = [ZERO] * N if run.off else None    # F's offset column
+        s.ps = (run.nz["pol_s2"] / (run.nz["pol_s2"] + run.P[0][0])
+                if run.nz["pol_s2"] > ZERO else ONE)
+        _rows_rc(run, s)
+        _rows_states(run, s)
+        _rows_soc(run, s)
+        _predict(run, s)
+        _measurement(run, s)
         if jacobians:
-            f_out[t][np.diag_indices(N)] = a
-            f_out[t, 1:, 0] = f[1:]
-            if off:
-                f_out[t, :ib, ib] = o[:ib]
-            if surf:
-                f_out[t, 1:3, 3] = g[1:3]
-            h_out[t] = h
-        e = _abs(vp - pa["ocv"][0])
-        if nz["mem_k"] > ZERO:
-            r = held - held * omexp(dt * nz["mem_k"])
-            if r > e:
-                e = r
-            held = e
-        e = nz["model_error"] * e
-        R = nz["vn2"] + e * e
-        if not off:
-            e = nz["offset_a"] * rdc
-            R = R + e * e
-        if not (first and nz["start_a"] == ZERO) and dt < nz["corr_s"]:
-            R = R * (nz["corr_s"] / dt) if dt > ZERO else ZERO
-        first = False
-        vm = vm_all[t]
-        if not (vm >= -V_MAX and vm <= V_MAX):
-            R = ZERO
-        if R > ZERO:
-            g = _gain(P, h, R, x0, vm - vp)
-            ok = g is not None
-            if ok:
-                c, k, xu = g
-            for _ in range(ITER):
-                if not ok:
-                    break
-                xu[0] = _clamp(xu[0])
-                if hyst:
-                    xu[ih] = _clamp_h(xu[ih])
-                if _abs(xu[0] - x0[0]) < ITER_SOC:
-                    break
-                socr, sds, _ = (tab.surface(xu[0], u_prev[3], kt, wt) if surf
-                                else (xu[0], None, None))
-                pi = tab.values(d, xu[0], kt, wt, ("r0",), True, socr)
-                if flat:
-                    pi["r0"] = (pi["r0"][0], ZERO)
-                (r0i, dr0i) = pi["r0"]
-                if off:
-                    h[ib] = -((r0i * fa if arr else r0i) * dg0)
-                if cdr:
-                    r0i, dr0i = r0i * gc, dr0i * gc
-                if arr:
-                    r0i, dr0i = r0i * fa, dr0i * fa
-                vi = ((pi["ocv"][0] + r0i * i) + xu[1]) + xu[2]
-                if diff:
-                    vi = vi + xu[3]
-                if hyst:
-                    vx = h_m * (xu[ih] - h_ref) + h_m0 * (sg - h_ref)
-                    if xrc:
-                        vx = vx + xu[ix]
-                    vi = vi + vx
-                elif xrc:
-                    vi = vi + xu[ix]
-                dv = _ocv_slope(tab, d, xu[0], P[0][0], spread_k, kt, wt, up, pi["ocv"][1])
-                h[0] = dv + (dr0i * sds if surf else dr0i) * i
-                e = vm - vi
-                for j in range(N):
-                    e = e - h[j] * (x0[j] - xu[j])
-                g = _gain(P, h, R, x0, e)
-                ok = g is not None
-                if ok:
-                    c, k, xn = g
-                    dd = _abs(xn[0] - xu[0])
-                    xu = xn
-                    if dd < ITER_TOL:
-                        break
-            if ok:
-                mm = [[prj - kr * cj for prj, cj in zip(pr, c)] for pr, kr in zip(P, k)]
-                dv = [_dot(mr, h) for mr in mm]
-                pn = [[(mrj - dvr * kj) + R * (kr * kj) for mrj, kj in zip(mr, k)]
-                      for mr, dvr, kr in zip(mm, dv, k)]
-                ok = _finite(xu) and all(_finite(row) for row in pn)
-            if ok:
-                for r in range(N):
-                    for j in range(r, N):
-                        P[r][j] = P[j][r] = HALF * (pn[r][j] + pn[j][r])
-                u[1:] = xu[1:]
-                if hyst:
-                    u[ih] = _clamp_h(xu[ih])
-                x0[0] = xu[0]
-        soc = _clamp(x0[0])
-        v_out[t] = vp
-        x_out[t, 0] = soc
-        x_out[t, 1:] = u[1:]
-        p_out[t] = P
+            _keep_jacobians(run, s, f_out[t], h_out)
+        if s.R > ZERO:
+            _correct(run, s, x0)
+        run.soc = _clamp(x0[0])
+        v_out[t] = s.vp
+        x_out[t, 0] = run.soc
+        x_out[t, 1:] = run.u[1:]
+        p_out[t] = run.P
     return EstRef(v_out, x_out, p_out, f_out, h_out)
+
+
+def _keep_jacobians(run: _Run, s: _Sample, f_t: np.ndarray, h_out: np.ndarray) -> None:
+    """F and H of the sample, before any iteration (jacobians=True)."""
+    N, ib = run.N, run.ib
+    f_t[np.diag_indices(N)] = s.a
+    f_t[1:, 0] = s.f[1:]
+    if run.off:
+        f_t[:ib, ib] = s.o[:ib]
+    if run.surf:
+        f_t[1:3, 3] = s.g[1:3]
+    h_out[s.t] = s.h
 
 
 SPREAD_MIN, P_SOC_MIN = F32(1e-6), F32(1e-12)   # ECMRT_EST_SPREAD_MIN, ECMRT_EST_P_SOC_MIN
