@@ -20,7 +20,7 @@ from ecmgen.config import EstimatorConfig
 from test_estimate import ALL_EFFECTS, model_over_temperature
 
 C_WORDS = {"sizeof", "int32_t", "int64_t", "uint32_t", "uint8_t", "unsigned", "float", "int",
-           "const", "do", "while", "if", "else", "return", "defined", "char", "extern"}
+           "const", "do", "while", "if", "else", "return", "defined", "char", "extern", "void"}
 
 
 def _strip_comments(text: str) -> str:
