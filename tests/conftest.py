@@ -26,6 +26,28 @@ PANASONIC = SHARED_DATA / "panasonic-18650pf-25degC"
 CALCE = SHARED_DATA / "calce-a123-lfp"
 
 
+def built_once(tmp_path_factory, name: str, build) -> Path:
+    """A folder that ``build(folder)`` fills once per test run, whichever xdist worker asks
+    first; the others wait for it and share it (a module fixture is otherwise built once
+    per worker that runs a test of its module: 25-40 s each for the A123 build and the
+    fleet study). Without xdist, once per session. Read it, never write into it."""
+    import fcntl
+    import shutil
+
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent                  # the run's, above each worker's own
+    folder = root / f"built-once-{name}"
+    with open(root / f"built-once-{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)    # released when the file closes
+        if not (folder / ".built").exists():
+            shutil.rmtree(folder, ignore_errors=True)      # a build that failed half-way
+            folder.mkdir()
+            build(folder)
+            (folder / ".built").touch()
+    return folder
+
+
 def need(path: Path) -> Path:
     """Skip (with the reason) when the shared real data is not beside the checkout."""
     if not path.exists():

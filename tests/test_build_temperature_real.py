@@ -8,7 +8,7 @@ import json
 
 import pytest
 
-from conftest import REPO
+from conftest import REPO, built_once
 from ecmgen.cli import main
 
 EXAMPLE = REPO / "examples" / "panasonic-temperature"
@@ -17,22 +17,25 @@ EXAMPLE = REPO / "examples" / "panasonic-temperature"
 @pytest.fixture(scope="module")
 def build_25_and_0(tmp_path_factory):
     """The build's --json document and its MAE per (method, cycle) in mV."""
-    tmp_path = tmp_path_factory.mktemp("t25_0")
-    c25, c0 = REPO / "examples" / "panasonic-25degC", EXAMPLE / "0degC"
-    cfg = tmp_path / "cell.toml"
-    cfg.write_text(
-        f'[cell]\ncapacity_ah = 2.9\n[data]\ncycle = "{c25 / "us06.mat"}"\n'
-        f'extra_cycles = ["{c0 / "us06.mat"}", "{c0 / "hwfet.mat"}"]\nsoc0 = 1.0\n' +
-        "".join(f'[[data.pulse_tests]]\nfile = "{d / "hppc.mat"}"\nsoc0 = 1.0\n'
-                f'steps = "{d / "hppc-soc-steps.mat"}"\n' for d in (c25, c0)))
     import subprocess
     import sys
 
-    res = subprocess.run([sys.executable, "-m", "ecmgen.cli", "build", str(cfg), "--out",
-                          str(tmp_path / "out"), "--json", "--quiet", "--no-c", "--no-plots"],
-                         capture_output=True, text=True)
-    assert res.returncode == 0, res.stderr
-    doc = json.loads(res.stdout)
+    def build(tmp_path):
+        c25, c0 = REPO / "examples" / "panasonic-25degC", EXAMPLE / "0degC"
+        cfg = tmp_path / "cell.toml"
+        cfg.write_text(
+            f'[cell]\ncapacity_ah = 2.9\n[data]\ncycle = "{c25 / "us06.mat"}"\n'
+            f'extra_cycles = ["{c0 / "us06.mat"}", "{c0 / "hwfet.mat"}"]\nsoc0 = 1.0\n' +
+            "".join(f'[[data.pulse_tests]]\nfile = "{d / "hppc.mat"}"\nsoc0 = 1.0\n'
+                    f'steps = "{d / "hppc-soc-steps.mat"}"\n' for d in (c25, c0)))
+        res = subprocess.run([sys.executable, "-m", "ecmgen.cli", "build", str(cfg), "--out",
+                              str(tmp_path / "out"), "--json", "--quiet", "--no-c",
+                              "--no-plots"], capture_output=True, text=True)
+        assert res.returncode == 0, res.stderr
+        (tmp_path / "build.json").write_text(res.stdout)
+
+    folder = built_once(tmp_path_factory, "panasonic-25-and-0", build)
+    doc = json.loads((folder / "build.json").read_text())
     mae = {(m, c): v["mae_v"] * 1e3 for m, val in doc["validation"].items()
            for c, v in val["cycles"].items()}
     return doc, mae

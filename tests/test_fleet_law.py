@@ -12,7 +12,7 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import REPO
+from conftest import REPO, built_once
 from ecmgen.diagnosis.synthstudy import make_study, read_truth, write_study
 from ecmgen.fleet import Options, read_manifest, run_row, write_fleet_table
 from ecmgen.model import load_model
@@ -23,14 +23,17 @@ pytestmark = pytest.mark.slow
 @pytest.fixture(scope="module")
 def fleet(tmp_path_factory):
     """5 cells x 3 check-ups (200 cycles apart; the last cell ages 3x faster)."""
-    folder = tmp_path_factory.mktemp("study")
-    manifest = write_study(make_study(cells=5, checkups=3, seed=2), folder, with_cycle=False)
-    out = folder / "fleet"
-    rows = read_manifest(manifest)
-    for row in rows:
-        assert run_row(row, out, Options(plots=False, c_code=False)).status == "built"
-    write_fleet_table(rows, out, parquet=False, plots=False)
-    return out, read_truth(folder / "truth.csv")
+    def build(folder):
+        manifest = write_study(make_study(cells=5, checkups=3, seed=2), folder,
+                               with_cycle=False)
+        rows = read_manifest(manifest)
+        for row in rows:
+            assert run_row(row, folder / "fleet",
+                           Options(plots=False, c_code=False)).status == "built"
+        write_fleet_table(rows, folder / "fleet", parquet=False, plots=False)
+
+    folder = built_once(tmp_path_factory, "fleet-law-study", build)
+    return folder / "fleet", read_truth(folder / "truth.csv")
 
 
 def age(*args):

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from .plotting import (FLAGGED, MEASURED, METHOD_COLOURS, SOC_COLOUR, TEMPERATURE_COLOUR, _panels, _plt,
-                       break_gaps, degrees, method_colour, temperature_colours)
+                       break_gaps, degrees, method_colour, save_png, temperature_colours)
 
 
 def plot_dcir_fits(table, fits: dict, path: Path, at: str = "") -> Path:
@@ -37,7 +37,7 @@ def plot_dcir_fits(table, fits: dict, path: Path, at: str = "") -> Path:
     fig.suptitle("DC-IR R(t) = ΔV/ΔI of the pulses and the fitted 2RC curves"
                  + (f" at {at}" if at else ""))
     _panel_layout(fig)
-    fig.savefig(path, dpi=90)
+    save_png(fig, path)
     plt.close(fig)
     return path
 
@@ -63,7 +63,7 @@ def plot_curve_fits(curve_fit, path: Path, at: str = "") -> Path:
     fig.suptitle("Whole-test fit: measured and fitted voltage at each SOC level"
                  + (f", {at}" if at else "") + " (time axis linear to 10 s, log beyond)")
     _panel_layout(fig)
-    fig.savefig(path, dpi=90)
+    save_png(fig, path)
     plt.close(fig)
     return path
 
@@ -146,7 +146,7 @@ def plot_validations(vals: dict, path, title: str = "", best: str = ""):
     axes[-1].set_xlabel("time in the record [s]")
     # the two-line error label on the left, the SOC axis on the right
     _stack_layout(fig, 1.05, 0.72, title.count("\n") + 1)
-    fig.savefig(path, dpi=90)
+    save_png(fig, path)
     plt.close(fig)
     return path
 
@@ -253,7 +253,7 @@ def plot_parameters(model, path, temperatures_c=None, derived_c=(), title: str =
     fig.suptitle(title or what + "\n(filled: nodes the fit measured, open: held, "
                  "red x: <= 0, red ring: flagged by the table checks)", fontsize=10)
     _panel_layout(fig)
-    fig.savefig(path, dpi=90)
+    save_png(fig, path)
     plt.close(fig)
     return path
 
@@ -338,7 +338,7 @@ def plot_ocv(inputs, path: Path, at: str = "") -> Path:
     a2.set_ylim(-60, 60)
     a2.grid(alpha=0.3)
     _stack_layout(fig, 0.75, 0.15, hspace=0.07)
-    fig.savefig(path, dpi=90)
+    save_png(fig, path)
     plt.close(fig)
     return path
 

@@ -20,12 +20,28 @@ def _plt():
 def _panels(plt, n: int):
     """A grid of up to 5 columns for n panels; the spare axes are switched off.
     Returns (fig, axes of the n panels, number of columns)."""
+    from matplotlib.ticker import MaxNLocator
+
     cols = min(5, n)
     rows = int(np.ceil(n / cols))
     fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.6 * rows), squeeze=False)
     for ax in axes.flat[n:]:
         ax.axis("off")
+    for ax in axes.flat[:n]:
+        # at most 5 steps up a panel 2.6 in high (the default takes 7-9 there): each
+        # tick is an artist to make and draw, a tenth of a grid plot's time
+        ax.yaxis.set_major_locator(MaxNLocator(nbins=5, steps=[1, 2, 2.5, 5, 10]))
     return fig, list(axes.flat[:n]), cols
+
+
+def save_png(fig, path) -> None:
+    """``fig`` at 90 dpi; a PNG (a file named .png or without a suffix, or a buffer) with
+    zlib level 3: the lossless pixels in two thirds of the default level's time, files a
+    few per cent larger."""
+    from pathlib import Path
+
+    png = not isinstance(path, (str, Path)) or Path(path).suffix.lower() in ("", ".png")
+    fig.savefig(path, dpi=90, **({"pil_kwargs": {"compress_level": 3}} if png else {}))
 
 
 # the one style of every plot: the measured trace black and on top of every model, each
