@@ -130,3 +130,13 @@ def test_a_voltage_lag_is_fitted_back(synthetic_model):
     rec = TimeSeries(t, i, v, None, None, "x.csv")
     corr = cx.fit("voltage_lag", m, rec, 0.9, np.arange(len(t)), 1.0, 1e-3)
     assert corr.delay_s + corr.tau_s < 0.05
+
+
+def test_a_lag_shorter_than_a_sample_is_not_one_the_record_shows():
+    """Where in its sample a logger writes the current moves the simulated voltage by up to
+    a sample: a lag below one sample is not told from it, one of a sample or more is."""
+    assert cx.unresolved(cx.VoltageLag(0.0, 0.6), 1.0)
+    assert cx.unresolved(cx.VoltageLag(0.3, 0.3), 1.0)
+    assert not cx.unresolved(cx.VoltageLag(1.0, 0.0), 1.0)
+    assert not cx.unresolved(cx.VoltageLag(0.0, 0.6), 0.5)
+    assert not cx.unresolved(cx.OcvError(0.0, 1.0), 1.0)

@@ -180,6 +180,17 @@ def corrected_series(series: TimeSeries, corr: _Correction) -> TimeSeries:
     return series
 
 
+def unresolved(corr: _Correction, sample_s: float) -> str:
+    """Why a fitted lag is not one the record can show, or ''. The simulation holds each
+    logged current over its sample; whether a logger writes the current at the start, the
+    end or as the mean of its sample moves the simulated voltage by up to a sample, so a
+    lag (delay plus filter) shorter than one sample cannot be told from that."""
+    if not isinstance(corr, VoltageLag) or corr.delay_s + corr.tau_s >= sample_s:
+        return ""
+    return (f"a lag of {corr.delay_s + corr.tau_s:.2g} s, less than the record's "
+            f"{sample_s:.2g} s sample: not told from where in a sample the current is logged")
+
+
 def channel_voltage(corrections, time_s: np.ndarray, voltage_v: np.ndarray) -> np.ndarray:
     """A simulated voltage as the record's voltage channel shows it (its lag, where one is
     among ``corrections``): the lag is compared on the model's side, never taken out of

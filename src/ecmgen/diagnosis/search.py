@@ -371,6 +371,7 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
     if fit_stop < 50 or len(judge) - judge_start < 50:
         raise ValueError("too few samples to fit and judge on")
     rest_a = max(base_model.direction_deadband_a, base_model.capacity_ah / 100.0)
+    sample_s = float(np.median(np.diff(t)))
     noise = noise_std(fit_series, rest_a)
     floor_v = max(min_gain_v, min_gain_noise * noise)
     same = judge_series is None
@@ -545,10 +546,13 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
             gain = mae_cur - mae1
             rel = gain / mae_cur if mae_cur > 0 else 0.0
             bound = _on_bound(vals[-1], specs)
+            short = "" if corr is None else cx.unresolved(corr, sample_s)
             ok = bool(np.isfinite(mae1) and rel >= min_rel_gain and low > 0.0
-                      and gain >= floor_v and not bound)
+                      and gain >= floor_v and not bound and not short)
             if ok:
                 why = ""
+            elif short:
+                why = short
             elif bound:
                 why = (f"{bound} on its bound: the effect's best fit lies outside what it "
                        "can be, so it does not explain the residual")
@@ -641,7 +645,8 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
                 others = fixes[:k] + fixes[k + 1:]
                 fixes[k] = fit_fault(c.name, cx.corrected_model(base_model, others).with_effects(
                     effects), others)
-                if _on_bound(fixes[k].params(), cx.specs(c.name, base_model.capacity_ah)):
+                if _on_bound(fixes[k].params(), cx.specs(c.name, base_model.capacity_ah)) or \
+                        cx.unresolved(fixes[k], sample_s):
                     return None
             if kept:
                 vals, effects = fitted(fixed_effects + kept, [kept[-1][1]], {}, fixes=fixes)
@@ -726,7 +731,8 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
             if other in cx.CORRECTION_TYPES:
                 corr = fit_fault(other, cx.corrected_model(base_model, fixes).with_effects(kept),
                                  fixes)
-                if _on_bound(corr.params(), cx.specs(other, base_model.capacity_ah)):
+                if _on_bound(corr.params(), cx.specs(other, base_model.capacity_ah)) or \
+                        cx.unresolved(corr, sample_s):
                     return None
                 fixes = fixes + [corr]
                 if any(sp for _, _, sp in layout):
