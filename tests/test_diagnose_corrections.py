@@ -1,5 +1,5 @@
-"""`diagnose`'s faults of the record (a current sensor's offset and gain, an OCV table that
-is off) and its look-alike verdict.
+"""`diagnose`'s faults of the record (a current sensor's offset and gain, a voltage channel
+that lags, an OCV table that is off) and its look-alike verdict.
 
 The mechanics on known-truth arrays and on records made by ecmgen's own simulator; the
 naming on quick cells of the independent generator (bench/diagnose_cells.py, numpy
@@ -87,7 +87,7 @@ def test_lookalikes_are_those_the_winner_does_not_beat():
 
 # seeds fixed before these cells were first diagnosed
 CELLS = {9600000: "current_gain", 9600001: "current_offset", 9600002: "ocv_error",
-         9600003: "capacity_error"}
+         9600003: "capacity_error", 9610000: "voltage_lag", 9610001: "voltage_lag"}
 
 
 @pytest.mark.slow
@@ -101,3 +101,42 @@ def test_a_fault_of_the_record_is_named_as_such(seed, tmp_path):
     assert not wrong, r.verdict
     assert r.effects == (kind,), r.verdict
     assert not r.unexplained, r.verdict
+
+
+def test_a_voltage_lag_is_fitted_back(synthetic_model):
+    """A voltage channel that lags (two samples late; a first-order filter of 1.5 s, each
+    written here as a loop of its own): the fit finds the lag, and the channel it describes
+    shows the model's voltage as the record does (noise-free: to a few microvolts)."""
+    from ecmgen.data.measure import TimeSeries
+
+    m = synthetic_model
+    t, i = _profile()
+    v = simulate(m, t, i, 0.9).voltage_v
+    late = np.concatenate([[v[0], v[0]], v[:-2]])
+    filtered = np.empty_like(v)
+    filtered[0] = v[0]
+    for k in range(1, v.size):
+        a = np.exp(-(t[k] - t[k - 1]) / 1.5)
+        filtered[k] = a * filtered[k - 1] + (1.0 - a) * v[k]
+    for logged, lag_s in ((late, 2.0), (filtered, 1.5)):
+        rec = TimeSeries(t, i, logged, None, None, "x.csv")
+        corr = cx.fit("voltage_lag", m, rec, 0.9, np.arange(len(t)), 1.0, 1e-3)
+        assert isinstance(corr, cx.VoltageLag)
+        # to first order a delay and a filter both move the voltage by their sum
+        assert corr.delay_s + corr.tau_s == pytest.approx(lag_s, rel=0.05)
+        assert np.max(np.abs(corr.channel(t, v) - logged)) < 2e-4
+        assert np.mean(np.abs(corr.channel(t, v) - logged)) < 5e-6
+    # no lag: nothing fitted
+    rec = TimeSeries(t, i, v, None, None, "x.csv")
+    corr = cx.fit("voltage_lag", m, rec, 0.9, np.arange(len(t)), 1.0, 1e-3)
+    assert corr.delay_s + corr.tau_s < 0.05
+
+
+def test_a_lag_shorter_than_a_sample_is_not_one_the_record_shows():
+    """Where in its sample a logger writes the current moves the simulated voltage by up to
+    a sample: a lag below one sample is not told from it, one of a sample or more is."""
+    assert cx.unresolved(cx.VoltageLag(0.0, 0.6), 1.0)
+    assert cx.unresolved(cx.VoltageLag(0.3, 0.3), 1.0)
+    assert not cx.unresolved(cx.VoltageLag(1.0, 0.0), 1.0)
+    assert not cx.unresolved(cx.VoltageLag(0.0, 0.6), 0.5)
+    assert not cx.unresolved(cx.OcvError(0.0, 1.0), 1.0)

@@ -34,6 +34,7 @@ import numpy as np
 
 from ..data.measure import TimeSeries
 from ..model.model import EcmModel, OcvOverTemperature
+from ..model.rc import rc_recurrence
 from ..model.simulate import simulate
 from .problems import _Spec
 
@@ -68,6 +69,29 @@ class CurrentGain(_Correction):
     def words(self) -> str:
         return (f"the current reads {100 * abs(self.gain):.1f} % "
                 f"{'high' if self.gain > 0 else 'low'}")
+
+
+@dataclass(frozen=True)
+class VoltageLag(_Correction):
+    delay_s: float
+    tau_s: float
+    name: ClassVar[str] = "voltage_lag"
+    kind: ClassVar[str] = "sensor"
+
+    def words(self) -> str:
+        return (f"the voltage channel lags the current: {self.delay_s:.2g} s late and "
+                f"filtered with a {self.tau_s:.2g} s time constant")
+
+    def channel(self, time_s: np.ndarray, voltage_v: np.ndarray) -> np.ndarray:
+        """What a channel with this lag records of ``voltage_v``: ``delay_s`` late (linear
+        between samples, the first value before the start), then first-order filtered."""
+        v = np.asarray(voltage_v, dtype=np.float64)
+        if self.delay_s > 0:
+            v = np.interp(time_s - self.delay_s, time_s, v)
+        if self.tau_s > 0:
+            a = np.exp(-np.diff(time_s, prepend=time_s[0]) / self.tau_s)
+            v = rc_recurrence(a, (1.0 - a) * v, float(v[0]))
+        return v
 
 
 @dataclass(frozen=True)
@@ -109,8 +133,9 @@ ENTROPIC_KEYS = ("at0_v_per_k", "at25_v_per_k", "at50_v_per_k", "at75_v_per_k",
                  "at100_v_per_k")
 
 CORRECTION_TYPES: dict[str, type] = {c.name: c for c in (CurrentOffset, CurrentGain, OcvError,
-                                                          EntropicOcv)}
+                                                          EntropicOcv, VoltageLag)}
 CORRECTION_NAMES: tuple[str, ...] = tuple(CORRECTION_TYPES)
+MAX_LAG_S = 10.0
 
 def specs(name: str, capacity_ah: float) -> dict[str, _Spec]:
     """Free parameters and bounds: beyond them the fault is not a sensor's or a table's
@@ -123,6 +148,10 @@ def specs(name: str, capacity_ah: float) -> dict[str, _Spec]:
     if name == OcvError.name:
         return {"offset_v": _Spec(-0.05, 0.05, False, limit_lo=True, limit_hi=True),
                 "soc_scale": _Spec(0.8, 1.25, False, limit_lo=True, limit_hi=True)}
+    if name == VoltageLag.name:
+        # a logger's channels are misaligned by samples, not by the seconds of a cell's
+        # polarisation: a lag of 10 s is an RC pair's, not a channel's
+        return {k: _Spec(0.0, MAX_LAG_S, False, limit_hi=True) for k in ("delay_s", "tau_s")}
     if name == EntropicOcv.name:
         # the entropic dOCV/dT of Li-ion cells is within a mV/K at any SOC
         return {k: _Spec(-1.5e-3, 1.5e-3, False, limit_lo=True, limit_hi=True)
@@ -149,6 +178,27 @@ def corrected_series(series: TimeSeries, corr: _Correction) -> TimeSeries:
         return replace(series, current_a=series.current_a / (1.0 + corr.gain),
                        charge_ah=None if q is None else q / (1.0 + corr.gain))
     return series
+
+
+def unresolved(corr: _Correction, sample_s: float) -> str:
+    """Why a fitted lag is not one the record can show, or ''. The simulation holds each
+    logged current over its sample; whether a logger writes the current at the start, the
+    end or as the mean of its sample moves the simulated voltage by up to a sample, so a
+    lag (delay plus filter) shorter than one sample cannot be told from that."""
+    if not isinstance(corr, VoltageLag) or corr.delay_s + corr.tau_s >= sample_s:
+        return ""
+    return (f"a lag of {corr.delay_s + corr.tau_s:.2g} s, less than the record's "
+            f"{sample_s:.2g} s sample: not told from where in a sample the current is logged")
+
+
+def channel_voltage(corrections, time_s: np.ndarray, voltage_v: np.ndarray) -> np.ndarray:
+    """A simulated voltage as the record's voltage channel shows it (its lag, where one is
+    among ``corrections``): the lag is compared on the model's side, never taken out of
+    the record (undoing a filter would multiply the noise)."""
+    for corr in corrections:
+        if isinstance(corr, VoltageLag):
+            voltage_v = corr.channel(time_s, voltage_v)
+    return voltage_v
 
 
 def apply_all(series: TimeSeries, corrections) -> TimeSeries:
@@ -199,6 +249,8 @@ def fit(name: str, model: EcmModel, data: TimeSeries, soc0: float, rows: np.ndar
     (an entropic term about ``t_ref_c``)."""
     from scipy.optimize import least_squares
 
+    if name == VoltageLag.name:
+        return _fit_lag(model, data, soc0, rows, f_scale, max_nfev)
     sp = specs(name, model.capacity_ah)
     keys = list(sp)
     lo = np.array([sp[k].lo for k in keys])
@@ -228,3 +280,26 @@ def fit(name: str, model: EcmModel, data: TimeSeries, soc0: float, rows: np.ndar
         if best is None or sol.cost < best.cost:
             best = sol
     return make(best.x)
+
+
+def _fit_lag(model: EcmModel, data: TimeSeries, soc0: float, rows: np.ndarray, f_scale: float,
+             max_nfev: int) -> VoltageLag:
+    """The lag does not change what the model simulates, only what the channel shows of
+    it: one simulation, then the two lags fitted on it from the best of a grid (the filter's
+    gradient vanishes at a zero time constant)."""
+    from scipy.optimize import least_squares
+
+    sim = simulate(model, data.time_s, data.current_a, soc0, data.temperature_c)
+    t, v = data.time_s, data.voltage_v
+
+    def residual(z):
+        r = (VoltageLag(float(z[0]), float(z[1])).channel(t, sim.voltage_v) - v)[rows]
+        return np.where(np.isfinite(r), r, 1.0)
+
+    grid = [(d, tau) for d in (0.0, 0.5, 1.0, 2.0, 4.0) for tau in (0.0, 0.5, 1.0, 2.0, 4.0)]
+    cost = [float(np.sum(np.minimum(np.abs(residual(g)), f_scale))) for g in grid]
+    z0 = np.clip(np.array(grid[int(np.argmin(cost))]) + 0.05, 0.0, MAX_LAG_S - 0.1)
+    sol = least_squares(residual, z0, bounds=(0.0, MAX_LAG_S), method="trf", loss="soft_l1",
+                        f_scale=f_scale, max_nfev=max_nfev, diff_step=1e-3, xtol=1e-8,
+                        ftol=1e-8)
+    return VoltageLag(float(sol.x[0]), float(sol.x[1]))

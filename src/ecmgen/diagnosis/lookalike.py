@@ -80,11 +80,17 @@ def told_apart(steps, alikes, swapped, final, block: int, confidence: float,
     are still look-alikes (:func:`alike`) of the final model (``final``: its held-out and
     fit part's errors) in its place among all that was added (``swapped(k, name)``: those
     errors, None where it does not fit). A step on a refitted base keeps its round's
-    verdict (swapping it out would need another base)."""
+    verdict (swapping it out would need another base). A look-alike that is named itself
+    (found in a later round, and still needed with the step: :mod:`.prune`) is no
+    alternative to it."""
     groups = []
+    named = {st.name for st in steps}
     for k, (names, refitted) in enumerate(alikes[:len(steps)]):
         still = []
         for other in names:
+            if other in named:
+                # named beside it: not one instead of the other
+                continue
             if refitted:
                 still.append(other)
                 continue

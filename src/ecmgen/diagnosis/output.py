@@ -33,6 +33,9 @@ EFFECT_WORDS = {
                       "without it)",
     "current_gain": "a fault of the record, corrected in the data (model.json is the model "
                     "without it)",
+    "voltage_lag": "a fault of the record: the voltage channel lags the current; the model's "
+                   "voltage is compared through the same lag (model.json is the model "
+                   "without it)",
     "ocv_error": "the OCV table is off; model.json carries it corrected",
     "entropic_ocv": "the OCV table lacks its move with temperature (entropic); model.json "
                     "carries it as an OCV over temperature",

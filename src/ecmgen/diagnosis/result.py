@@ -30,6 +30,7 @@ TELLS = {
     "current_gain": "pulses of equal charge at two currents",
     "ocv_error": "a slow (C/20) OCV test of this cell",
     "entropic_ocv": "rests at one SOC at two temperatures",
+    "voltage_lag": "current steps with both channels logged ten times faster",
 }
 
 
@@ -39,8 +40,9 @@ def _is_correction(effect) -> bool:
 
 
 def _correction_words(st) -> str:
-    where = ("corrected in the data" if st.effect.kind == "sensor"
-             else "model.json carries the OCV corrected")
+    where = ("model.json carries the OCV corrected" if st.effect.kind != "sensor" else
+             "the model's voltage compared through it" if st.name == "voltage_lag" else
+             "corrected in the data")
     return (f"{st.name}: {st.effect.words()}; {where}, the held-out error is "
             f"{st.mae_after_v * 1e3:.2f} mV")
 
@@ -120,6 +122,8 @@ class DiagnoseResult:
     # winner first), and the held-out error the winner left
     cannot_tell: tuple[tuple[str, ...], ...] = ()
     cannot_tell_mae_v: float | None = None
+    # named in the search but not needed once later effects joined (ecmgen.diagnosis.prune)
+    dropped: tuple = ()
 
     @property
     def effects(self) -> tuple[str, ...]:
@@ -185,6 +189,8 @@ class DiagnoseResult:
                            "params": s.effect.params()} for s in self.not_named],
             "cannot_tell": [list(g) for g in self.cannot_tell],
             "cannot_tell_mae_v": f(self.cannot_tell_mae_v),
+            "dropped": [{"name": d.name, "mae_with_v": f(d.mae_with_v),
+                         "mae_without_v": f(d.mae_without_v)} for d in self.dropped],
             "unexplained": self.unexplained,
             "verdict": self.verdict,
             "held_out": self.split,

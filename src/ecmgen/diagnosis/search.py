@@ -51,7 +51,6 @@ from typing import Callable
 import numpy as np
 
 from ..data.measure import TimeSeries
-from ..errors import InputError
 from ..model import effects as fx
 from ..model.effects import KELVIN
 from ..model.model import EcmModel
@@ -59,7 +58,9 @@ from ..model.rc import rc_recurrence
 from ..model.simulate import SimResult, initial_soc, simulate
 from ..parallel import one_blas_thread
 from . import corrections as cx
+from .options import CANDIDATE_NAMES, diagnose_options  # noqa: F401
 from .lookalike import block_bootstrap_low, lookalikes, rivals, told_apart  # noqa: F401
+from .prune import Fitted, still_needed
 from .problems import _Problem, _Spec, _fit, _fixed, _neutral, _specs
 from .refits import PulseRefit, hysteresis_on_refitted_base
 from .result import (UNEXPLAINED_RATIO, Candidate, DiagnoseResult, DiagnoseStep,  # noqa: F401
@@ -270,8 +271,6 @@ def _mae(e: np.ndarray) -> float:
     return float(np.mean(np.abs(e))) if e.size else float("nan")
 
 
-# the effects of the model and the faults of the record (corrected in the data)
-CANDIDATE_NAMES = fx.EFFECT_NAMES + cx.CORRECTION_NAMES
 JUDGE_SOC_MIN = 0.1      # held-out samples at or below this SOC are not judged
 MIN_JUDGED = 50          # fewer held-out samples above JUDGE_SOC_MIN: nothing to judge
 
@@ -372,6 +371,7 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
     if fit_stop < 50 or len(judge) - judge_start < 50:
         raise ValueError("too few samples to fit and judge on")
     rest_a = max(base_model.direction_deadband_a, base_model.capacity_ah / 100.0)
+    sample_s = float(np.median(np.diff(t)))
     noise = noise_std(fit_series, rest_a)
     floor_v = max(min_gain_v, min_gain_noise * noise)
     same = judge_series is None
@@ -454,13 +454,35 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
         model = cx.corrected_model(base_model if base is None else base,
                                    fixes).with_effects(effects)
         sj = sim_judge(model, cx.apply_all(judge_record, fixes))
+        # a lagging voltage channel is compared on the model's side
+        sj = replace(sj, voltage_v=cx.channel_voltage(fixes, judge.time_s, sj.voltage_v))
         e1 = sj.voltage_v[judge_start:][keep] - vj
-        sf = sj if same else sim_fit(model, cx.apply_all(fit_record, fixes))
-        ef = sf.voltage_v[:fit_stop] - fit_record.voltage_v[:fit_stop]
+        if same:
+            v_fit = sj.voltage_v
+        else:
+            v_fit = cx.channel_voltage(fixes, fit_record.time_s, sim_fit(
+                model, cx.apply_all(fit_record, fixes)).voltage_v)
+        ef = v_fit[:fit_stop] - fit_record.voltage_v[:fit_stop]
         return model, sj, e1, _mae(e1), _mae(ef), ef
 
     def fit_data_for(fixes):
-        return decimate(cx.apply_all(fit_record, fixes).slice(0, fit_stop), factor)
+        s = cx.apply_all(fit_record, fixes).slice(0, fit_stop)
+        if any(isinstance(c, cx.VoltageLag) for c in fixes):
+            # what the lag shows of the model as it is, taken out of the record's voltage
+            # for the later fits (judging compares on the model's side)
+            v = sim_fit(cx.corrected_model(base_model, fixes).with_effects(current.effects),
+                        s).voltage_v
+            s = replace(s, voltage_v=s.voltage_v - cx.channel_voltage(fixes, s.time_s, v) + v)
+        return decimate(s, factor)
+
+    def fit_fault(name, model, fixes):
+        """The record's fault ``name`` fitted with ``model`` on the record with ``fixes``
+        corrected (a lag at full resolution: block averages would hide it)."""
+        if name == cx.VoltageLag.name:
+            data, at = cx.apply_all(fit_record, fixes).slice(0, fit_stop), np.arange(fit_stop)
+        else:
+            data, at = fit_data_for(fixes), rows
+        return cx.fit(name, model, data, soc0, at, cap_scale, f_scale, max_nfev, ctx["t_ref_c"])
 
     def fitted(layout, starts_native, fixed, base=None, fixes=None):
         """Fit the free parameters of the last layout entry (and of any other entry
@@ -491,8 +513,7 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
             new_base = corr = None
             try:
                 if name in cx.CORRECTION_TYPES:
-                    corr = cx.fit(name, current, fit_data, soc0, rows, cap_scale, f_scale,
-                                  max_nfev, ctx["t_ref_c"])
+                    corr = fit_fault(name, current, applied)
                     specs = cx.specs(name, base_model.capacity_ah)
                     vals = [dict(v) for _, v, _ in layout] + [corr.params()]
                     effects = list(current.effects)
@@ -525,10 +546,13 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
             gain = mae_cur - mae1
             rel = gain / mae_cur if mae_cur > 0 else 0.0
             bound = _on_bound(vals[-1], specs)
+            short = "" if corr is None else cx.unresolved(corr, sample_s)
             ok = bool(np.isfinite(mae1) and rel >= min_rel_gain and low > 0.0
-                      and gain >= floor_v and not bound)
+                      and gain >= floor_v and not bound and not short)
             if ok:
                 why = ""
+            elif short:
+                why = short
             elif bound:
                 why = (f"{bound} on its bound: the effect's best fit lies outside what it "
                        "can be, so it does not explain the residual")
@@ -609,6 +633,73 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
         ef_cur = ef1
         order = [n for n in order if n != name]
 
+    def without(state, drop):
+        """``state`` with the named ``drop`` taken out: each fault left refitted on the
+        record without it, then the effects left jointly; None where a fit fails or ends on
+        a bound."""
+        fixes = [c for c in state.fixes if c.name != drop]
+        kept = [(n, dict(v), sp) for n, v, sp in state.added if n != drop]
+        effects = [e for e in state.model.effects if e.name != drop]
+        try:
+            for k, c in enumerate(fixes):
+                others = fixes[:k] + fixes[k + 1:]
+                fixes[k] = fit_fault(c.name, cx.corrected_model(base_model, others).with_effects(
+                    effects), others)
+                if _on_bound(fixes[k].params(), cx.specs(c.name, base_model.capacity_ah)) or \
+                        cx.unresolved(fixes[k], sample_s):
+                    return None
+            if kept:
+                vals, effects = fitted(fixed_effects + kept, [kept[-1][1]], {}, fixes=fixes)
+                vals = vals[len(fixed_effects):]
+                if any(_on_bound(v, sp) for (_, _, sp), v in zip(kept, vals)):
+                    return None
+                kept = [(n, v, sp) for (n, _, sp), v in zip(kept, vals)]
+        except (ValueError, ArithmeticError, RuntimeError):
+            return None
+        model, sj, e1, mae1, fit_mae1, ef1 = judged(effects, None, fixes)
+        say(f"without {drop}, the rest refitted: held-out MAE {mae1 * 1e3:.2f} mV "
+            f"(with it {state.mae_v * 1e3:.2f})")
+        return Fitted(fixes, kept, model, sj, e1, mae1, fit_mae1, ef1)
+
+    def needed(state, alt):
+        """Whether ``state`` needs what ``alt`` lacks: it beats ``alt`` on the held-out part
+        by the test a candidate passes ("needed", or "tie" where ``alt`` beats it on the fit
+        part by the bootstrap: the data favour each on one part), else "not needed"."""
+        gain = alt.mae_v - state.mae_v
+        d = np.abs(alt.e_judge) - np.abs(state.e_judge)
+        low = block_bootstrap_low(np.where(np.isfinite(d), d, 0.0), block, confidence,
+                                  seed=seed + 50)
+        if not (np.isfinite(alt.mae_v) and gain >= floor_v and low > 0.0
+                and gain >= min_rel_gain * alt.mae_v):
+            return "not needed"
+        d = np.abs(state.e_fit) - np.abs(alt.e_fit)
+        low = block_bootstrap_low(np.where(np.isfinite(d), d, 0.0), block, confidence,
+                                  seed=seed + 51)
+        return "tie" if low > 0.0 else "needed"
+
+    dropped: list = []
+    prune_ties: list = []
+    if len(steps) >= 2:
+        # an effect named early must still be needed once the later ones joined
+        state, left, dropped, prune_ties = still_needed(
+            [st.name for st in steps], Fitted(list(applied), list(added), current, judge_sim,
+                                              e_cur, mae_cur, fit_mae_cur, ef_cur),
+            without, needed, {st.name for st, (_, rb) in zip(steps, alikes) if rb})
+        if dropped:
+            applied, added, current = state.fixes, state.added, state.model
+            judge_sim, e_cur, mae_cur = state.judge_sim, state.e_judge, state.mae_v
+            fit_mae_cur, ef_cur = state.fit_mae_v, state.e_fit
+            gone = {d.name for d in dropped}
+            alikes = [(names + [g for g in sorted(gone) if g not in names], rb) if not rb
+                      else (names, rb) for st, (names, rb) in zip(steps, alikes)
+                      if st.name not in gone]
+            steps = [st for st in steps if st.name not in gone]
+            for d in dropped:
+                notes.append(f"{d.name}: not needed with {', '.join(left)}: dropped, the rest "
+                             f"refitted without it leave {d.mae_without_v * 1e3:.2f} mV held "
+                             f"out ({d.mae_with_v * 1e3:.2f} with it)")
+                say(notes[-1])
+
     # each step reports the effect as it is in the final model (parameters refitted jointly)
     final = {e.name: e for e in current.effects}
     steps = [replace(st, effect=final.get(st.name, st.effect)) for st in steps]
@@ -638,10 +729,10 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
         layout = fixed_effects + [(n, dict(v), sp) for n, v, sp in added if n != drop]
         try:
             if other in cx.CORRECTION_TYPES:
-                corr = cx.fit(other, cx.corrected_model(base_model, fixes).with_effects(kept),
-                              fit_data_for(fixes), soc0, rows, cap_scale, f_scale, max_nfev,
-                              ctx["t_ref_c"])
-                if _on_bound(corr.params(), cx.specs(other, base_model.capacity_ah)):
+                corr = fit_fault(other, cx.corrected_model(base_model, fixes).with_effects(kept),
+                                 fixes)
+                if _on_bound(corr.params(), cx.specs(other, base_model.capacity_ah)) or \
+                        cx.unresolved(corr, sample_s):
                     return None
                 fixes = fixes + [corr]
                 if any(sp for _, _, sp in layout):
@@ -660,8 +751,9 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
         return judged(effects, None, fixes)[2::3]
 
     if steps:
+        named = {st.name for st in steps}
         cannot_tell = told_apart(steps, alikes, swapped, (e_cur, ef_cur), block, confidence,
-                                 seed)
+                                 seed) + [g for g in prune_ties if g[0] in named]
         for group in cannot_tell:
             say(f"{' or '.join(group)}: the data cannot tell them apart")
     if cannot_tell:
@@ -679,72 +771,5 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
         judge_soc0=judge_soc0, base_fit_sim=base_fit_sim, base_judge_sim=base_judge_sim,
         judge_sim=judge_sim, seconds=_time.perf_counter() - t_start, notes=tuple(notes),
         misfit_v=misfit, not_named=not_named, cannot_tell=tuple(cannot_tell),
+        dropped=tuple(dropped),
         cannot_tell_mae_v=left_v if cannot_tell else None)
-
-
-# -- the [diagnose] section of the build config ----------------------------------------------
-
-def diagnose_options(table, path=None) -> dict:
-    """Check the optional ``[diagnose]`` table of a build config and turn it into keyword
-    arguments of :func:`diagnose` (plus ``"cycle"`` and ``"judge"``: the file names as
-    written, relative to the config, or None). Unknown keys or bad values raise
-    InputError naming ``path``::
-
-        [diagnose]
-        cycle = "dyn.csv"         # the record to diagnose on (default: data.cycle)
-        cycle_soc0 = 1.0          # its start SOC (default: data.soc0 for data.cycle, else
-                                  # from its first rested voltage)
-        judge = "hwfet-a.mat"     # a second cycle to judge on (default: the last part of
-                                  # data.cycle, see split)
-        judge_soc0 = 1.0          # its start SOC (default: from its first rested voltage)
-        base = "out/model.json"   # the model to start from (default: the base fitted
-                                  # from the config's data, the plain 2RC)
-        split = 0.6               # fraction of data.cycle that is fitted without a judge
-        effects = ["hysteresis", "extra_rc"]   # candidates (default: all eight)
-        max_effects = 4
-        min_rel_gain = 0.08       # held-out MAE must fall by at least this fraction
-        confidence = 0.99         # of the block-bootstrap bound on the held-out gain
-    """
-    table = {} if table is None else table
-    if not isinstance(table, dict):
-        raise InputError(path, "[diagnose] must be a table")
-    known = {"cycle", "cycle_soc0", "judge", "judge_soc0", "base", "split", "effects",
-             "max_effects", "min_rel_gain", "confidence"}
-    unknown = sorted(set(table) - known)
-    if unknown:
-        raise InputError(path, f"unknown key(s) in [diagnose]: {', '.join(unknown)}; "
-                               f"known: {', '.join(sorted(known))}")
-
-    def number(key, lo, hi, integer=False):
-        v = table[key]
-        ok = isinstance(v, int) if integer else isinstance(v, (int, float))
-        if isinstance(v, bool) or not ok or not (lo <= v <= hi):
-            kind = "an integer" if integer else "a number"
-            raise InputError(path, f"diagnose.{key} must be {kind} in [{lo}, {hi}], got {v!r}")
-        return int(v) if integer else float(v)
-
-    out: dict = {"judge": None, "cycle": None, "base": None}
-    for key in ("cycle", "judge", "base"):
-        if key in table:
-            if not isinstance(table[key], str) or not table[key]:
-                raise InputError(path, f"diagnose.{key} must be a file name")
-            out[key] = table[key]
-    if "cycle_soc0" in table:
-        out["soc0"] = number("cycle_soc0", 0.0, 1.0)
-    if "judge_soc0" in table:
-        out["judge_soc0"] = number("judge_soc0", 0.0, 1.0)
-    if "split" in table:
-        out["split"] = number("split", 0.1, 0.9)
-    if "effects" in table:
-        eff = table["effects"]
-        if not isinstance(eff, list) or not eff or any(e not in CANDIDATE_NAMES for e in eff):
-            raise InputError(path, f"diagnose.effects must be a non-empty list from "
-                                   f"{list(CANDIDATE_NAMES)}, got {eff!r}")
-        out["candidates"] = tuple(eff)
-    if "max_effects" in table:
-        out["max_effects"] = number("max_effects", 1, len(CANDIDATE_NAMES), integer=True)
-    if "min_rel_gain" in table:
-        out["min_rel_gain"] = number("min_rel_gain", 0.0, 0.9)
-    if "confidence" in table:
-        out["confidence"] = number("confidence", 0.5, 0.9999)
-    return out
