@@ -167,9 +167,7 @@ static inline void ecmrt_est_f32_rows_rc(const ecmrt_est_f32_noise_t *nz, const 
     L->g[1] = L->f[1] * p->du;                        /* by the tables' SOC, then chained */
     L->f[1] = L->f[1] * p->ds;
 #endif
-#if ECMRT_EST_OFFSET
-    L->o[1] = -((L->rbf * one_a) * L->dgf) - L->f[1] * L->ds_di;
-#endif
+    ECMRT_EST_O(L, 1, -((L->rbf * one_a) * L->dgf) - L->f[1] * L->ds_di);
     L->rg = p->rf * L->gf;
     e = (nz->pol * L->rg) * i;
     L->q[1] = ((e * e) * (1.0f - L->a[1] * L->a[1])) * L->ps;
@@ -274,9 +272,7 @@ static inline void ecmrt_est_f32_rows_soc(const ecmrt_f32_model_t *m,
     L->a[0] = 1.0f;
     L->f[0] = 0.0f;
     L->q[0] = 0.0f;
-#if ECMRT_EST_OFFSET
-    L->o[0] = -L->ds_di;
-#endif
+    ECMRT_EST_O(L, 0, -L->ds_di);
 #if ECMRT_EST_OFFSET
     L->o[ECMRT_EST_IB] = 0.0f;
     L->a[ECMRT_EST_IB] = 1.0f;

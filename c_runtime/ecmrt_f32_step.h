@@ -323,7 +323,6 @@ static inline float ecmrt_f32_fx_xrc(const ecmrt_f32_model_t *m, ECMRT_STATE *s,
 static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, float i,
                                    float temp, float dt)
 #else
-#define ECMRT_F32_STEP_DT 0.0f              /* the build's dt is folded into the tables */
 static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, float i,
                                    float temp)
 #endif
@@ -334,7 +333,7 @@ static inline float ecmrt_f32_step(const ecmrt_f32_model_t *m, ECMRT_STATE *s, f
     unsigned dir, kd, ko = ECMRT_HINT_OCV(s), kt = ECMRT_HINT_T(s);
     float soc, socr, ai, w, wo = 0.0f, wt = 0.0f, r0, rf, rs, kf, ks, uf, us, ocv, v, vh, ux;
 #if !ECMRT_VARIABLE_DT
-    const float dt = ECMRT_F32_STEP_DT;
+    const float dt = 0.0f;                  /* the build's dt is folded into the tables */
 #endif
 
     /* 0. saturate the inputs; 1. direction; 2. SOC first (the parameters are looked up at
