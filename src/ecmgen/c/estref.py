@@ -206,7 +206,7 @@ class _Sample:
 
     __slots__ = ("t", "i", "d", "ai", "dt", "kt", "wt", "src", "cur", "u_prev", "vp", "pa",
                  "sds", "sdu", "ja", "gc", "fa", "gf", "sg", "ch", "cx", "r0a", "dr0a", "rf",
-                 "drf", "rs", "drs", "rb0", "rbf", "dg0", "dgf", "ds_di", "rg", "ps", "rdc",
+                 "drf", "rs", "drs", "rb0", "rbf", "dg0", "dgf", "ds_di", "rg", "ps",
                  "a", "f", "q", "o", "g", "h", "R")
 
 
