@@ -197,7 +197,7 @@ def test_a_one_test_model_follows_the_cell_temperature_with_activation_k(project
     truth's Ea/R the model becomes one over temperature (rows derived about the pulses' own
     median cell temperature) that follows the cell, and its C stays bit-exact."""
     from ecmgen.pipeline import build, one_test_c
-    from ecmgen.plots import derived_rows
+    from ecmgen.plots.figures import derived_rows
 
     folder, _, _ = project
     plain = build(load_config(_one_test_config(folder, tmp_path)), tmp_path / "plain",

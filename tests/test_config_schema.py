@@ -13,7 +13,7 @@ import pytest
 from conftest import REPO
 from ecmgen.cli import main
 from ecmgen.config import C_ESTIMATORS, ESTIMATOR_FILTERS, EstimatorConfig, load_config
-from ecmgen.config_schema import BY_NAME, SECTIONS, reference
+from ecmgen.config.schema import BY_NAME, SECTIONS, reference
 from ecmgen.errors import InputError
 
 HEAD = ('[cell]\ncapacity_ah = 2.9\n[data]\npulses = "p.csv"\nocv = "p.csv"\n'
@@ -138,7 +138,7 @@ def test_docs_config_reference_is_the_generated_one():
     """docs/config.md's reference is `ecmgen config --explain`'s text: edit the schema (and
     paste its output), never the page alone."""
     text = (REPO / "docs" / "config.md").read_text()
-    start = text.index("<!-- generated from src/ecmgen/config_schema.py")
+    start = text.index("<!-- generated from src/ecmgen/config/schema.py")
     start = text.index("\n", start) + 1
     end = text.index("<!-- end of the generated config reference -->")
     assert text[start:end] == reference()
@@ -165,7 +165,7 @@ def test_every_config_example_in_the_readme_and_docs_passes_the_schema():
     valid values."""
     import tomllib
 
-    from ecmgen.config_schema import check_config
+    from ecmgen.config.schema import check_config
 
     pages = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
     blocks = [(p.name, b) for p in pages

@@ -23,7 +23,7 @@ from hypothesis import HealthCheck, given, seed, settings
 from hypothesis import strategies as st
 
 from ecmgen.cli import main
-from ecmgen.config_schema import SECTIONS
+from ecmgen.config.schema import SECTIONS
 
 def fuzz(cases: int) -> settings:
     return settings(FUZZ, max_examples=cases)
@@ -122,7 +122,7 @@ def toml_text(cfg: dict) -> str:
 def key_values(section: str, name: str):
     """Values for one key: mostly near what it takes (its range, its choices), so that
     the fuzz reaches past the first check, and anything at all."""
-    from ecmgen.config_schema import BY_NAME
+    from ecmgen.config.schema import BY_NAME
 
     key = BY_NAME[section].key(name) if section in BY_NAME else None
     near = [VALUES]

@@ -1,4 +1,4 @@
-"""The plots' shared style (ecmgen.plotting) and what the validation plot leaves out: a
+"""The plots' shared style (ecmgen.plots.style) and what the validation plot leaves out: a
 long rest before the drive, a line across a logging gap; every title says where."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ecmgen.plotting import _plt, break_gaps, degrees, temperature_colours
+from ecmgen.plots.style import _plt, break_gaps, degrees, temperature_colours
 
 from conftest import synthetic_nca_model
 
@@ -31,7 +31,7 @@ def test_every_temperature_has_a_visible_colour():
 def test_a_long_rest_before_the_drive_is_not_drawn(tmp_path):
     from ecmgen.data.measure import TimeSeries
     from ecmgen.model.simulate import validate
-    from ecmgen.plots import _drive_window, validation_png
+    from ecmgen.plots.figures import _drive_window, validation_png
 
     m = synthetic_nca_model()
     t = np.concatenate([np.arange(0.0, 3000.0, 10.0), 3000.0 + np.arange(0.0, 1000.0, 1.0)])
@@ -56,7 +56,7 @@ def test_derived_rows_are_the_ones_the_notes_derive():
     from dataclasses import replace
 
     from ecmgen.model.model import load_model
-    from ecmgen.plots import derived_rows
+    from ecmgen.plots.figures import derived_rows
 
     model = load_model(Path(__file__).parent / "data" / "panasonic-temperature-model.json")
     measured = [-19.4, -9.9, 0.6, 25.7]          # the -20 degC grid row is 0.6 K below

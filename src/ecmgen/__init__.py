@@ -16,12 +16,12 @@ stages before it, never a later one (tests/test_layout.py checks this)::
     estimate/    `ecmgen estimate`: the SOC filter on the model's step (process: state,
                  step and Jacobians; ekf, ukf), runs and SOC figures (run), noise
                  settings from the validation residual (residual)
-    plots, report    the PNG and text outputs of a build
+    plots/, report    the PNG and text outputs of a build (plots.style: the house style)
     pipeline, cli    the chain behind `ecmgen build` / `ecmgen diagnose`, and the CLI
     fleet/       `ecmgen fleet`: the build of every row of a manifest on Dask, resumable
                  by the hash of each row's inputs; the fleet table and its trend plots
-    config, errors, files, plotting, _version    shared by all: the build config,
-                 InputError, atomic writes and hashes, matplotlib set-up, the version
+    config/, errors, files, _version    shared by all: the build config (loader,
+                 schema), InputError, atomic writes and hashes, the version
 
 The names a notebook needs are available from here (``ecmgen.build``,
 ``ecmgen.load_model``, ``ecmgen.simulate``, ...). They are imported on first use

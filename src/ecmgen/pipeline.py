@@ -326,8 +326,8 @@ def fit_pulse_test(cfg: BuildConfig, k: int, plots: bool = False,
             raise InputError(test.file, exc.message) from None
         raise
     if plots:
-        from .plots import fit_pngs, ocv_png
-        from .plotting import degrees
+        from .plots.figures import fit_pngs, ocv_png
+        from .plots.style import degrees
 
         t1 = time.perf_counter()
         at = degrees(fit.temperature_c)
@@ -460,8 +460,8 @@ def _with_neighbour_taus(cfg: BuildConfig, fits: list[TestFit], workers: Workers
 def curve_fit_png(curve_fit, label: str, temperature_c: float,
                   progress: Progress = _quiet) -> bytes:
     """The whole-test fit's plot of a pulse test (curve-fit-<label>.png), PNG bytes."""
-    from .plots import fit_pngs
-    from .plotting import degrees
+    from .plots.figures import fit_pngs
+    from .plots.style import degrees
 
     return fit_pngs({"curve_fit": curve_fit}, f"-{label}",
                     at=degrees(temperature_c))[f"curve-fit-{label}.png"]
@@ -623,7 +623,7 @@ def build(cfg: BuildConfig, out_dir: str | Path, progress: Progress = _quiet, *,
 def _parameter_plots(pool: Workers, cfg: BuildConfig, models: dict[str, EcmModel], tests,
                      inputs: Inputs) -> dict:
     """parameters-<method>.png of every model, as tasks of ``pool``: {file name: task}."""
-    from .plots import parameters_png
+    from .plots.figures import parameters_png
 
     measured = sorted(t.temperature_c for t in tests) if tests else \
         ([one_test_c(tests, inputs)] if cfg.activation_k else None)

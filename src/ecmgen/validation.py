@@ -87,7 +87,7 @@ def validate_all(cfg: BuildConfig, models: dict[str, EcmModel], progress: Progre
 def validation_plots(workers: Workers, validations: dict, best: str) -> dict:
     """The validation plot of each cycle (every model on it), submitted to ``workers``:
     {cycle name: task of its PNG bytes}."""
-    from .plots import validation_png
+    from .plots.figures import validation_png
 
     labels = list(next(iter(validations.values()), {}))
     return {label: workers.submit(validation_png, {m: v[label] for m, v in validations.items()},
@@ -131,7 +131,7 @@ def plot_files(raw: dict, inputs, tests, tasks: dict, progress: Progress) -> dic
     """Every plot of a build by file name: the fit plots and OCV of the pulse test (of
     each test, drawn where it was fitted), and the plot tasks' (file name -> task): the
     parameters per method, one validation per cycle."""
-    from .plots import fit_pngs, ocv_png, pulse_test_degrees
+    from .plots.figures import fit_pngs, ocv_png, pulse_test_degrees
 
     at = pulse_test_degrees(inputs)
     pngs = dict(fit_pngs(raw, at=at), **{"ocv.png": ocv_png(inputs, at=at)}) if not tests else {}

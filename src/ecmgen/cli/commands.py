@@ -232,7 +232,7 @@ def cmd_validate(args) -> int:
     val = validate(model, series, args.soc0, args.temperature_c, args.equivalent_full_cycles)
     if args.plot:
         from ..files import write_atomic
-        from ..plots import validation_png
+        from ..plots.figures import validation_png
 
         write_atomic(Path(args.plot), validation_png({"": val}, Path(args.cycle).name))
     if args.json:
@@ -503,7 +503,7 @@ def cmd_age(args) -> int:
 
 
 def cmd_config(args) -> int:
-    from ..config_schema import reference
+    from ..config.schema import reference
 
     sys.stdout.write(reference())
     return 0

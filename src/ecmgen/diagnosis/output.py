@@ -13,7 +13,7 @@ import numpy as np
 from ..files import json_text, write_atomic
 from ..model import effects as fx
 from ..model.rc import rc_recurrence
-from ..plotting import MEASURED, _plt
+from ..plots.style import MEASURED, _plt
 from .result import UNEXPLAINED_RATIO
 from .search import DiagnoseResult, _lowpass
 

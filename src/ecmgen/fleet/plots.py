@@ -1,5 +1,5 @@
 """The fleet's trend plots: each figure of the fleet table against the check-up axis, one
-line per cell, outliers circled red (the house style of ecmgen.plotting).
+line per cell, outliers circled red (the house style of ecmgen.plots.style).
 
 ``trends-<T>.png`` per temperature point: the capacity, each parameter at each SOC
 point, the OCV at each SOC point and the validation MAE; ``trends-summary-<T>.png`` the
@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..files import write_atomic
-from ..plotting import FLAGGED, _panels, _plt
+from ..plots.style import FLAGGED, _panels, _plt
 from .table import PARAMETERS, column, temperature_tag
 
 LABELS = {"r0_ohm": ("R0", "mΩ", 1e3), "r_fast_ohm": ("R_fast", "mΩ", 1e3),

@@ -1,5 +1,5 @@
 """matplotlib helpers shared by every plot of the package (build plots in
-:mod:`ecmgen.plots`, diagnose plots in :mod:`ecmgen.diagnosis.output`): a headless
+:mod:`ecmgen.plots.figures`, diagnose plots in :mod:`ecmgen.diagnosis.output`): a headless
 pyplot, imported only when a plot is drawn, and the panel grid.
 """
 

@@ -9,13 +9,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .plotting import (FLAGGED, MEASURED, METHOD_COLOURS, SOC_COLOUR, TEMPERATURE_COLOUR, _panels, _plt,
+from .style import (FLAGGED, MEASURED, METHOD_COLOURS, SOC_COLOUR, TEMPERATURE_COLOUR, _panels, _plt,
                        break_gaps, degrees, method_colour, save_png, temperature_colours)
 
 
 def plot_dcir_fits(table, fits: dict, path: Path, at: str = "") -> Path:
     """One panel per SOC level x direction: R(t) points and each method's curve."""
-    from .fit.points import curve_r_ohm
+    from ..fit.points import curve_r_ohm
 
     plt = _plt()
     n = len(table)
@@ -165,7 +165,7 @@ def _trace(t: np.ndarray, y: np.ndarray):
 def _drive_window(val):
     """(the samples drawn, seconds left out): a rest before the drive longer than a fifth
     of the record is left out but for its last minute."""
-    from .model.simulate import DRIVE_CURRENT_A
+    from ..model.simulate import DRIVE_CURRENT_A
 
     t = val.sim.time_s
     driven = np.flatnonzero(np.abs(val.sim.current_a) > DRIVE_CURRENT_A)
@@ -417,7 +417,7 @@ def parameters_png(model, measured_c=None, progress=None) -> bytes:
     """parameters-<method>.png: the parameters over SOC at each measured temperature (the
     pulse tests'; default the table rows) and, dashed, the derived rows if any; the
     discharge values the table checks flag (roughest node of a rough row) ringed."""
-    from .fit.quality import ROUGHNESS_LIMIT, model_quality
+    from ..fit.quality import ROUGHNESS_LIMIT, model_quality
 
     derived = derived_rows(model, measured_c)
     flagged = tuple((t.name, t.temperature_c, t.roughest_soc, f"rough > {ROUGHNESS_LIMIT:g}")

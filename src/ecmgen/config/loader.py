@@ -1,7 +1,7 @@
 """The build configuration (one TOML file; paths are relative to it): the loader.
 
 What each section and key means, its type, unit, range and default are the rows of
-ecmgen.config_schema (``ecmgen config --explain`` prints them; docs/config.md's reference is
+ecmgen.config.schema (``ecmgen config --explain`` prints them; docs/config.md's reference is
 that text). :func:`load_config` checks a config against the schema first (unknown keys,
 types, ranges), then what ties keys together: exactly one of data.pulses, data.dcir or
 [[data.pulse_tests]]; fit.best among fit.methods; the files it names exist; the C
@@ -18,9 +18,9 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-from .config_schema import COLUMN_ROLES, METHODS, SchemaError, check_config
-from .config_schema import TEMPERATURE_C as TEMPERATURE_RANGE_C
-from .errors import InputError, reading
+from .schema import COLUMN_ROLES, METHODS, SchemaError, check_config
+from .schema import TEMPERATURE_C as TEMPERATURE_RANGE_C
+from ..errors import InputError, reading
 
 SURFACE_SOC_GAIN_MAX = 10.0     # [model] surface_soc_gain's upper bound (0.5 measured)
 

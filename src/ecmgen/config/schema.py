@@ -1,7 +1,7 @@
 """The build config's schema: every section and every key, with its type, unit, range,
 default and meaning, in one table.
 
-ecmgen.config (the loader) checks a config against it first: unknown sections and keys
+ecmgen.config.loader checks a config against it first: unknown sections and keys
 are refused in every section, with the nearest known name ("did you mean"), and each
 value's type and range are checked here, so that the loader is left with what ties keys
 together (exactly one of data.pulses / data.dynamic / data.dcir / [[data.pulse_tests]], fit.best among
