@@ -9,7 +9,8 @@ import pytest
 
 from conftest import make_pulse_test, synthetic_nca_model
 from ecmgen.data.dcir import find_pulses
-from ecmgen.fit.curve import CurveOptions, _after_charge, fit_pulse_curves, second_difference
+from ecmgen.fit.curve import CurveOptions, fit_pulse_curves, second_difference
+from ecmgen.fit.curve_record import after_charge
 from ecmgen.fit.curve_levels import data_tau_ranges, level_nodes, level_windows
 
 
@@ -23,7 +24,7 @@ def test_second_difference_is_1_2_1_on_an_even_grid_and_zero_on_a_line():
 
 def test_the_after_charge_state_follows_the_last_current():
     i = np.array([0, 0, -1, -1, 0, 0, 2, 2, -1, -1, 0, 3, 0, 0.0])
-    assert _after_charge(i).astype(int).tolist() == [0, 0, 0, 0, 0, 0, 1, 1, 0, 0, 0, 1, 1, 1]
+    assert after_charge(i).astype(int).tolist() == [0, 0, 0, 0, 0, 0, 1, 1, 0, 0, 0, 1, 1, 1]
 
 
 def test_time_constant_ranges_follow_the_sampling_and_the_relaxation():

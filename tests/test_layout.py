@@ -299,3 +299,16 @@ def test_the_top_level_holds_few_modules():
     module at the top is shared by all, or the build chain)."""
     top = sorted(p.stem for p in SRC.glob("*.py") if p.stem != "__init__")
     assert len(top) <= 10, top
+
+
+def test_no_python_function_over_80_lines_without_a_reason():
+    """A function over 80 lines says why in a docstring line that starts with "Long:"."""
+    long = []
+    for name, path in _modules().items():
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and \
+                    node.end_lineno - node.lineno + 1 > 80:
+                doc = ast.get_docstring(node) or ""
+                if not any(line.strip().startswith("Long:") for line in doc.splitlines()):
+                    long.append(f"{name}.{node.name} ({node.end_lineno - node.lineno + 1})")
+    assert not long, long

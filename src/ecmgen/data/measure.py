@@ -251,13 +251,9 @@ def _read_csv(path: Path, columns: ColumnMap | None, max_rows: int | None = None
         return _read_csv_as(path, columns, "latin-1", max_rows)   # a Windows code page ("°C")
 
 
-def _read_csv_as(path: Path, columns: ColumnMap | None, encoding: str,
-                 max_rows: int | None = None) -> tuple[_Raw, ColumnMap]:
-    """The CSV's mapped columns as float64, converted a block of rows at a time (the
-    text is never in memory whole: ecmgen.data.csvtext); its first ``max_rows`` only
-    where given."""
-    source = CsvRows(path, encoding)
-    rows = iter(source)
+def _csv_header(path: Path, columns: ColumnMap | None, rows):
+    """The CSV's header (names, or the positions 1..n of a headerless file), the words
+    a width error names it by, and the data rows read to find it (to be read again)."""
     has_header = columns is None or columns.header
     pending: list[tuple[int, list[str]]] = []
     if has_header:
@@ -293,6 +289,17 @@ def _read_csv_as(path: Path, columns: ColumnMap | None, encoding: str,
         header = [str(k) for k in range(1, len(row) + 1)]  # the positions
         against = f"line {line} has"
         pending = [first]
+    return header, against, pending
+
+
+def _read_csv_as(path: Path, columns: ColumnMap | None, encoding: str,
+                 max_rows: int | None = None) -> tuple[_Raw, ColumnMap]:
+    """The CSV's mapped columns as float64, converted a block of rows at a time (the
+    text is never in memory whole: ecmgen.data.csvtext); its first ``max_rows`` only
+    where given."""
+    source = CsvRows(path, encoding)
+    rows = iter(source)
+    header, against, pending = _csv_header(path, columns, rows)
 
     notes = []
     if columns is None:

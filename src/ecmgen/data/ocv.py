@@ -273,47 +273,11 @@ def curve_from_low_rate(series: TimeSeries, capacity_ah: float, name: str, *,
     chosen, what = choose_branches(test, series.source, cycle,
                                    "both" if branch == "auto" else branch)
     notes: list[str] = []
-    curves, raw = [], []
-    for b in chosen:
-        if soc0 is None:
-            s = b.normalised_soc(series)
-        else:
-            s = soc0 + series.coulomb_ah()[b.start:b.stop] / capacity_ah
-        v = series.voltage_v[b.start:b.stop]
-        lo, hi = max(float(s.min()), 0.0), min(float(s.max()), 1.0)
-        if hi - lo < 0.1:
-            raise InputError(series.source, f"the low-rate {b.direction} branch covers SOC "
-                                            f"{lo:.2f}..{hi:.2f} only: too little for an OCV")
-        g, c = _on_grid(s, v, lo, hi)
-        curves.append((b, g, c.copy()))
-        raw.append((f"{b.direction} branch", s, v))
+    curves, raw = _branch_curves(series, chosen, capacity_ah, soc0)
     caps = {b.direction: b.charge_ah for b, _, _ in curves}
     # the rest after a complete branch's cut-off: the OCV at that branch's end
-    anchors = {}
-    if soc0 is None:
-        for b, _, _ in curves:
-            k = _end_rest(series, b)
-            if k is None:
-                continue
-            end = 0.0 if b.direction == "discharge" else 1.0
-            anchors[end] = float(series.voltage_v[k])
-            notes.append(f"OCV: SOC {end:g} after the {b.direction} from the rested voltage "
-                         f"{anchors[end]:.4f} V "
-                         f"{series.time_s[k] - series.time_s[b.stop - 1]:.0f} s after the cut-off")
-            raw.append((f"rest after the {b.direction}", np.array([end]), np.array([anchors[end]])))
-    readings = {b.direction: (g, c) for b, g, c in curves}
-    lo = max(g[0] for _, g, _ in curves)
-    hi = min(g[-1] for _, g, _ in curves)
-    if len(curves) == 2 and hi - lo >= 0.1:
-        g = GRID[(GRID >= lo - 1e-9) & (GRID <= hi + 1e-9)]
-        readings["both"] = (g, 0.5 * sum(np.interp(g, gg, cc) for _, gg, cc in curves))
-    for key, (g, c) in readings.items():
-        c = c.copy()
-        for end, value in anchors.items():
-            at = 0 if end == 0.0 else -1
-            if abs(g[at] - end) < 1e-9:
-                c[at] = value
-        readings[key] = (g, _isotonic(c))
+    anchors = {} if soc0 is not None else _end_anchors(series, curves, notes, raw)
+    readings = _readings(curves, anchors)
     if "both" in readings and branch in ("both", "auto"):
         key = "both"
         how = "the average of its discharge and charge branches" + (
@@ -339,6 +303,62 @@ def curve_from_low_rate(series: TimeSeries, capacity_ah: float, name: str, *,
     temp = None if series.temperature_c is None else float(np.median(series.temperature_c))
     return OcvCurve(name, g, c, tuple(notes), caps, tuple(raw),
                     readings if len(readings) > 1 else {}, temperature_c=temp)
+
+
+def _branch_curves(series: TimeSeries, chosen, capacity_ah: float, soc0: float | None):
+    """Each chosen branch on the SOC grid: [(branch, grid, ocv_v)] and the raw readings
+    [(label, soc, voltage)] for the plot."""
+    curves, raw = [], []
+    for b in chosen:
+        if soc0 is None:
+            s = b.normalised_soc(series)
+        else:
+            s = soc0 + series.coulomb_ah()[b.start:b.stop] / capacity_ah
+        v = series.voltage_v[b.start:b.stop]
+        lo, hi = max(float(s.min()), 0.0), min(float(s.max()), 1.0)
+        if hi - lo < 0.1:
+            raise InputError(series.source, f"the low-rate {b.direction} branch covers SOC "
+                                            f"{lo:.2f}..{hi:.2f} only: too little for an OCV")
+        g, c = _on_grid(s, v, lo, hi)
+        curves.append((b, g, c.copy()))
+        raw.append((f"{b.direction} branch", s, v))
+    return curves, raw
+
+
+def _end_anchors(series: TimeSeries, curves, notes: list[str], raw: list) -> dict:
+    """SOC 0 (1) -> the rested voltage after a complete discharge (charge) branch's
+    cut-off; each said in ``notes`` and kept in ``raw``."""
+    anchors = {}
+    for b, _, _ in curves:
+        k = _end_rest(series, b)
+        if k is None:
+            continue
+        end = 0.0 if b.direction == "discharge" else 1.0
+        anchors[end] = float(series.voltage_v[k])
+        notes.append(f"OCV: SOC {end:g} after the {b.direction} from the rested voltage "
+                     f"{anchors[end]:.4f} V "
+                     f"{series.time_s[k] - series.time_s[b.stop - 1]:.0f} s after the cut-off")
+        raw.append((f"rest after the {b.direction}", np.array([end]), np.array([anchors[end]])))
+    return anchors
+
+
+def _readings(curves, anchors: dict) -> dict:
+    """Every reading of the cycle (each branch, and "both": their average where they
+    overlap by 0.1 SOC), its ends at the anchors, made monotonic."""
+    readings = {b.direction: (g, c) for b, g, c in curves}
+    lo = max(g[0] for _, g, _ in curves)
+    hi = min(g[-1] for _, g, _ in curves)
+    if len(curves) == 2 and hi - lo >= 0.1:
+        g = GRID[(GRID >= lo - 1e-9) & (GRID <= hi + 1e-9)]
+        readings["both"] = (g, 0.5 * sum(np.interp(g, gg, cc) for _, gg, cc in curves))
+    for key, (g, c) in readings.items():
+        c = c.copy()
+        for end, value in anchors.items():
+            at = 0 if end == 0.0 else -1
+            if abs(g[at] - end) < 1e-9:
+                c[at] = value
+        readings[key] = (g, _isotonic(c))
+    return readings
 
 
 def choose_reading(curve: OcvCurve, rest_soc, rest_v) -> tuple[OcvCurve, dict, str]:

@@ -190,76 +190,27 @@ def plot_comparison(result: DiagnoseResult, path: Path) -> Path:
     return path
 
 
+def _mv(x: float) -> str:
+    return f"{x * 1e3:.2f} mV"
+
+
 def report_text(result: DiagnoseResult, model_name: str = "model.json") -> str:
     """report.md: what is missing, in words, with the numbers behind it."""
-    mv = lambda x: f"{x * 1e3:.2f} mV"  # noqa: E731
     lines = ["# ecmgen diagnose", ""]
     fit_name = Path(result.fit_series.source).name or "the cycle"
     lines += [f"Fitted on: {fit_name} (first {result.fit_stop} samples)",
               f"Held out: {result.split}",
               f"Start SOC {result.soc0:.4f} (held-out record {result.judge_soc0:.4f}); "
-              f"voltage noise {mv(result.noise_v)} (std, from the rests); "
+              f"voltage noise {_mv(result.noise_v)} (std, from the rests); "
               f"run time {result.seconds:.1f} s", ""]
     lines += ["## Verdict", ""]
-    if result.steps:
-        lines.append(f"The base model misses {len(result.steps)} effect(s); each was added "
-                     "only because it lowered the error on data the fit did not see by more "
-                     "than noise explains:")
-        lines.append("")
-        for k, st in enumerate(result.steps, 1):
-            words = EFFECT_WORDS[st.name]
-            if hasattr(st.effect, "words"):
-                words = f"{st.effect.words()}: {words}"
-            lines.append(f"{k}. **{st.name}** - {words}. Held-out MAE "
-                         f"{mv(st.mae_before_v)} -> {mv(st.mae_after_v)} "
-                         f"({100 * (1 - st.mae_after_v / st.mae_before_v):.0f} % lower; "
-                         f"99 % lower bound of the gain {mv(st.ci_low_v)}).")
-        lines += ["", f"Held-out MAE of the base model {mv(result.mae_before_v)}, of the "
-                      f"augmented model ({model_name}) {mv(result.mae_after_v)}."]
-    elif result.cannot_tell:
-        lines.append(f"Cannot tell: {result.verdict}. {model_name} is the model without "
-                     "them.")
-    elif result.not_named:
-        tried = ", ".join(st.name for st in result.not_named)
-        lines.append(f"Unexplained: {tried} passed the held-out test but left "
-                     f"{mv(result.not_named[-1].mae_after_v)}, more than {UNEXPLAINED_RATIO:g} x "
-                     f"the larger of "
-                     f"the voltage noise ({mv(result.noise_v)}) and the base's RMS on its "
-                     f"pulse test ({mv(result.misfit_v)}): what the record shows is not what "
-                     f"they describe (an effect diagnose has no candidate for, or more than "
-                     f"it can tell apart), so none is named. {model_name} is the base model "
-                     f"unchanged.")
-    elif result.unexplained:
-        lines.append(f"Unexplained: the held-out MAE ({mv(result.mae_before_v)}) is "
-                     f"{result.mae_before_v / result.floor_v:.0f} x {_floor_words(result)}"
-                     f", and no effect that diagnose knows lowered it by "
-                     f"more than noise explains. {model_name} is the base model unchanged.")
-    else:
-        lines.append(f"Nothing is missing that this data can show: no effect lowered the "
-                     f"held-out MAE ({mv(result.mae_before_v)}) by more than noise explains. "
-                     f"{model_name} is the base model unchanged.")
-    if result.steps and result.cannot_tell:
-        lines += ["", f"Then: {' or '.join(result.cannot_tell[0])} - the data cannot tell them "
-                      f"apart; {model_name} has neither."]
-    if result.steps and result.unexplained:
-        lines += ["", f"Unexplained: after them the held-out MAE ({mv(result.mae_after_v)}) is "
-                      f"still {result.mae_after_v / result.floor_v:.0f} x "
-                      f"{_floor_words(result)}: part of the error is nothing diagnose knows."]
+    lines += _verdict_lines(result, model_name)
     lines += ["", "## Signatures in the base residual (fit part)", "",
               "| effect | explains | what was regressed |", "|---|---|---|"]
     for name, sig in sorted(result.signatures.items(), key=lambda kv: -kv[1].r2):
         share = f"{100 * sig.r2:.1f} %" if sig.applicable else "n/a"
         lines.append(f"| {name} | {share} | {sig.detail} |")
-    lines += ["", "## Candidates tried", "",
-              "| round | effect | held-out MAE | gain | gain lower bound | kept | why not |",
-              "|---|---|---|---|---|---|---|"]
-    kept = {(k + 1, st.name) for k, st in enumerate(result.steps)}
-    for c in result.candidates:
-        yes = (c.round, c.name) in kept
-        why = c.message or ("" if yes else "passed, but another candidate did better")
-        lines.append(f"| {c.round} | {c.name} | {mv(c.judge_mae_v)} | {mv(c.gain_v)} "
-                     f"({100 * c.rel_gain:.1f} %) | {mv(c.ci_low_v)} | "
-                     f"{'yes' if yes else 'no'} | {why} |")
+    lines += _candidate_lines(result)
     if result.steps:
         lines += ["", "## Effect parameters (as in the augmented model)", ""]
         for st in result.steps:
@@ -271,6 +222,71 @@ def report_text(result: DiagnoseResult, model_name: str = "model.json") -> str:
     for n in result.notes:
         lines.append(f"- note: {n}")
     return "\n".join(lines) + "\n"
+
+
+def _verdict_lines(result: DiagnoseResult, model_name: str) -> list[str]:
+    """report.md's verdict: what was named, or why nothing was."""
+    lines: list[str] = []
+    if result.steps:
+        lines.append(f"The base model misses {len(result.steps)} effect(s); each was added "
+                     "only because it lowered the error on data the fit did not see by more "
+                     "than noise explains:")
+        lines.append("")
+        for k, st in enumerate(result.steps, 1):
+            words = EFFECT_WORDS[st.name]
+            if hasattr(st.effect, "words"):
+                words = f"{st.effect.words()}: {words}"
+            lines.append(f"{k}. **{st.name}** - {words}. Held-out MAE "
+                         f"{_mv(st.mae_before_v)} -> {_mv(st.mae_after_v)} "
+                         f"({100 * (1 - st.mae_after_v / st.mae_before_v):.0f} % lower; "
+                         f"99 % lower bound of the gain {_mv(st.ci_low_v)}).")
+        lines += ["", f"Held-out MAE of the base model {_mv(result.mae_before_v)}, of the "
+                      f"augmented model ({model_name}) {_mv(result.mae_after_v)}."]
+    elif result.cannot_tell:
+        lines.append(f"Cannot tell: {result.verdict}. {model_name} is the model without "
+                     "them.")
+    elif result.not_named:
+        tried = ", ".join(st.name for st in result.not_named)
+        lines.append(f"Unexplained: {tried} passed the held-out test but left "
+                     f"{_mv(result.not_named[-1].mae_after_v)}, more than {UNEXPLAINED_RATIO:g} x "
+                     f"the larger of "
+                     f"the voltage noise ({_mv(result.noise_v)}) and the base's RMS on its "
+                     f"pulse test ({_mv(result.misfit_v)}): what the record shows is not what "
+                     f"they describe (an effect diagnose has no candidate for, or more than "
+                     f"it can tell apart), so none is named. {model_name} is the base model "
+                     f"unchanged.")
+    elif result.unexplained:
+        lines.append(f"Unexplained: the held-out MAE ({_mv(result.mae_before_v)}) is "
+                     f"{result.mae_before_v / result.floor_v:.0f} x {_floor_words(result)}"
+                     f", and no effect that diagnose knows lowered it by "
+                     f"more than noise explains. {model_name} is the base model unchanged.")
+    else:
+        lines.append(f"Nothing is missing that this data can show: no effect lowered the "
+                     f"held-out MAE ({_mv(result.mae_before_v)}) by more than noise explains. "
+                     f"{model_name} is the base model unchanged.")
+    if result.steps and result.cannot_tell:
+        lines += ["", f"Then: {' or '.join(result.cannot_tell[0])} - the data cannot tell them "
+                      f"apart; {model_name} has neither."]
+    if result.steps and result.unexplained:
+        lines += ["", f"Unexplained: after them the held-out MAE ({_mv(result.mae_after_v)}) is "
+                      f"still {result.mae_after_v / result.floor_v:.0f} x "
+                      f"{_floor_words(result)}: part of the error is nothing diagnose knows."]
+    return lines
+
+
+def _candidate_lines(result: DiagnoseResult) -> list[str]:
+    """report.md's table of every candidate tried, round by round."""
+    lines = ["", "## Candidates tried", "",
+              "| round | effect | held-out MAE | gain | gain lower bound | kept | why not |",
+              "|---|---|---|---|---|---|---|"]
+    kept = {(k + 1, st.name) for k, st in enumerate(result.steps)}
+    for c in result.candidates:
+        yes = (c.round, c.name) in kept
+        why = c.message or ("" if yes else "passed, but another candidate did better")
+        lines.append(f"| {c.round} | {c.name} | {_mv(c.judge_mae_v)} | {_mv(c.gain_v)} "
+                     f"({100 * c.rel_gain:.1f} %) | {_mv(c.ci_low_v)} | "
+                     f"{'yes' if yes else 'no'} | {why} |")
+    return lines
 
 
 def _floor_words(result: DiagnoseResult) -> str:

@@ -166,6 +166,9 @@ class _Problem:
 
     # casadi step ----------------------------------------------------------------------
     def _build(self) -> None:
+        """The casadi step of the candidate's model and its forward sensitivities: F maps
+        (state and sensitivities, inputs, free and constant parameters) to the next ones
+        and (voltage, its sensitivities); Fm the same over the record."""
         ca = self.ca
         nf, nc = len(self.free), len(self.const)
         pf = ca.SX.sym("pf", nf)
@@ -175,6 +178,27 @@ class _Problem:
             par[k][pname] = pf[j]
         for j, (k, pname) in enumerate(self.const):
             par[k][pname] = pc[j]
+        u, U, x, X = self._symbols()
+        nxt, v = self._step(par, U, X, self._resistances(par, U))
+        states = self.states
+        xn = ca.vertcat(*[nxt[s_] for s_ in states])
+        S = ca.SX.sym("S", len(states), nf)
+        Sn = ca.jacobian(xn, x) @ S + ca.jacobian(xn, pf)
+        dv = ca.jacobian(v, x) @ S + ca.jacobian(v, pf)
+        xa = ca.vertcat(x, ca.vec(S))
+        xan = ca.vertcat(xn, ca.vec(Sn))
+        self.F = ca.Function("F", [xa, u, pf, pc], [xan, ca.vertcat(v, dv.T)])
+        self.Fm = self.F.mapaccum("Fm", self.n)
+        # initial state (h_{-1} = initial_state) and its sensitivity
+        self._x0_index = {}
+        for k, name in enumerate(self.names):
+            if name == fx.Hysteresis.name:
+                self._x0_index[k] = states.index(f"{name}#{k}")
+
+    def _symbols(self):
+        """The input row's symbols (``self.rows`` names them) and the state's
+        (``self.states``), each as a vector and by name."""
+        ca = self.ca
         rows = ["dt", "i", "s", "ocv"] + list(RC_FIELDS) + self.branches
         if self.has_cap:
             rows += ["q", "soc"] + ["d_ocv"] + ["d_" + k for k in RC_FIELDS]
@@ -190,8 +214,14 @@ class _Problem:
         self.states = states
         x = ca.SX.sym("x", len(states))
         X = {s: x[j] for j, s in enumerate(states)}
+        return u, U, x, X
 
-        dt, i, s = U["dt"], U["i"], U["s"]
+    def _resistances(self, par, U) -> dict:
+        """The OCV (key ``"ocv"``) and the RC parameters of the step: at the SOC the
+        capacity scale moves them to, then the parameter effects, then the Butler-Volmer
+        branch (the simulator's order)."""
+        ca = self.ca
+        i = U["i"]
         ocv = U["ocv"]
         p = {k: U[k] for k in RC_FIELDS}
         if self.has_cap:
@@ -217,11 +247,19 @@ class _Problem:
         if "i0_a" in self.branches:       # after the effects, as the simulator
             xb = ca.fmax(ca.fabs(i) / U["i0_a"], 1e-12)
             p["r_fast_ohm"] = p["r_fast_ohm"] * (ca.asinh(xb) / xb)
+        p["ocv"] = ocv
+        return p
+
+    def _step(self, par, U, X, p):
+        """The next states (by name) and the voltage: the RC pairs, the diffusion pair,
+        then each voltage effect in the candidate's order."""
+        ca = self.ca
+        dt, i, s = U["dt"], U["i"], U["s"]
         a_f = ca.exp(-dt / p["tau_fast_s"])
         a_s = ca.exp(-dt / p["tau_slow_s"])
         nxt = {"u_fast": a_f * X["u_fast"] + p["r_fast_ohm"] * (1 - a_f) * i,
                "u_slow": a_s * X["u_slow"] + p["r_slow_ohm"] * (1 - a_s) * i}
-        v = ocv + p["r0_ohm"] * i + nxt["u_fast"] + nxt["u_slow"]
+        v = p["ocv"] + p["r0_ohm"] * i + nxt["u_fast"] + nxt["u_slow"]
         if "u_diff" in X:
             a_d = ca.exp(-dt / U["tau_diff_s"])
             nxt["u_diff"] = a_d * X["u_diff"] + U["r_diff_ohm"] * (1 - a_d) * i
@@ -238,19 +276,7 @@ class _Problem:
                 a3 = ca.exp(-dt / par[k]["tau_s"])
                 nxt[key] = a3 * X[key] + par[k]["r_ohm"] * (1 - a3) * i
                 v = v + nxt[key]
-        xn = ca.vertcat(*[nxt[s_] for s_ in states])
-        S = ca.SX.sym("S", len(states), nf)
-        Sn = ca.jacobian(xn, x) @ S + ca.jacobian(xn, pf)
-        dv = ca.jacobian(v, x) @ S + ca.jacobian(v, pf)
-        xa = ca.vertcat(x, ca.vec(S))
-        xan = ca.vertcat(xn, ca.vec(Sn))
-        self.F = ca.Function("F", [xa, u, pf, pc], [xan, ca.vertcat(v, dv.T)])
-        self.Fm = self.F.mapaccum("Fm", self.n)
-        # initial state (h_{-1} = initial_state) and its sensitivity
-        self._x0_index = {}
-        for k, name in enumerate(self.names):
-            if name == fx.Hysteresis.name:
-                self._x0_index[k] = states.index(f"{name}#{k}")
+        return nxt, v
 
     def _inputs(self, vals) -> np.ndarray:
         m = self.model

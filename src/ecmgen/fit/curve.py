@@ -210,7 +210,7 @@ class _Problem:
         ocv_cols = hats(rec.soc, ocv_nodes)
         if self.ndir == 2 and split_ocv:
             # one correction after charge, one after discharge: blind to hysteresis too
-            after_charge = _after_charge(rec.i)
+            after_charge = _cr.after_charge(rec.i)
             ocv_cols = np.hstack([ocv_cols * after_charge[:, None],
                                   ocv_cols * ~after_charge[:, None]])
         self.n_ocv = int(ocv_cols.shape[1])
@@ -389,13 +389,6 @@ class _Problem:
         return x, self.yy + k - 2.0 * float(g @ x) + float(x @ m @ x)
 
 
-def _after_charge(i: np.ndarray) -> np.ndarray:
-    """True where the last current (this sample's included) was a charge."""
-    k = np.where(i != 0.0, np.arange(i.size), -1)
-    np.maximum.accumulate(k, out=k)
-    return np.where(k >= 0, i[np.maximum(k, 0)] > 0, False)
-
-
 # ------------------------------------------------------------------------------ the fit
 @dataclass(frozen=True)
 class CurveOptions:
@@ -454,19 +447,11 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
     searches         the ``searches`` of an earlier fit of the same test with the same
                      settings: its time-constant searches are taken, not run again
     progress         called as progress(done, total)
+
+    Long: most of it is this docstring, the reference of its ten parameters.
     """
-    diffusion, relax_s = options.diffusion, options.relax_s
-    blocks_both_ways = options.blocks_both_ways
-    if i0_a is not None and current_factor is not None:
-        raise ValueError("give i0_a or current_factor, not both")
-    if i0_a is not None and not (np.isfinite(i0_a) and i0_a > 0):
-        raise ValueError(f"i0_a must be positive, got {i0_a!r}")
-    ranges = {"fast": options.tau_fast_s, "slow": options.tau_slow_s}
-    if diffusion:
-        ranges["diff"] = options.tau_diff_s
-    for k, (lo, hi) in ranges.items():
-        if not (0 < lo < hi and np.isfinite(hi)):
-            raise ValueError(f"tau_{k}_s range must be 0 < lo < hi, got {(lo, hi)!r}")
+    relax_s, blocks_both_ways = options.relax_s, options.blocks_both_ways
+    ranges = _checked_ranges(options, i0_a, current_factor)
     nodes = np.asarray(options.soc_nodes, dtype=np.float64)
     complete = [p for p in pulses if not p.cut_short]
     if not complete:
@@ -517,22 +502,44 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
         fits[other] = fits[directions[0]]
         notes.append(f"curve: the test has {directions[0]} pulses only: the {other} "
                      f"parameters are the {directions[0]} parameters")
-    notes.append(
-        f"curve: whole-test fit of {prob.rows.size} samples ({n_eval} time-constant "
-        f"evaluations), rests used up to {rec.rest_used_s:.0f} s after "
-        f"each current change{', the SOC-step file merged' if steps is not None else ''}, "
-        f"tables free at the {' / '.join(f'{b.size} {d}' for d, b in zip(prob.dirs, prob.bases))} "
-        f"pulse levels, smoothing weight {prob.penalty:.2g} (leave one level out): "
-        f"tau_fast {taus['fast']:.3g} s, tau_slow {taus['slow']:.3g} s"
-        + (f", tau_diff {taus['diff']:.3g} s" if diffusion else "")
-        + (f", Butler-Volmer i0 {i0_a:.3g} A on the fast branch" if i0_a else "")
-        + f"; fit RMS {rms * 1e3:.2f} mV")
+    shown = taus if diffusion else {k: taus[k] for k in ("fast", "slow")}
+    notes.append(_fit_note(prob, rec, n_eval, shown, i0_a, rms, steps is not None))
     return CurveFit(nodes.copy(), fits["charge"], fits["discharge"], directions,
                     float(taus["fast"]), float(taus["slow"]),
                     float(taus["diff"]) if diffusion else None, i0_a, rms,
                     int(prob.rows.size), tuple(notes),
                     level_fit_windows(series, blocks, rec, fitted), dict(ranges),
                     float(rec.rest_used_s), searches)
+
+
+def _checked_ranges(options: CurveOptions, i0_a, current_factor) -> dict:
+    """The time-constant ranges searched ({"fast", "slow"} and "diff" with the diffusion
+    pair), each 0 < lo < hi; ValueError for a bad range or a bad i0_a."""
+    if i0_a is not None and current_factor is not None:
+        raise ValueError("give i0_a or current_factor, not both")
+    if i0_a is not None and not (np.isfinite(i0_a) and i0_a > 0):
+        raise ValueError(f"i0_a must be positive, got {i0_a!r}")
+    ranges = {"fast": options.tau_fast_s, "slow": options.tau_slow_s}
+    if options.diffusion:
+        ranges["diff"] = options.tau_diff_s
+    for k, (lo, hi) in ranges.items():
+        if not (0 < lo < hi and np.isfinite(hi)):
+            raise ValueError(f"tau_{k}_s range must be 0 < lo < hi, got {(lo, hi)!r}")
+    return ranges
+
+
+def _fit_note(prob, rec: Record, n_eval: int, taus: dict, i0_a, rms: float,
+              merged: bool) -> str:
+    """The build's note on a whole-test fit (tau_diff where ``taus`` has it)."""
+    levels = " / ".join(f"{b.size} {d}" for d, b in zip(prob.dirs, prob.bases))
+    return (f"curve: whole-test fit of {prob.rows.size} samples ({n_eval} time-constant "
+            f"evaluations), rests used up to {rec.rest_used_s:.0f} s after each current "
+            f"change{', the SOC-step file merged' if merged else ''}, tables free at the "
+            f"{levels} pulse levels, smoothing weight {prob.penalty:.2g} (leave one level "
+            f"out): tau_fast {taus['fast']:.3g} s, tau_slow {taus['slow']:.3g} s"
+            + (f", tau_diff {taus['diff']:.3g} s" if "diff" in taus else "")
+            + (f", Butler-Volmer i0 {i0_a:.3g} A on the fast branch" if i0_a else "")
+            + f"; fit RMS {rms * 1e3:.2f} mV")
 
 
 def _fit_problem(rec: Record, complete, directions, capacity_ah: float, i0_a, spans: dict,

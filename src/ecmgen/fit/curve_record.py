@@ -97,6 +97,13 @@ def pulse_record(series: TimeSeries, soc0: float, ocv: OcvTable, capacity_ah: fl
                    float(np.max(since[row & rest], initial=0.0)))
 
 
+def after_charge(i: np.ndarray) -> np.ndarray:
+    """True where the last current (this sample's included) was a charge."""
+    k = np.where(i != 0.0, np.arange(i.size), -1)
+    np.maximum.accumulate(k, out=k)
+    return np.where(k >= 0, i[np.maximum(k, 0)] > 0, False)
+
+
 def side_by_side(blocks, widths=None) -> np.ndarray:
     """The blocks side by side in one Fortran-ordered array (no transposing copy). With
     their ``widths`` given, ``blocks`` may be an iterator that makes each block as it is

@@ -15,13 +15,9 @@ SLOW_START = 0.02          # grid start favouring slow dynamics: objective tilt 
 NM_EVALS = 60              # exact evaluations per local refinement
 
 
-def search(prob, ranges: dict, progress=None):
-    """The time constants of a whole-test fit's problem (:mod:`ecmgen.fit.curve`): grid over cached unit responses, local
-    refinement from the grid's best point and from the best point favouring slow dynamics,
-    then the tie-break between the local minima found. Returns (taus dict, x, objective,
-    number of evaluations, notes)."""
-    kinds = list(ranges)
-    grids = {k: log_grid(*ranges[k]) for k in kinds}
+def _grid_evaluations(prob, kinds: list, grids: dict, lay) -> dict:
+    """The fit at every grid point with tau_fast < tau_slow < tau_diff, from one Gram
+    matrix of every grid block side by side: rounded log taus -> (x, objective)."""
     # every grid block side by side, each made as it is copied in (no block list beside it)
     z = side_by_side((prob.block(k, tau) if k else prob.r0w for k, tau in
                       [(None, None)] + [(k, tau) for k in kinds for tau in grids[k]]),
@@ -30,7 +26,6 @@ def search(prob, ranges: dict, progress=None):
     g = z.T @ prob.yw
     del z
     width = {k: prob.width(k) for k in kinds}
-    lay = prob.layout(kinds)
     start, off = {}, prob.r0w.shape[1]
     for k in kinds:
         start[k] = off
@@ -44,6 +39,18 @@ def search(prob, ranges: dict, progress=None):
         c = np.concatenate([base] + [start[k] + ix[n] * width[k] + np.arange(width[k])
                                      for n, k in enumerate(kinds)])
         evals[tuple(np.round(logt, 9))] = prob.solve(gram[np.ix_(c, c)], g[c], lay)
+    return evals
+
+
+def search(prob, ranges: dict, progress=None):
+    """The time constants of a whole-test fit's problem (:mod:`ecmgen.fit.curve`): grid over cached unit responses, local
+    refinement from the grid's best point and from the best point favouring slow dynamics,
+    then the tie-break between the local minima found. Returns (taus dict, x, objective,
+    number of evaluations, notes)."""
+    kinds = list(ranges)
+    grids = {k: log_grid(*ranges[k]) for k in kinds}
+    lay = prob.layout(kinds)
+    evals = _grid_evaluations(prob, kinds, grids, lay)
     if not evals:
         raise ValueError("the time-constant ranges leave no tau_fast < tau_slow < tau_diff")
     if progress:

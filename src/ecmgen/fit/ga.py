@@ -139,6 +139,75 @@ _GA = dict(eta_c=2.0, p_sbx=0.5, line_ext=0.5, p_mut=0.5, sigma0=0.2, sigma_half
 
 
 @one_blas_thread
+def _repair_and_score(u, arrs, space):
+    """Repaired genes and their fitness (Eq. 5 plus constraint penalties); ``space`` is
+    (lo, hi, width, the resistances' box, exact L1 resistances)."""
+    lo, hi, width, box, exact = space
+    tm, t0, d, mask, ra, scale = arrs
+    x = lo + np.clip(u, 0.0, 1.0) * width
+    lf, ls = x[..., 0], x[..., 1]
+    # tau_fast > tau_slow: swap the two time constants where the box allows
+    swap = (lf > ls) & (ls <= hi[0]) & (lf >= lo[1])
+    lf, ls = np.where(swap, ls, lf), np.where(swap, lf, ls)
+    tf, ts = np.exp(lf), np.exp(ls)
+    pf = _phi(tm, t0[..., None], tf[..., None])
+    ps = _phi(tm, t0[..., None], ts[..., None])
+    cf, cs = -np.expm1(-t0 / tf), -np.expm1(-t0 / ts)   # 1 - exp(-t0/tau)
+    rf, rs = _l1_resistances(pf, ps, d, mask, cf, cs, ra, box, scale, exact)
+    u = np.clip(np.stack([lf, ls, rf, rs], axis=-1) - lo, 0.0, width) / width
+    fit = np.sum(np.where(mask, np.abs(d - rf[..., None] * pf - rs[..., None] * ps), 0.0),
+                 axis=-1)
+    r0 = ra - rf * cf - rs * cs
+    viol = np.maximum(-r0, 0.0) + np.maximum(lf - ls + _LOG_GAP, 0.0) * scale
+    return u, fit + _PENALTY * viol
+
+
+def _offspring(rng, u, fit, rows, g: int, expo: float, o: dict):
+    """One generation's offspring of the population ``u`` (cells x pop x 4 genes in
+    [0, 1]) with fitness ``fit``: tournament selection, crossover, mutation (the draws in
+    a fixed order: same seed, same offspring)."""
+    n, pop = fit.shape
+    half = pop // 2
+    # -- selection: binary tournaments ---------------------------------------------
+    cand = rng.integers(0, pop, size=(n, pop, 2))
+    fc = np.take_along_axis(fit, cand.reshape(n, -1), axis=1).reshape(n, pop, 2)
+    win = np.where(fc[..., 0] <= fc[..., 1], cand[..., 0], cand[..., 1])
+    pa, pb = u[rows, win[:, :half]], u[rows, win[:, half:]]
+    # -- crossover: SBX or extended line recombination, per pair -------------------
+    w = rng.random((n, half, 4))
+    beta = np.where(w <= 0.5, (2.0 * w) ** expo, (0.5 / (1.0 - w)) ** expo)
+    beta = np.where(rng.random((n, half, 4)) < 0.5, beta, 1.0)
+    ext = o["line_ext"]
+    alpha = rng.uniform(-ext, 1.0 + ext, size=(n, half, 1))
+    sbx = rng.random((n, half, 1)) < o["p_sbx"]
+    c1 = np.where(sbx, 0.5 * ((1 + beta) * pa + (1 - beta) * pb), pa + alpha * (pb - pa))
+    c2 = np.where(sbx, 0.5 * ((1 - beta) * pa + (1 + beta) * pb), pb + alpha * (pa - pb))
+    kids = np.concatenate([c1, c2], axis=1)
+    # -- mutation: multi-scale steps, shrinking over the generations ---------------
+    sigma = o["sigma0"] / (1.0 + g / o["sigma_half"])
+    step = sigma * 10.0 ** (-o["decades"] * rng.random((n, pop, 4))) \
+        * rng.standard_normal((n, pop, 4))
+    kids = kids + np.where(rng.random((n, pop, 4)) < o["p_mut"], step, 0.0)
+    return kids
+
+
+def _survivors(u, fit, kids, kfit, pop: int):
+    """The best ``pop`` of parents and offspring per cell (their genes and fitness)."""
+    n = u.shape[0]
+    # -- survivors: best of parents + offspring; exact clones (same fitness as the
+    #    better neighbour) go to the back so the elite does not fill the population
+    allu = np.concatenate([u, kids], axis=1)
+    allf = np.concatenate([fit, kfit], axis=1)
+    order = np.argsort(allf, axis=1, kind="stable")
+    fs = np.take_along_axis(allf, order, axis=1)
+    dup = np.concatenate([np.zeros((n, 1), bool), fs[:, 1:] == fs[:, :-1]], axis=1)
+    order = np.take_along_axis(order, np.argsort(dup, axis=1, kind="stable"), axis=1)
+    keep = order[:, :pop]
+    u = np.take_along_axis(allu, keep[..., None], axis=1)
+    fit = np.take_along_axis(allf, keep, axis=1)
+    return u, fit
+
+
 def fit_ga(t_s, r_ohm, *, bounds: Bounds | None = None, seed: int = 0, population: int = 48,
            max_generations: int = 2000, stall_generations: int = 50,
            function_tolerance: float = 1e-6, progress: Progress | None = None) -> PointFit:
@@ -179,6 +248,8 @@ def fit_ga(t_s, r_ohm, *, bounds: Bounds | None = None, seed: int = 0, populatio
     converged. Same ``seed`` => bit-identical result. The random stream is shared by
     the table's cells, so a cell's result depends on the whole table (not only on its
     own data) through the draws.
+
+    Long: most of it is this docstring, the method's reference (paper Eq. 5).
     """
     data = _prepare(t_s, r_ohm)
     b = _bounds_for(data, bounds)
@@ -186,7 +257,6 @@ def fit_ga(t_s, r_ohm, *, bounds: Bounds | None = None, seed: int = 0, populatio
     if pop < 4:
         raise ValueError("population must be at least 4")
     pop += pop % 2
-    half = pop // 2
     stall = max(int(stall_generations), 1)
     n_c = data.r.shape[0]
     rng = np.random.default_rng(seed)
@@ -210,30 +280,10 @@ def fit_ga(t_s, r_ohm, *, bounds: Bounds | None = None, seed: int = 0, populatio
     # only the columns some cell fits (drops the pinned first column, for instance)
     used = data.mask.any(axis=0)
     exact = int(used.sum()) <= _EXACT_MAX_POINTS
-    box = (lo[2], hi[2], lo[3], hi[3])
-
-    def repair_and_score(u, arrs):
-        """Repaired genes and their fitness (Eq. 5 plus constraint penalties)."""
-        tm, t0, d, mask, ra, scale = arrs
-        x = lo + np.clip(u, 0.0, 1.0) * width
-        lf, ls = x[..., 0], x[..., 1]
-        # tau_fast > tau_slow: swap the two time constants where the box allows
-        swap = (lf > ls) & (ls <= hi[0]) & (lf >= lo[1])
-        lf, ls = np.where(swap, ls, lf), np.where(swap, lf, ls)
-        tf, ts = np.exp(lf), np.exp(ls)
-        pf = _phi(tm, t0[..., None], tf[..., None])
-        ps = _phi(tm, t0[..., None], ts[..., None])
-        cf, cs = -np.expm1(-t0 / tf), -np.expm1(-t0 / ts)   # 1 - exp(-t0/tau)
-        rf, rs = _l1_resistances(pf, ps, d, mask, cf, cs, ra, box, scale, exact)
-        u = np.clip(np.stack([lf, ls, rf, rs], axis=-1) - lo, 0.0, width) / width
-        fit = np.sum(np.where(mask, np.abs(d - rf[..., None] * pf - rs[..., None] * ps), 0.0),
-                     axis=-1)
-        r0 = ra - rf * cf - rs * cs
-        viol = np.maximum(-r0, 0.0) + np.maximum(lf - ls + _LOG_GAP, 0.0) * scale
-        return u, fit + _PENALTY * viol
+    space = (lo, hi, width, (lo[2], hi[2], lo[3], hi[3]), exact)
 
     arrs = cell_arrays(act)
-    u, fit = repair_and_score(rng.random((act.size, pop, 4)), arrs)
+    u, fit = _repair_and_score(rng.random((act.size, pop, 4)), arrs, space)
     fzero = np.sum(np.abs(data.d), axis=1)     # Eq. 5 of the zero model, per cell
     hist = np.full((act.size, stall + 1), np.inf)
     hist[:, 0] = fit.min(axis=1)
@@ -243,39 +293,9 @@ def fit_ga(t_s, r_ohm, *, bounds: Bounds | None = None, seed: int = 0, populatio
     g = 0
     while act.size and g < max_generations:
         g += 1
-        n = act.size
-        # -- selection: binary tournaments ---------------------------------------------
-        cand = rng.integers(0, pop, size=(n, pop, 2))
-        fc = np.take_along_axis(fit, cand.reshape(n, -1), axis=1).reshape(n, pop, 2)
-        win = np.where(fc[..., 0] <= fc[..., 1], cand[..., 0], cand[..., 1])
-        pa, pb = u[rows, win[:, :half]], u[rows, win[:, half:]]
-        # -- crossover: SBX or extended line recombination, per pair -------------------
-        w = rng.random((n, half, 4))
-        beta = np.where(w <= 0.5, (2.0 * w) ** expo, (0.5 / (1.0 - w)) ** expo)
-        beta = np.where(rng.random((n, half, 4)) < 0.5, beta, 1.0)
-        ext = o["line_ext"]
-        alpha = rng.uniform(-ext, 1.0 + ext, size=(n, half, 1))
-        sbx = rng.random((n, half, 1)) < o["p_sbx"]
-        c1 = np.where(sbx, 0.5 * ((1 + beta) * pa + (1 - beta) * pb), pa + alpha * (pb - pa))
-        c2 = np.where(sbx, 0.5 * ((1 - beta) * pa + (1 + beta) * pb), pb + alpha * (pa - pb))
-        kids = np.concatenate([c1, c2], axis=1)
-        # -- mutation: multi-scale steps, shrinking over the generations ---------------
-        sigma = o["sigma0"] / (1.0 + g / o["sigma_half"])
-        step = sigma * 10.0 ** (-o["decades"] * rng.random((n, pop, 4))) \
-            * rng.standard_normal((n, pop, 4))
-        kids = kids + np.where(rng.random((n, pop, 4)) < o["p_mut"], step, 0.0)
-        kids, kfit = repair_and_score(kids, arrs)
-        # -- survivors: best of parents + offspring; exact clones (same fitness as the
-        #    better neighbour) go to the back so the elite does not fill the population
-        allu = np.concatenate([u, kids], axis=1)
-        allf = np.concatenate([fit, kfit], axis=1)
-        order = np.argsort(allf, axis=1, kind="stable")
-        fs = np.take_along_axis(allf, order, axis=1)
-        dup = np.concatenate([np.zeros((n, 1), bool), fs[:, 1:] == fs[:, :-1]], axis=1)
-        order = np.take_along_axis(order, np.argsort(dup, axis=1, kind="stable"), axis=1)
-        keep = order[:, :pop]
-        u = np.take_along_axis(allu, keep[..., None], axis=1)
-        fit = np.take_along_axis(allf, keep, axis=1)
+        kids = _offspring(rng, u, fit, rows, g, expo, o)
+        kids, kfit = _repair_and_score(kids, arrs, space)
+        u, fit = _survivors(u, fit, kids, kfit, pop)
         # -- stall rule ----------------------------------------------------------------
         best = fit[:, 0]
         if g > stall:

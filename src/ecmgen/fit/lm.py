@@ -196,6 +196,39 @@ class _LmProblem:
         return np.exp(z[:, 0]), np.exp(z[:, 1]), r[:, 0], r[:, 1]
 
 
+def _lm_step(prob: _LmProblem, zi, ri, ji, c_i, dc_i, mu_i, ix, eye):
+    """One projected LM step of the columns ``ix`` (Eq. 8, active sets of the box and of
+    R0 >= 0): (the step, the gradient J'r, J'J, the projected gradient)."""
+    lo, hi = prob.box(zi, ix)
+    g = np.einsum("nik,nk->ni", ji, ri)
+    a = np.einsum("nik,njk->nij", ji, ji)
+    # box active set: a variable held at its bound by the gradient stays there
+    blocked = ((zi <= lo) & (g > 0)) | ((zi >= hi) & (g < 0))
+    free = ~blocked
+    m = np.where(free[:, :, None] & free[:, None, :], a, 0.0) \
+        + np.where(free, mu_i[:, None], 1.0)[:, :, None] * eye
+    gf = np.where(free, g, 0.0)
+    minv_g = np.linalg.solve(m, gf[..., None])[..., 0]
+    h = -minv_g
+    # R0 >= 0 active set: stay on the (linearised) constraint if the step would cross it
+    ca_ = np.where(free, dc_i, 0.0)
+    on = (c_i <= 1e-7) & (c_i + np.einsum("ni,ni->n", ca_, h) < 0)
+    if on.any():
+        minv_a = np.linalg.solve(m, ca_[..., None])[..., 0]
+        den = np.einsum("ni,ni->n", ca_, minv_a)
+        lam = np.where(on & (den > 0), (c_i + np.einsum("ni,ni->n", ca_, h))
+                       / np.where(den > 0, den, 1.0), 0.0)
+        h = h - lam[:, None] * minv_a
+    # stationarity: projected gradient (box, and the tangent of an active R0 = 0)
+    gp = gf
+    at_r0 = (c_i <= 1e-7) & (np.einsum("ni,ni->n", ca_, gf) > 0)
+    if at_r0.any():
+        na = np.einsum("ni,ni->n", ca_, ca_)
+        gp = np.where(at_r0[:, None], gf - ca_ * (np.einsum("ni,ni->n", ca_, gf)
+                                                  / np.where(na > 0, na, 1.0))[:, None], gf)
+    return h, g, a, gp
+
+
 def _lm_iterate(prob: _LmProblem, z, max_iterations: int, progress: Progress | None,
                 xtol=1e-10, ftol=1e-12, gtol=1e-10, ctol=1e-26):
     """Projected Levenberg-Marquardt (Eq. 8) with Nielsen's mu update, all columns at once.
@@ -221,33 +254,7 @@ def _lm_iterate(prob: _LmProblem, z, max_iterations: int, progress: Progress | N
         if ix.size == 0:
             break
         zi, ri, ji, c_i, dc_i = z[ix], r[ix], jac[ix], c[ix], dc[ix]
-        lo, hi = prob.box(zi, ix)
-        g = np.einsum("nik,nk->ni", ji, ri)
-        a = np.einsum("nik,njk->nij", ji, ji)
-        # box active set: a variable held at its bound by the gradient stays there
-        blocked = ((zi <= lo) & (g > 0)) | ((zi >= hi) & (g < 0))
-        free = ~blocked
-        m = np.where(free[:, :, None] & free[:, None, :], a, 0.0) \
-            + np.where(free, mu[ix, None], 1.0)[:, :, None] * eye
-        gf = np.where(free, g, 0.0)
-        minv_g = np.linalg.solve(m, gf[..., None])[..., 0]
-        h = -minv_g
-        # R0 >= 0 active set: stay on the (linearised) constraint if the step would cross it
-        ca_ = np.where(free, dc_i, 0.0)
-        on = (c_i <= 1e-7) & (c_i + np.einsum("ni,ni->n", ca_, h) < 0)
-        if on.any():
-            minv_a = np.linalg.solve(m, ca_[..., None])[..., 0]
-            den = np.einsum("ni,ni->n", ca_, minv_a)
-            lam = np.where(on & (den > 0), (c_i + np.einsum("ni,ni->n", ca_, h))
-                           / np.where(den > 0, den, 1.0), 0.0)
-            h = h - lam[:, None] * minv_a
-        # stationarity: projected gradient (box, and the tangent of an active R0 = 0)
-        gp = gf
-        at_r0 = (c_i <= 1e-7) & (np.einsum("ni,ni->n", ca_, gf) > 0)
-        if at_r0.any():
-            na = np.einsum("ni,ni->n", ca_, ca_)
-            gp = np.where(at_r0[:, None], gf - ca_ * (np.einsum("ni,ni->n", ca_, gf)
-                                                      / np.where(na > 0, na, 1.0))[:, None], gf)
+        h, g, a, gp = _lm_step(prob, zi, ri, ji, c_i, dc_i, mu[ix], ix, eye)
         small_grad = np.max(np.abs(gp), axis=1) <= gtol
         z_try = prob.project(zi + h, ix)
         step = z_try - zi
@@ -312,6 +319,8 @@ def fit_lm(t_s, r_ohm, *, bounds: Bounds | None = None, x0: PointFit | None = No
     a cell whose LM result has a worse Eq.-5 fitness than ``x0`` (LM minimises
     squares, Eq. 5 is absolute values) keeps ``x0`` (projected on the constraints if
     it was infeasible), so the result is never worse than the start in Eq. 5.
+
+    Long: most of it is this docstring, the method's reference (paper Eqs. 6-8).
     """
     data = _prepare(t_s, r_ohm)
     b = _bounds_for(data, bounds)
@@ -323,18 +332,7 @@ def fit_lm(t_s, r_ohm, *, bounds: Bounds | None = None, x0: PointFit | None = No
     if cells.size == 0:
         return _result(data, *out.T, conv, iters, "lm")
 
-    x0_params = None
-    from_x0 = np.zeros(n_c, bool)
-    if x0 is not None:
-        if not isinstance(x0, PointFit):
-            raise TypeError("x0 must be a PointFit")
-        x0_params = np.stack([np.asarray(x0.tau_fast_s, float), np.asarray(x0.tau_slow_s, float),
-                              np.asarray(x0.r_fast_ohm, float), np.asarray(x0.r_slow_ohm, float)],
-                             axis=1)
-        if x0_params.shape[0] != n_c:
-            raise ValueError(f"x0 has {x0_params.shape[0]} cells, the table has {n_c}")
-        from_x0 = np.all(np.isfinite(x0_params), axis=1) & (x0_params[:, 0] > 0) \
-            & (x0_params[:, 1] > 0) & data.ok
+    x0_params, from_x0 = _x0_columns(x0, data)
 
     # columns: one per x0-started cell, _N_STARTS per multi-started cell
     lf = np.linspace(*np.log(b.tau_fast_s), _GRID)
@@ -379,14 +377,38 @@ def fit_lm(t_s, r_ohm, *, bounds: Bounds | None = None, x0: PointFit | None = No
     iters[target] = citers[chosen]
 
     if ns:
-        # never worse than the start in Eq. 5: keep x0 (as given if it is feasible)
-        start = np.stack(_clip_params(b, *prob.to_params(z_start[:ns], np.arange(ns))), axis=1)
-        given = x0_params[single]
-        feasible = np.all(np.isclose(start, given, rtol=1e-12, atol=0.0), axis=1)
-        start = np.where(feasible[:, None], given, start)
-        sub = _prepare(data.t, data.r[single])
-        f_lm = _eq5(sub, *out[single].T)
-        f_st = _eq5(sub, *start.T)
-        worse = ~(f_lm <= f_st)
-        out[single[worse]] = start[worse]
+        _never_worse_than_x0(prob, data, b, out, single, z_start[:ns], x0_params[single])
     return _result(data, *out.T, conv, iters, "lm")
+
+
+def _x0_columns(x0: PointFit | None, data):
+    """``x0``'s parameters per cell ((n, 4): tau_fast, tau_slow, r_fast, r_slow; None
+    without x0) and the cells that start from them (finite, positive time constants)."""
+    n_c = data.r.shape[0]
+    if x0 is None:
+        return None, np.zeros(n_c, bool)
+    if not isinstance(x0, PointFit):
+        raise TypeError("x0 must be a PointFit")
+    x0_params = np.stack([np.asarray(x0.tau_fast_s, float), np.asarray(x0.tau_slow_s, float),
+                          np.asarray(x0.r_fast_ohm, float), np.asarray(x0.r_slow_ohm, float)],
+                         axis=1)
+    if x0_params.shape[0] != n_c:
+        raise ValueError(f"x0 has {x0_params.shape[0]} cells, the table has {n_c}")
+    from_x0 = np.all(np.isfinite(x0_params), axis=1) & (x0_params[:, 0] > 0) \
+        & (x0_params[:, 1] > 0) & data.ok
+    return x0_params, from_x0
+
+
+def _never_worse_than_x0(prob, data, b, out, single, z_start, given) -> None:
+    """Never worse than the start in Eq. 5: the cells ``single`` started from x0 (``given``,
+    ``z_start`` its projection) keep x0 where LM's result is worse (x0 as given if it is
+    feasible); in place in ``out``."""
+    ns = single.size
+    start = np.stack(_clip_params(b, *prob.to_params(z_start, np.arange(ns))), axis=1)
+    feasible = np.all(np.isclose(start, given, rtol=1e-12, atol=0.0), axis=1)
+    start = np.where(feasible[:, None], given, start)
+    sub = _prepare(data.t, data.r[single])
+    f_lm = _eq5(sub, *out[single].T)
+    f_st = _eq5(sub, *start.T)
+    worse = ~(f_lm <= f_st)
+    out[single[worse]] = start[worse]
