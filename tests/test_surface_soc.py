@@ -230,7 +230,7 @@ def test_config_key(tmp_path):
     from ecmgen.model.model import SURFACE_SOC_GAIN_MAX as MODEL_MAX
 
     assert SURFACE_SOC_GAIN_MAX == MODEL_MAX
-    assert cfg_with("").surface_soc_gain == 0.0
+    assert cfg_with("").surface_soc_gain is None      # unset: the build's default
     cfg = cfg_with("surface_soc_gain = 0.5")
     assert cfg.surface_soc_gain == 0.5
     for bad in ("surface_soc_gain = -1", "surface_soc_gain = \"x\"", "surface_soc_gain = 20"):
@@ -242,7 +242,16 @@ def test_config_key(tmp_path):
     got = with_surface_soc(cfg, {"curve": m, "lm": replace(m, charge=plain, discharge=plain)})
     assert got["curve"].surface_soc_gain == 0.5 and got["lm"].surface_soc_gain == 0.0
     assert "no diffusion RC pair" in got["lm"].notes[-1]
-    assert with_surface_soc(cfg_with(""), {"curve": m})["curve"] is m
+    # unset: SURFACE_SOC_GAIN_OVER_TEMPERATURE over temperature (no note where the pair is
+    # missing: nothing was asked for), 0 for a model from one test; 0 set: off
+    from ecmgen.config import SURFACE_SOC_GAIN_OVER_TEMPERATURE as OVER_T
+
+    unset = cfg_with("")
+    got = with_surface_soc(unset, {"curve": m, "lm": replace(m, charge=plain, discharge=plain)})
+    assert got["curve"].surface_soc_gain == OVER_T and got["lm"].notes == m.notes
+    one_test = replace(unset, pulse_tests=unset.pulse_tests[:1])
+    assert with_surface_soc(one_test, {"curve": m})["curve"] is m
+    assert with_surface_soc(cfg_with("surface_soc_gain = 0"), {"curve": m})["curve"] is m
 
 
 @pytest.mark.parametrize("numeric,tol_v", [("float", 0.5e-3), ("fixed", 2e-3)])

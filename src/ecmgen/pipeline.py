@@ -17,7 +17,7 @@ from typing import Callable
 
 import numpy as np
 
-from .config import BuildConfig, PulseTest
+from .config import SURFACE_SOC_GAIN_OVER_TEMPERATURE, BuildConfig, PulseTest
 from .data import dcir as dcir_mod
 from .data.dynamic import dynamic_levels
 from .data.measure import TimeSeries
@@ -525,17 +525,27 @@ def with_activation(cfg: BuildConfig, models: dict[str, EcmModel],
 
 def with_surface_soc(cfg: BuildConfig, models: dict[str, EcmModel]) -> dict[str, EcmModel]:
     """[model] surface_soc_gain on every model that has the diffusion RC pair (the surface
-    SOC needs its voltage); the others keep 0 and say so in their notes."""
-    gain = cfg.surface_soc_gain
+    SOC needs its voltage). Unset, it is SURFACE_SOC_GAIN_OVER_TEMPERATURE for a model from
+    several pulse tests over temperature and 0 for a model from one: there the cell's
+    warming, which one test's tables do not follow, is what the cycles show, and a gain
+    adds to that error (docs/results.md, "The surface SOC"). A model without the pair keeps
+    0, said in its notes where the config asked for a gain."""
+    given = cfg.surface_soc_gain is not None
+    if given:
+        gain = cfg.surface_soc_gain
+    else:
+        gain = SURFACE_SOC_GAIN_OVER_TEMPERATURE if len(cfg.pulse_tests) > 1 else 0.0
     if not gain:
         return models
     out = {}
     for m, model in models.items():
         if model.discharge.has_diffusion:
             out[m] = replace(model, surface_soc_gain=gain)
-        else:
+        elif given:
             out[m] = replace(model, notes=(*model.notes, f"surface_soc_gain = {gain:g} not "
                                            "applied: the model has no diffusion RC pair"))
+        else:
+            out[m] = model
     return out
 
 

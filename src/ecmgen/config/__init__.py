@@ -6,11 +6,12 @@ together, and gives the typed :class:`BuildConfig` the stages read.
 """
 
 from .loader import (C_ESTIMATORS, C_RUNTIME_NAMESPACE, COLUMN_ROLE_FALLBACK,
-                     ESTIMATOR_FILTERS, START_ANYWHERE, SURFACE_SOC_GAIN_MAX, WINDOW_ROLES,
+                     ESTIMATOR_FILTERS, START_ANYWHERE, SURFACE_SOC_GAIN_MAX,
+                     SURFACE_SOC_GAIN_OVER_TEMPERATURE, WINDOW_ROLES,
                      BuildConfig, EstimatorConfig, PulseTest, c_prefix_problem,
                      estimator_config, load_config, start_settings)
 
 __all__ = ["C_ESTIMATORS", "C_RUNTIME_NAMESPACE", "COLUMN_ROLE_FALLBACK", "ESTIMATOR_FILTERS",
-           "START_ANYWHERE", "SURFACE_SOC_GAIN_MAX", "WINDOW_ROLES", "BuildConfig",
-           "EstimatorConfig", "PulseTest", "c_prefix_problem", "estimator_config",
+           "START_ANYWHERE", "SURFACE_SOC_GAIN_MAX", "SURFACE_SOC_GAIN_OVER_TEMPERATURE",
+           "WINDOW_ROLES", "BuildConfig", "EstimatorConfig", "PulseTest", "c_prefix_problem", "estimator_config",
            "load_config", "start_settings"]

@@ -23,6 +23,9 @@ from .schema import TEMPERATURE_C as TEMPERATURE_RANGE_C
 from ..errors import InputError, reading
 
 SURFACE_SOC_GAIN_MAX = 10.0     # [model] surface_soc_gain's upper bound (0.5 measured)
+# its default for a model over temperature (docs/results.md, "The surface SOC"): the
+# largest gain that leaves the SOC-step discharges no model chose it on as good as without
+SURFACE_SOC_GAIN_OVER_TEMPERATURE = 0.3
 
 # [data.columns.<role>] maps the CSV columns of one file of the config (it extends the
 # global [data.columns]); a role without its own table takes its fallback's
@@ -217,7 +220,8 @@ class BuildConfig:
     curve_branches: bool = False       # [fit]: curve fit with diffusion pair + Butler-Volmer
     temperature_step_c: float = 5.0    # [model]: 0 = the measured breakpoints as they are
     warm_row_c: float | None = 45.0    # [model]: derived warm row (None: none)
-    surface_soc_gain: float = 0.0      # [model]: lam of the surface SOC (0: off)
+    surface_soc_gain: float | None = None   # [model]: lam of the surface SOC (0: off; None:
+    #                                         the default, surface_soc_default)
     activation_k: float = 0.0          # [model]: Ea/R of a one-test model's resistances (0: off)
     max_mae_mv: float = 50.0           # [report]: the validation verdict's threshold
     estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
@@ -677,10 +681,10 @@ def _model_settings(model_t: dict, pulse_tests: tuple[PulseTest, ...], path: Pat
         if not lo <= warm <= hi:
             raise InputError(path, f"model.warm_row_c must lie in {lo:g}..{hi:g} degC (or "
                                    f"false: no derived warm row), got {warm:g}")
-    gain = _number(model_t, "surface_soc_gain", path, "model", 0.0)
+    gain = _number(model_t, "surface_soc_gain", path, "model", None)
     # the model stage's bound (ecmgen.model.model.SURFACE_SOC_GAIN_MAX; the config is
     # below it in the pipeline, a test holds the two equal)
-    if not 0.0 <= gain <= SURFACE_SOC_GAIN_MAX:
+    if gain is not None and not 0.0 <= gain <= SURFACE_SOC_GAIN_MAX:
         raise InputError(path, f"model.surface_soc_gain must lie in 0..{SURFACE_SOC_GAIN_MAX:g} "
                                f"(0: off), got {gain:g}")
     activation = _number(model_t, "activation_k", path, "model", 0.0)  # range: the schema's

@@ -183,7 +183,8 @@ SECTIONS: tuple[Section, ...] = (
         Key("warm_row_c", f"{NUMBER}|{FALSE}", "a derived row above the warmest test "
             "(false: none)", unit="degC", range=TEMPERATURE_C, default="45"),
         Key("surface_soc_gain", NUMBER, "the RC tables read at the surface SOC (models "
-            "with the diffusion pair; 0: off)", range=(0.0, 10.0), default="0"),
+            "with the diffusion pair; 0: off)", range=(0.0, 10.0),
+            default="0.3 over temperature, 0 from one test"),
         Key("activation_k", NUMBER, "Ea/R: a model from one pulse test scales its "
             "resistances by exp(Ea/R (1/T - 1/T_test)) at the cell temperature T (0: off)",
             unit="K", range=(0.0, 50000.0), default="0"),
