@@ -26,11 +26,14 @@
 
 Besides the model's effects, the faults of the record are candidates
 (:mod:`ecmgen.diagnosis.corrections`: a current sensor's offset and gain, an OCV table
-that is off); one that is added corrects the data the later rounds fit and judge. A
-candidate is named only where it beats its look-alikes (the other candidates that passed
-in its round, each judged again in its place among all that was added at the end) by the
-held-out test; otherwise the verdict is "X or Y - the data cannot tell them apart"
-(:mod:`ecmgen.diagnosis.lookalike`).
+that is off); one that is added corrects the data the later rounds fit and judge (an
+offset the record's rests read goes first). A candidate is named only where it beats its
+look-alikes (the other candidates of its round that it does not beat, each judged again in
+its place among all that was added at the end, and those that beat it beyond their bounds)
+by the held-out test; otherwise the verdict is "X or Y - the data cannot tell them apart"
+(:mod:`ecmgen.diagnosis.lookalike`). An extra RC found as a third pair of the pulse test
+is named only where that test's shape tells it from solid diffusion
+(:mod:`ecmgen.diagnosis.diffusion`).
 
 The held-out part is ``judge_series`` when given (a second cycle), else the last
 ``1 - split`` of the fit cycle's duration (the model is simulated over the whole cycle;
@@ -481,9 +484,10 @@ class _Search:
             return None
         hyst = next((e for e in self.current.effects if e.name == fx.Hysteresis.name),
                     None) if self.base_by else None
-        got = self.third_seen = third_pair(self.pulse_refit, hyst)
+        got = third_pair(self.pulse_refit, hyst)
         if got is None:
             return None
+        self.third_seen = got
         base, effect, note = got.base, got.effect, got.note
         as_is = list(self.current.effects) + [effect]
         options = [(([dict(v) for _, v, _ in layout] + [effect.params()], as_is, {}),
@@ -754,7 +758,12 @@ class _Search:
     def pair_or_diffusion(self) -> None:
         """An extra RC found as a third pair of the pulse test is named only where the
         test's shape tells it from solid diffusion (:func:`.diffusion.told_from_diffusion`);
-        otherwise "extra_rc or diffusion", and the model is the base."""
+        otherwise "extra_rc or diffusion" (or its group with diffusion), the model the base."""
+        g = next((g for g, group in enumerate(self.cannot_tell) if fx.ExtraRc.name in group),
+                 None)
+        if g is not None and self.third_seen is not None:
+            # not named anyway: what it cannot be told from includes diffusion
+            self.cannot_tell[g] += ("diffusion",) * ("diffusion" not in self.cannot_tell[g])
         k = next((k for k, st in enumerate(self.steps) if st.name == fx.ExtraRc.name), None)
         if k is None or self.pair_refit is None or fx.ExtraRc.name not in self.base_by:
             return
