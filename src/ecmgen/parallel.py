@@ -178,6 +178,19 @@ PRELOAD = ["ecmgen.pipeline", "ecmgen.validation", "ecmgen.fit.curve", "scipy.op
            "matplotlib.pyplot"]
 
 
+def start_fork_server() -> None:
+    """Start the fork server the workers are forked from now (where the platform has one),
+    so that it loads PRELOAD beside the caller's own work (a command line's imports)
+    rather than when the first task is given: the pool's first fork finds it running."""
+    from multiprocessing import forkserver
+
+    ctx = _context()
+    if ctx.get_start_method() != "forkserver":
+        return
+    with _worker_environment():
+        forkserver.ensure_running()
+
+
 def _adopt_environment(env: dict) -> None:
     """A worker's environment is this process's when the pool starts (CC, ECMGEN_CACHE, ..),
     not the fork server's, which started with the first pool of the process."""
