@@ -516,8 +516,7 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
 
 
 def _checked_ranges(options: CurveOptions, i0_a, current_factor) -> dict:
-    """The time-constant ranges searched ({"fast", "slow"} and "diff" with the diffusion
-    pair), each 0 < lo < hi; ValueError for a bad range or a bad i0_a."""
+    """The time-constant ranges searched (and "diff" with the diffusion pair), checked."""
     if i0_a is not None and current_factor is not None:
         raise ValueError("give i0_a or current_factor, not both")
     if i0_a is not None and not (np.isfinite(i0_a) and i0_a > 0):
