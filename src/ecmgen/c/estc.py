@@ -146,7 +146,7 @@ def render_estimator(env, ctx: dict, est: EstSpec, c_float) -> dict[str, str]:
     # a start anywhere: the hysteresis state at 0, variance 1/3 (ecmgen.estimate.ekf)
     h_start = (c_float(np.float32(HYSTERESIS_START_VAR))
                if "h" in est.names and est.noise["start_a"] != 0.0 else None)
-    ectx = dict(ctx, n=est.n, names=est.names, offset=est.offset, h_start=h_start,
+    ectx = dict(ctx, n=est.n, names=est.names, fields=est.fields, offset=est.offset, h_start=h_start,
                 slopes=est.settings.resistance_slopes, spread=est.spread, memory=est.memory,
                 noise=[(k, c_float(est.noise[k]), c) for k, c in est.noise_fields])
     files = ctx["files"]
