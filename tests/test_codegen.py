@@ -251,7 +251,7 @@ def test_report(tmp_path, synthetic_model):
 def test_generate_from_path(tmp_path, synthetic_model):
     path = synthetic_model.save(tmp_path / "model.json")
     files = generate_c(path, tmp_path / "out", numeric="float")
-    assert (tmp_path / "out" / "ecm_ecm_f32.c").exists() and len(files) == 10
+    assert (tmp_path / "out" / "ecm_ecm_f32.c").exists() and len(files) == 8
 
 
 # --- refusal ----------------------------------------------------------------------------

@@ -308,7 +308,7 @@ def test_files_and_documentation(tmp_path):
         hdr = files[nm["header"]]
         assert "hysteresis" in hdr and "extra_rc" in hdr and " h;" in hdr and " u_x;" in hdr
         assert "hysteresis" in files[nm["config"]] and " h_k;" in files[nm["config"]]
-        assert f"ecmrt_{nm['suffix']}_fx_hyst(&s->h" in files[nm["source"]]
+        assert f"ecmrt_{'f32' if numeric == 'float' else 'q'}_fx_hyst(&s->h" in files[nm["source"]]
         assert files == render(spec)                           # deterministic
         written = generate_c(_model(_all(numeric)), tmp_path / numeric, numeric=numeric, prefix="bat")
         assert {p.name for p in written} == set(files)

@@ -1,12 +1,12 @@
 """model.json -> C for BMS microcontrollers: ``<prefix>_ecm_<s>.h`` / ``.c`` (names:
 :mod:`ecmgen.c.names`).
 
-The generated C holds only the ``const`` tables (``<prefix>_model_<s>``), the model's state
-type and three thin functions, and ``<prefix>_ecm_<s>_config.h`` the runtime's switches for
-the model (:mod:`ecmgen.c.runtime`); the step itself is the hand-written runtime in ``c_runtime/`` (copied beside the
-generated files), one body for every model with compile-time switches for what the model
-has (temperature axis, diffusion pair, Butler-Volmer branch, diagnose effects). Two
-numerics:
+The generated C holds the ``const`` tables (``<prefix>_model_<s>``), the model's state type,
+``<prefix>_ecm_<s>_config.h`` the layout of its tables, and its init, set_age and step: the
+calls, in the step's order, of the units of the hand-written runtime in ``c_runtime/``
+(copied beside the generated files) that this model has (temperature axis, diffusion pair,
+Butler-Volmer branch, surface SOC, ageing law, diagnose effects: ``CSpec.switches``), so the
+runtime has no compile-time switch and a model's C nothing of what it lacks. Two numerics:
 
 ``float``  IEEE binary32 tables, literals with 9 significant digits (they round-trip).
 ``fixed``  int32 tables in Q formats chosen from the model's value ranges; int64
@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import functools
 import math
+import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -150,7 +151,7 @@ def _pairs(a: np.ndarray, axis: int) -> np.ndarray:
 def table_rows(spec: CSpec, d: CDir) -> np.ndarray:
     """A direction's parameter table as the runtime reads it: [temperature row][SOC point]
     [r0, r_fast, k_fast, r_slow, k_slow (, ocv when the OCV shares the grid)], without the
-    k columns when the time constants depend on temperature only (ECMRT_TAU_T: they are in
+    k columns when the time constants depend on temperature only (switch TAU_T: they are in
     :func:`tau_rows`); float: each a pair along SOC (one row) or along temperature (the
     runtime interpolates in temperature first)."""
     cols = ([d.r0, d.r_fast, d.r_slow] if spec.tau_t else
@@ -161,7 +162,7 @@ def table_rows(spec: CSpec, d: CDir) -> np.ndarray:
 
 
 def tau_rows(spec: CSpec, d: CDir) -> np.ndarray | None:
-    """ECMRT_TAU_T: [temperature row][k_fast, k_slow], float: pairs along temperature."""
+    """Switch TAU_T: [temperature row][k_fast, k_slow], float: pairs along temperature."""
     if not spec.tau_t:
         return None
     cols = [d.k_fast[:, 0], d.k_slow[:, 0]]
@@ -474,6 +475,15 @@ def _model_members(spec: CSpec) -> list[tuple[str, str]]:
     return out
 
 
+def _features_text(spec: CSpec) -> str:
+    """The model's features as the config header lists them: comment lines, a feature's
+    name never split."""
+    words = [f.replace(" ", "\0") for f in spec.features] or ["none\0(the\02RC\0step\0alone)"]
+    text = textwrap.fill(", ".join(words) + ".", 90, initial_indent=" *   ",
+                         subsequent_indent=" *   ")
+    return text.replace("\0", " ")
+
+
 def _context(spec: CSpec) -> dict:
     """What the templates render: the model's tables as C arrays, its scalars and macros."""
     p = spec.prefix
@@ -510,7 +520,8 @@ def _context(spec: CSpec) -> dict:
         "runtime": RUNTIME_FILES[spec.numeric][-1], "notes": spec.notes,
         "rt": "ecmrt_q" if fixed else "ecmrt_f32", "vt": "int32_t" if fixed else "float",
         "qm": qm, "fx_macros": fx_macros, "lay": _layout(spec), "members": _model_members(spec),
-        "features": spec.features, "state": state_fields(spec), "sw": spec.switches,
+        "features_text": _features_text(spec),
+        "state": state_fields(spec), "sw": spec.switches,
         "diff": spec.diff, "bv": spec.has_bv, "fx": spec.fx, "age": spec.age is not None,
         "age_range": None if spec.age is None else
         tuple(float(x) / (256.0 if fixed else 1.0) for x in spec.age["grid"].x[[0, -1]]),

@@ -168,11 +168,11 @@ class CSpec:
                                              # their constants ({} for a model without)
     bv: dict = field(default_factory=dict)   # fixed point, Butler-Volmer: table and formats
     # surface SOC (model.surface_soc_gain): lam / max(dOCV/dSOC, 0.3 V) at the OCV's
-    # breakpoints, (n_t, n_ocv), 1/V; None: off (ECMRT_SURFACE)
+    # breakpoints, (n_t, n_ocv), 1/V; None: off (switch SURFACE)
     surface: np.ndarray | None = None
     # ageing law (model.ageing): {"grid": CGrid of equivalent full cycles (float32, or Q8 raw),
     # "r": resistance scales, "iq": 1 / capacity scales (float32, or raw in Q_AR / Q_AQ)};
-    # None: off (ECMRT_AGE)
+    # None: off (switch AGE)
     age: dict | None = None
 
     @property
@@ -181,12 +181,12 @@ class CSpec:
 
     @property
     def temp(self) -> bool:
-        """The tables have a temperature axis (ECMRT_TEMP)."""
+        """The tables have a temperature axis (switch TEMP)."""
         return self.temp_grid is not None
 
     @property
     def ocv_shared(self) -> bool:
-        """The OCV is on the SOC grid of both directions' tables (ECMRT_OCV_SHARED: it takes
+        """The OCV is on the SOC grid of both directions' tables (switch OCV_SHARED: it takes
         their segment and weight)."""
         x = self.ocv_grid.x
         return self.surface is None and all(d.grid.x.shape == x.shape and
@@ -196,14 +196,14 @@ class CSpec:
     def tau_t(self) -> bool:
         """Every time constant (tau, or D at fixed dt) depends on the temperature only: each
         table row is constant along SOC, in both directions (the curve fit's tables).
-        ECMRT_TAU_T: one value per temperature row, and the step's coefficients kept in the
+        Switch TAU_T: one value per temperature row, and the step's coefficients kept in the
         state per temperature. Exact: a bilinear interpolation of such a table is the linear
         one in temperature, bit for bit in both numerics."""
         return all(np.all(k == k[:, :1]) for d in self.dirs for k in (d.k_fast, d.k_slow))
 
     @property
     def tau_same(self) -> bool:
-        """ECMRT_TAU_SAME: with tau_t, both directions have the same time constants (the
+        """Switch TAU_SAME: with tau_t, both directions have the same time constants (the
         curve fit's): one set of coefficients in the state."""
         d0, d1 = self.dirs
         return self.tau_t and all(
@@ -213,12 +213,12 @@ class CSpec:
 
     @property
     def rc_uniform(self) -> bool:
-        """ECMRT_RC_UNIFORM: both directions' SOC grids are uniform (O(1) lookup)."""
+        """Switch RC_UNIFORM: both directions' SOC grids are uniform (O(1) lookup)."""
         return all(d.grid.uniform for d in self.dirs)
 
     @property
     def ocv_uniform(self) -> bool:
-        """ECMRT_OCV_UNIFORM: the OCV has its own SOC grid, uniform (O(1) lookup)."""
+        """Switch OCV_UNIFORM: the OCV has its own SOC grid, uniform (O(1) lookup)."""
         return not self.ocv_shared and self.ocv_grid.uniform
 
     @property
