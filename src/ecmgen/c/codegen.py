@@ -480,7 +480,7 @@ def _features_text(spec: CSpec) -> str:
     name never split."""
     words = [f.replace(" ", "\0") for f in spec.features] or ["none\0(the\02RC\0step\0alone)"]
     text = textwrap.fill(", ".join(words) + ".", 90, initial_indent=" *   ",
-                         subsequent_indent=" *   ")
+                         subsequent_indent=" *   ", break_on_hyphens=False, break_long_words=False)
     return text.replace("\0", " ")
 
 
