@@ -225,7 +225,7 @@ static inline int32_t ecmrt_q_inv_d(int32_t dd, unsigned qcd)
 /* 1/tau in Q(q_kr) (< 2^31: the generator picks q_kr for the smallest tau of the tables)
  * from tau in Q(q_t): r 2^-sh = 1/tau_raw, so 1/tau 2^q_kr = r 2^(q_t + q_kr - sh), rounded
  * (the shift of 2 r is >= 1) */
-static inline int32_t ecmrt_q_rate(int32_t tau, int q_t, int q_kr)
+ECMRT_Q_SHARED int32_t ecmrt_q_rate(int32_t tau, int q_t, int q_kr)
 {
     unsigned sh;
     const uint32_t r = ecmrt_q_recip((uint32_t)tau, &sh);

@@ -133,6 +133,14 @@ static inline int32_t ecmrt_q_ocv(const int32_t *ocv, unsigned n, unsigned nt, u
 
 /* 4', 5'. voltage effects: each updates its state and returns its term of the voltage */
 
+/* hysteresis's x in Q26 at variable dt: the charge moved |i| dt times h_k = 1/(3600 decay_ah),
+ * |i| h_k shifted by sh_hr and saturated, then times dt shifted by sh_hx (at fixed dt, dt is in
+ * h_k and x is |i| h_k shifted by sh_hx) */
+static inline int64_t ecmrt_q_hyst_x(int64_t ai, int32_t h_k, int32_t dt, int sh_hr, int sh_hx)
+{
+    return ECMRT_RSHR((int64_t)ecmrt_q_sat32(ECMRT_RSHR(ai * h_k, sh_hr)) * dt, sh_hx);
+}
+
 /* hysteresis: *h (Q30) moves towards the direction's sign by 1 - exp(-x), x in Q26 the charge
  *    moved times h_k; the term m (h - ref) + m0 (s - ref) in Q_V (shift sh_hm) */
 static inline int64_t ecmrt_q_fx_hyst(int32_t *h, unsigned dir, int64_t x, int32_t m,
