@@ -283,8 +283,11 @@ def m4_estimates(model, cur, dt, temp, n: int = 2000) -> dict:
                 elif line.startswith("IN:"):
                     cur_pc = None
             insns = cycles = 0.0
+            ours = (f"m4_step_{cm.names['suffix']}", f"m4_coefs_{cm.names['suffix']}")
             for k, (pc, sym) in enumerate(trace):
-                if not (sym == "m4_step" or sym.startswith("ecmrt_")):
+                # the step and what it calls: the model's step and time-constant helper,
+                # the runtime's out-of-line functions (and clones: name.constprop.0)
+                if not (sym.split(".")[0] in ours or sym.startswith("ecmrt_")):
                     continue
                 body = blocks[pc]
                 insns += len(body)

@@ -117,9 +117,9 @@ def flash_ram(model, cfg=None) -> dict:
         return {"skipped": reason}
     sz = estimator_sizes(model, cfg, cpu="m4f", opt="-Os")
     fr = sz["stack_frames"]
-    update = next((v for k, v in fr.items() if k.startswith("ecmrt_est_f32_update")), 0)
+    update = next((v for k, v in fr.items() if k.startswith(("fe_est_update", "ecmrt_est_f32_update"))), 0)
     inner = max(fr.get("fe_step_f32", 0) + fr.get("ecmrt_f32_locate", 0),
-                next((v for k, v in fr.items() if k.startswith("ecmrt_est_f32_params")), 0)
+                next((v for k, v in fr.items() if k.startswith(("fe_est_params", "ecmrt_est_f32_params"))), 0)
                 + fr.get("ecmrt_f32_locate", 0), fr.get("ecmrt_est_f32_gain", 0))
     sz["stack_est_step_path"] = fr.get("fe_est_step_f32", 0) + update + inner
     return sz

@@ -1,12 +1,13 @@
 /* SPDX-License-Identifier: MIT */
 /*
- * ecmrt_f32.h - ecmgen C runtime, numeric = "float" (IEEE-754 binary32): the one step of
- * every model, with compile-time switches for what the model has.
+ * ecmrt_f32.h - ecmgen C runtime, numeric = "float" (IEEE-754 binary32): the grids, the
+ * lookups and interpolation, the maths without libm, and (ecmrt_f32_step.h) the step's units.
  *
- * Included once by a generated <prefix>_ecm_f32_config.h after it defines ECMRT_STATE and
- * the switches of ecmrt_config.h (the one list, with what each means).
- * A plain model compiles to the 2RC step alone. All functions are static inline: no external
- * symbols, so several models link together.
+ * Included by a generated <prefix>_ecm_f32_config.h, whose <prefix>_ecm_f32.c writes the
+ * model's step from these units, calling those its model has (hand-written,
+ * model-independent: every function takes what it reads as arguments, so this compiles as it
+ * is for every model; an unused static inline function costs nothing). All functions are
+ * static: no external symbols, so several models link together.
  *
  * Bit-for-bit reproducibility (host == Cortex-M4F == ecmgen.c.cref.simulate_f32) rests on:
  *   - only + - * / on float, each rounded once (compile with -ffp-contract=off, never
@@ -19,12 +20,6 @@
 
 #include <float.h>
 #include "ecmrt.h"
-
-#if ECMRT_VERSION != 3
-#error "ecmrt_f32.h does not match ecmrt.h"
-#endif
-#include "ecmrt_config.h"  /* the switches */
-#include "ecmrt_state.h"   /* the state at init, the hints */
 
 #if defined(__FAST_MATH__) && !defined(ECMRT_ALLOW_FAST_MATH)
 #error "-ffast-math reorders and contracts float arithmetic: the step is no longer bit-exact (build without it and with -ffp-contract=off, or define ECMRT_ALLOW_FAST_MATH)"
@@ -42,14 +37,6 @@
 #define ECMRT_F32_ARR_T_MIN (-40.0f)
 #define ECMRT_F32_ARR_T_MAX 85.0f
 
-#define ECMRT_BRANCHES (ECMRT_DIFF || ECMRT_BV)
-/* values per temperature row of a direction's branch table: r_diff, k_diff (tau_diff or D),
- * i0 - those present, in this order, each a pair (y, y[next row] - y) */
-#define ECMRT_NB (2u * (unsigned)ECMRT_DIFF + (unsigned)ECMRT_BV)
-#define ECMRT_B_RD 0u
-#define ECMRT_B_KD 2u
-#define ECMRT_B_I0 (4u * (unsigned)ECMRT_DIFF)
-
 /* One grid: n breakpoints x (strictly increasing) and inv_dx[k] = 1 / (x[k+1] - x[k]). */
 typedef struct {
     const float *x;
@@ -64,100 +51,14 @@ typedef struct {
     float um;
     uint8_t n;
 } ecmrt_f32_ugrid_t;
-#if ECMRT_RC_UNIFORM
-#define ECMRT_F32_RC_GRID ecmrt_f32_ugrid_t
-#define ECMRT_F32_RC_LOCATE ecmrt_f32_ulocate
-#else
-#define ECMRT_F32_RC_GRID ecmrt_f32_grid_t
-#define ECMRT_F32_RC_LOCATE ecmrt_f32_locate
-#endif
-#if ECMRT_OCV_UNIFORM
-#define ECMRT_F32_OCV_GRID ecmrt_f32_ugrid_t
-#define ECMRT_F32_OCV_LOCATE ecmrt_f32_ulocate
-#else
-#define ECMRT_F32_OCV_GRID ecmrt_f32_grid_t
-#define ECMRT_F32_OCV_LOCATE ecmrt_f32_locate
-#endif
 
-/* Parameters of one current direction: ECMRT_NPAR values per SOC breakpoint, breakpoint after
- * breakpoint, then (ECMRT_TEMP) temperature row after temperature row:
- * rows[ECMRT_NPAR * (n * row + k) + ECMRT_P_*], so that one base pointer serves every
- * interpolation. Each parameter is a pair (y[k], y[k+1] - y[k]): the value and the float32
- * difference to the next SOC breakpoint (the subtraction done once by the generator, in
- * float32, so the interpolation gives the same bits as subtracting at run time; 0 at the
- * last breakpoint): r0, r_fast, k_fast, r_slow, k_slow, where k is the time constant tau in
- * s (ECMRT_VARIABLE_DT = 1) or D = 1/(1 - exp(-dt/tau)) (ECMRT_VARIABLE_DT = 0). With
- * ECMRT_TAU_T the time constants are not in the rows but in the table tk (per temperature
- * row the pairs (k_fast, next row - k_fast), (k_slow, ...)). With ECMRT_OCV_SHARED the OCV
- * (on the same SOC grid) is the last parameter of every row, and the model has no OCV
- * table of its own. */
-#if ECMRT_TAU_T
-#define ECMRT_NPAR (6u + 2u * (unsigned)ECMRT_OCV_SHARED)
-#define ECMRT_P_R0 0u
-#define ECMRT_P_RF 2u
-#define ECMRT_P_RS 4u
-#define ECMRT_P_OCV 6u
-#else
-#define ECMRT_NPAR (10u + 2u * (unsigned)ECMRT_OCV_SHARED)
-#define ECMRT_P_R0 0u
-#define ECMRT_P_RF 2u
-#define ECMRT_P_KF 4u
-#define ECMRT_P_RS 6u
-#define ECMRT_P_KS 8u
-#define ECMRT_P_OCV 10u
-#endif
-
-typedef struct {
-    ECMRT_F32_RC_GRID g;      /* SOC breakpoints of this direction */
-    const float *rows;
-#if ECMRT_TAU_T
-    const float *tk;          /* [temperature row][k_fast pair, k_slow pair] */
-#endif
-#if ECMRT_BRANCHES
-    const float *branch;      /* [temperature row][ECMRT_NB pairs] */
-#endif
-} ecmrt_f32_dir_t;
-
-typedef struct {
-#if ECMRT_TEMP
-    ecmrt_f32_grid_t t;       /* temperature breakpoints, degC, of every table */
-#endif
-#if !ECMRT_OCV_SHARED
-    ECMRT_F32_OCV_GRID ocv_g;
-    const float *ocv;         /* pairs (ocv[k], ocv[k+1] - ocv[k]), temperature row after row */
-#endif
-#if ECMRT_SURFACE
-    const float *sv;          /* 1/V at the OCV's breakpoints, laid out as ocv */
-#endif
-    ecmrt_f32_dir_t dir[2];   /* [ECMRT_DISCHARGE], [ECMRT_CHARGE] */
-    float deadband_a;         /* |i| <= deadband keeps the last direction */
-    float i_max_a;            /* current is saturated to [-i_max_a, i_max_a] */
-    float k_soc;              /* 1/(3600 Q) per A*s (variable dt) or dt/(3600 Q) per A (fixed dt) */
-#if ECMRT_FX_HYST
-    float h_init;             /* hysteresis: initial_state */
-    float h_k;                /* 1/(3600 decay_ah) per A*s (variable dt) or dt/(3600 decay_ah) per A */
-    float h_m;                /* m_v, V */
-    float h_m0;               /* m0_v, V */
-    float h_ref;              /* ocv_table_state */
-#endif
-#if ECMRT_FX_XRC
-    float x_r;                /* extra_rc: r_ohm */
-    float x_k;                /* tau_s (variable dt) or D = 1/(1 - exp(-dt/tau_s)) (fixed dt) */
-#endif
-#if ECMRT_FX_CDR
-    float g_scale;            /* current_dependent_resistance: scale_at_zero */
-    float g_inv_i0;           /* 1 / i0_a */
-#endif
-#if ECMRT_FX_ARR
-    float a_k;                /* temperature_dependence: activation_k, K */
-    float a_inv_ref;          /* 1 / (t_ref_c + 273.15) */
-#endif
-#if ECMRT_AGE
-    ecmrt_f32_grid_t age;     /* ageing law: equivalent full cycles */
-    const float *age_scale;   /* per breakpoint the pairs (resistance scale, difference to the
-                               * next), (1 / capacity scale, difference to the next) */
-#endif
-} ecmrt_f32_model_t;
+/* The tables (generated): per direction the parameters per SOC breakpoint, breakpoint after
+ * breakpoint, then temperature row after temperature row, so that one base pointer serves
+ * every interpolation; each value a pair (y[k], y[k+1] - y[k]), the value and the float32
+ * difference to the next SOC breakpoint (over temperature: to the next temperature row), the
+ * subtraction done once by the generator, in float32, so the interpolation gives the same
+ * bits as subtracting at run time (0 at the last breakpoint). The generated header says which
+ * parameters a model's rows hold, in which order. */
 
 /* Segment k (0 <= k <= n-2) holding v, returned in *kp, and the weight w in [0, 1] of
  * x[k+1]; v outside the grid gives w = 0 at the first point or w = 1 at the last (clamped
@@ -195,7 +96,6 @@ static inline float ecmrt_f32_locate(const ecmrt_f32_grid_t *g, float v, unsigne
     return (v - x[k]) * g->inv_dx[k];
 }
 
-#if ECMRT_RC_UNIFORM || ECMRT_OCV_UNIFORM
 /* As ecmrt_f32_locate on a uniform grid, in O(1): u = (v - x0) inv_h, k = floor(u), w = u - k
  * (exact); below the grid (or NaN) k = 0, w = 0, at or above its end k = n - 2, w = 1. */
 static inline float ecmrt_f32_ulocate(const ecmrt_f32_ugrid_t *g, float v, unsigned *kp)
@@ -214,21 +114,21 @@ static inline float ecmrt_f32_ulocate(const ecmrt_f32_ugrid_t *g, float v, unsig
     *kp = (unsigned)k;
     return u - (float)k;
 }
-#endif
 
-/* y[k] + (y[k+1] - y[k]) w from a pair (y[k], y[k+1] - y[k]) of a table */
+/* y[k] + (y[k+1] - y[k]) w from a pair (y[k], y[k+1] - y[k]) of a table (or of the pairs
+ * ecmrt_f32_segment keeps) */
 static inline float ecmrt_f32_lerp(const float *yd, float w)
 {
     return yd[0] + yd[1] * w;
 }
 
+/* out of the step's hot path (and no warning where a model does not call it) */
 #if defined(__GNUC__)
-#define ECMRT_F32_COLD static __attribute__((noinline))     /* out of the step's hot path */
+#define ECMRT_F32_COLD static __attribute__((noinline, unused))
 #else
-#define ECMRT_F32_COLD static
+#define ECMRT_F32_COLD static inline
 #endif
 
-#if ECMRT_TEMP
 /* Bilinear, temperature first: the pairs of a segment at the temperature. yd points at SOC
  * point k of temperature row kt of a table whose values are pairs along temperature
  * (y[kt][k], y[kt+1][k] - y[kt][k]), npar floats per SOC point; for each of the np / 2
@@ -246,12 +146,13 @@ ECMRT_F32_COLD void ecmrt_f32_segment(const float *yd, unsigned npar, unsigned n
         pc[j + 1u] = b - a;
     }
 }
-#define ECMRT_F32_AT(s, p, off, w) ((s)->pc[off] + (s)->pc[(off) + 1u] * (w))
-#define ECMRT_F32_TV(b, j, wt) ((b)[j] + (b)[(j) + 1u] * (wt))
-#else
-#define ECMRT_F32_AT(s, p, off, w) ecmrt_f32_lerp((p) + (off), (w))
-#define ECMRT_F32_TV(b, j, wt) ((b)[j])
-#endif
+
+/* The same for one parameter, inline, and the value at weight w along SOC: a + (b - a) w */
+static inline float ecmrt_f32_bilerp(const float *yd, unsigned npar, float wt, float w)
+{
+    const float a = yd[0] + yd[1] * wt;
+    return a + ((yd[npar] + yd[npar + 1u] * wt) - a) * w;
+}
 
 /* exp(-x) = s (1 + q) for 0 <= x < 87: x = n ln2 + r, |r| <= ln2/2 (Cody-Waite: n * LN2_HI
  * is exact for n < 256; n = 0, r = x below ln2/2), s = 2^-n built exactly (a normal
@@ -312,10 +213,10 @@ static inline float ecmrt_f32_one_minus_exp_neg(float x)
     return (1.0f - s) - s * q;              /* s = 1 (n = 0): exactly -q */
 }
 
-#if ECMRT_FX_ARR
-/* f = exp(a_k (1/(T + 273.15) - 1/(t_ref + 273.15))), T saturated to [-40, 85] degC (NaN:
- * -40); exp(y) as exp(-(-y)) for y <= 0, 1/exp(-y) for y > 0 */
-static inline float ecmrt_f32_arrhenius(const ecmrt_f32_model_t *m, float temp)
+/* temperature_dependence's factor f = exp(a_k (1/(T + 273.15) - 1/(t_ref + 273.15))),
+ * inv_ref = 1/(t_ref + 273.15), T saturated to [-40, 85] degC (NaN: -40); exp(y) as
+ * exp(-(-y)) for y <= 0, 1/exp(-y) for y > 0 */
+static inline float ecmrt_f32_arrhenius(float a_k, float inv_ref, float temp)
 {
     float y, q, s;
     if (!(temp >= ECMRT_F32_ARR_T_MIN)) {
@@ -323,7 +224,7 @@ static inline float ecmrt_f32_arrhenius(const ecmrt_f32_model_t *m, float temp)
     } else if (temp > ECMRT_F32_ARR_T_MAX) {
         temp = ECMRT_F32_ARR_T_MAX;
     }
-    y = (1.0f / (temp + 273.149994f) - m->a_inv_ref) * m->a_k;
+    y = (1.0f / (temp + 273.149994f) - inv_ref) * a_k;
     if (y > 0.0f) {
         q = ecmrt_f32_exp_neg_parts(y, &s);
         return 1.0f / (s + s * q);
@@ -331,7 +232,6 @@ static inline float ecmrt_f32_arrhenius(const ecmrt_f32_model_t *m, float temp)
     q = ecmrt_f32_exp_neg_parts(-y, &s);
     return s + s * q;
 }
-#endif
 
 /* sqrt(w) for 1 <= w < 2^100 (the Butler-Volmer and current-dependent factors) and for the
  * estimator's SOC sigma (1e-12 < w <= 1): bit-trick start (within 4 % at any exponent),
@@ -353,7 +253,6 @@ static inline float ecmrt_f32_sqrt(float w)
     return r;
 }
 
-#if ECMRT_FX_CDR || ECMRT_BV
 /* log(1 + y) for 0 <= y < 2^100: 1 + y = 2^n m, m in [sqrt(1/2), sqrt(2)) (n = 0 and
  * m - 1 = y exactly below sqrt(2) - 1), log = n ln2 + 2 atanh(f / (2 + f)), f = m - 1,
  * atanh by its series to t^13 (|t| < 0.172: error < 1e-9 relative). */
@@ -405,66 +304,24 @@ static inline float ecmrt_f32_asinh(float *xp)
     x2 = x * x;
     return ecmrt_f32_log1p(x + x2 / (ecmrt_f32_sqrt(x2 + 1.0f) + 1.0f));
 }
-#endif
 
-#if ECMRT_TAU_T
-/* The coefficients of the time constants at the temperature of row kt, weight wt, for both
- * directions, into the state: 1/tau (variable dt: x = dt/tau is then dt * kc) or 1/D = c
- * (fixed dt). A function of the temperature alone: the step recomputes them when the
- * temperature changes, init at the first row. */
-ECMRT_F32_COLD void ecmrt_f32_coefs(const ecmrt_f32_model_t *m, ECMRT_STATE *s, unsigned kt, float wt)
-{
-    unsigned d;
-    for (d = 0u; d < ECMRT_KC_DIRS; d++) {
-        const float *tk = m->dir[d].tk + 4u * kt;
-#if ECMRT_DIFF
-        const float *br = m->dir[d].branch + 2u * ECMRT_NB * kt;
-#endif
-        s->kc[d][ECMRT_K_F] = 1.0f / ECMRT_F32_TV(tk, 0u, wt);
-        s->kc[d][ECMRT_K_S] = 1.0f / ECMRT_F32_TV(tk, 2u, wt);
-#if ECMRT_DIFF
-        s->kc[d][ECMRT_K_D] = 1.0f / ECMRT_F32_TV(br, ECMRT_B_KD, wt);
-#endif
-    }
-    (void)wt;
-}
-#endif
-
-#if ECMRT_SURFACE
-/* The surface SOC the RC tables are read at: soc + sv u_diff (u_diff of the previous step,
- * sv = lam / max(dOCV/dSOC, 0.3 V) at (soc, T), interpolated as the OCV), clamped to [0, 1]
- * (NaN: 0). */
-static inline float ecmrt_f32_surface(const ECMRT_STATE *s, float soc, float sv)
-{
-    float r = soc + sv * s->u_diff;
-    if (!(r >= 0.0f)) {
-        r = 0.0f;
-    } else if (r > 1.0f) {
-        r = 1.0f;
-    }
-    return r;
-}
-#endif
-
-#if ECMRT_AGE
-/* The cell's age, efc equivalent full cycles (clamped to the law's breakpoints; NaN: the
- * first): the resistance scale and the SOC's k_soc over the aged capacity, kept in the state
- * until the next call (the age changes over weeks; the step only multiplies). The table holds
- * 1 / capacity scale, so nothing divides. */
-static inline void ecmrt_f32_age(const ecmrt_f32_model_t *m, ECMRT_STATE *s, float efc)
+/* The cell's age, efc equivalent full cycles (clamped to the law's breakpoints g; NaN: the
+ * first): the resistance scale (*age_r) and the SOC's k_soc over the aged capacity (*k_aged,
+ * k_soc times 1 / capacity scale), kept in the state until the next call (the age changes
+ * over weeks; the step only multiplies). scale holds per breakpoint the pairs of the
+ * resistance scale and of 1 / capacity scale, so nothing divides. */
+static inline void ecmrt_f32_age(const ecmrt_f32_grid_t *g, const float *scale, float k_soc,
+                                 float efc, float *age_r, float *k_aged)
 {
     unsigned k = 0u;
-    const float w = ecmrt_f32_locate(&m->age, efc, &k);
-    const float *a = m->age_scale + 4u * k;
-    s->age_r = ecmrt_f32_lerp(a, w);
-    s->k_soc = m->k_soc * ecmrt_f32_lerp(a + 2u, w);
+    const float w = ecmrt_f32_locate(g, efc, &k);
+    const float *a = scale + 4u * k;
+    *age_r = ecmrt_f32_lerp(a, w);
+    *k_aged = k_soc * ecmrt_f32_lerp(a + 2u, w);
 }
-#define ECMRT_F32_K_SOC(m, s) ((s)->k_soc)
-#else
-#define ECMRT_F32_K_SOC(m, s) ((m)->k_soc)
-#endif
 
-static inline void ecmrt_f32_init(const ecmrt_f32_model_t *m, ECMRT_STATE *s, float soc0)
+/* the SOC at init, saturated to [SOC_MIN, SOC_MAX] (NaN: 0) */
+static inline float ecmrt_f32_soc0(float soc0)
 {
     if (soc0 != soc0) {
         soc0 = 0.0f;                        /* NaN */
@@ -473,28 +330,9 @@ static inline void ecmrt_f32_init(const ecmrt_f32_model_t *m, ECMRT_STATE *s, fl
     } else if (soc0 > ECMRT_F32_SOC_MAX) {
         soc0 = ECMRT_F32_SOC_MAX;
     }
-    s->soc = soc0;
-    s->soc_c = 0.0f;
-    ecmrt_state_init_common(s);
-#if ECMRT_FX_HYST
-    s->h = m->h_init;
-#endif
-#if ECMRT_TEMP
-    s->t_in = 0x7FC00000u;                  /* a NaN: its row and weight are k_t = 0, w_t = 0 */
-    s->w_t = 0.0f;
-#endif
-#if ECMRT_TAU_T
-    ecmrt_f32_coefs(m, s, 0u, 0.0f);         /* those of k_t = 0, w_t = 0 */
-#endif
-#if ECMRT_AGE
-    ecmrt_f32_age(m, s, 0.0f);               /* fresh: both scales exactly 1 */
-#endif
-    (void)m;
+    return soc0;
 }
 
-#include "ecmrt_f32_step.h"  /* the step: its units, one per stage and effect */
+#include "ecmrt_f32_step.h"  /* the step's units, one per stage and effect */
 
-#undef ECMRT_F32_AT
-#undef ECMRT_F32_TV
-#undef ECMRT_F32_K_SOC
 #endif /* ECMRT_F32_H */

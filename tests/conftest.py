@@ -48,6 +48,26 @@ def built_once(tmp_path_factory, name: str, build) -> Path:
     return folder
 
 
+def a123_example(tmp_path_factory) -> Path:
+    """examples/a123-dynamic built by ``ecmgen build --json -q`` once per test run
+    (:func:`built_once`): the folder holds ``out/`` (the build) and ``build.json`` (what it
+    printed). Skipped without the shared A123 data."""
+    import subprocess
+    import sys
+
+    need(SHARED_DATA / "plett-a123-lfp")
+
+    def build(folder):
+        r = subprocess.run([sys.executable, "-m", "ecmgen.cli", "build",
+                            str(REPO / "examples" / "a123-dynamic" / "config.toml"), "--out",
+                            str(folder / "out"), "--json", "-q"], capture_output=True,
+                           text=True, cwd=REPO)
+        assert r.returncode == 0, r.stderr
+        (folder / "build.json").write_text(r.stdout)
+
+    return built_once(tmp_path_factory, "a123-example", build)
+
+
 def need(path: Path) -> Path:
     """Skip (with the reason) when the shared real data is not beside the checkout."""
     if not path.exists():

@@ -38,7 +38,7 @@ def test_files_banner_and_byte_identical(tmp_path, synthetic_model, numeric, dt_
     a = generate_c(synthetic_model, tmp_path / "a", prefix="cell", numeric=numeric, dt_s=dt_s)
     b = generate_c(synthetic_model, tmp_path / "b", prefix="cell", numeric=numeric, dt_s=dt_s)
     names = sorted(p.name for p in a)
-    rt = ["ecmrt_config.h", "ecmrt_state.h"] + (["ecmrt_f32_step.h", "ecmrt_f32.h"] if numeric == "float" else ["ecmrt_q_exp.h", "ecmrt_q_step.h", "ecmrt_q.h"])
+    rt = ["ecmrt_f32_step.h", "ecmrt_f32.h"] if numeric == "float" else ["ecmrt_q_exp.h", "ecmrt_q_step.h", "ecmrt_q.h"]
     nm = file_names("cell", numeric)
     assert names == sorted([nm["header"], nm["source"], nm["config"], "ecmrt.h", *rt,
                             nm["filelist"], nm["report"]])
@@ -165,7 +165,7 @@ def test_fixed_point_has_no_float(tmp_path, synthetic_model, dt_s):
         elif keep:
             ours.append(line)
     tu = _strip_comments("\n".join(ours))
-    assert "ecmrt_q_step" in tu
+    assert "ecm_step_q" in tu and "ecmrt_q_count" in tu
     assert not re.search(r"\b(float|double)\b", tu)
     # the compiler agrees: x86-64 without SSE/x87 registers accepts it
     proc = subprocess.run([*host_cc(), "-mgeneral-regs-only", "-x", "c", "-c", "-o", "/dev/null", "-"],
@@ -236,8 +236,7 @@ def test_make_file_list(tmp_path, synthetic_model):
                          check=True).stdout.split("\n")
     assert out[0] == "gen/bms_ecm_q.c"
     assert out[1].split() == ["gen/bms_ecm_q.h", "gen/bms_ecm_q_config.h", "gen/ecmrt.h",
-                              "gen/ecmrt_config.h", "gen/ecmrt_state.h", "gen/ecmrt_q_exp.h",
-                              "gen/ecmrt_q_step.h", "gen/ecmrt_q.h"]
+                              "gen/ecmrt_q_exp.h", "gen/ecmrt_q_step.h", "gen/ecmrt_q.h"]
     assert out[2] == "gen"
     for p in [*out[0].split(), *out[1].split()]:
         assert (tmp_path / p).exists()
@@ -252,7 +251,7 @@ def test_report(tmp_path, synthetic_model):
 def test_generate_from_path(tmp_path, synthetic_model):
     path = synthetic_model.save(tmp_path / "model.json")
     files = generate_c(path, tmp_path / "out", numeric="float")
-    assert (tmp_path / "out" / "ecm_ecm_f32.c").exists() and len(files) == 10
+    assert (tmp_path / "out" / "ecm_ecm_f32.c").exists() and len(files) == 8
 
 
 # --- refusal ----------------------------------------------------------------------------

@@ -293,7 +293,8 @@ def test_repeated_effect_refused(tmp_path):
 
 def test_files_and_documentation(tmp_path):
     plain = render(prepare(_base(), numeric="float"))
-    assert "ECMRT_FX_HYST 0" in plain["ecm_ecm_f32_config.h"] and " h;" not in plain["ecm_ecm_f32.h"]
+    assert "hysteresis" not in plain["ecm_ecm_f32_config.h"] and " h;" not in plain["ecm_ecm_f32.h"]
+    assert "ecmrt_f32_fx_hyst(" not in plain["ecm_ecm_f32.c"] and "h_k" not in plain["ecm_ecm_f32_config.h"]
     # capacity_error alone is only a different k_soc: plain runtime, a note in the header
     cap = prepare(_model(("capacity_error",)), numeric="float")
     assert not cap.has_fx and cap.k_soc != prepare(_base(), numeric="float").k_soc
@@ -306,7 +307,8 @@ def test_files_and_documentation(tmp_path):
                               nm["filelist"], nm["report"]}
         hdr = files[nm["header"]]
         assert "hysteresis" in hdr and "extra_rc" in hdr and " h;" in hdr and " u_x;" in hdr
-        assert "ECMRT_FX_HYST 1" in files[nm["config"]]
+        assert "hysteresis" in files[nm["config"]] and " h_k;" in files[nm["config"]]
+        assert f"ecmrt_{'f32' if numeric == 'float' else 'q'}_fx_hyst(&s->h" in files[nm["source"]]
         assert files == render(spec)                           # deterministic
         written = generate_c(_model(_all(numeric)), tmp_path / numeric, numeric=numeric, prefix="bat")
         assert {p.name for p in written} == set(files)

@@ -8,7 +8,7 @@ import pytest
 
 from ecmgen.c import cbuild, cref
 from ecmgen.c.codegen import prepare
-from ecmgen.c.runtime import runtime_dir, switches
+from ecmgen.c.runtime import runtime_dir
 from conftest import C_DIR
 from test_codegen_helpers import (CYCLES, assert_fields_equal, check_c_equivalence, cycle,
                                   panasonic_model, soc0_of)
@@ -73,11 +73,10 @@ def exp_lib(tmp_path_factory):
     ffi.cdef("void t_f32(const float *x, float *out, size_t n);"
              "void t_q(const int32_t *dt, const int32_t *tau, int32_t *out, size_t n);"
              "void t_recip(const uint32_t *d, uint32_t *r, uint32_t *sh, size_t n);")
-    plain = [f"-DECMRT_{k}={int(k == 'VARIABLE_DT')}" for k in switches()]
     objs = []
     for name in ("runtime_math_f32", "runtime_math_q"):
         objs.append(str(d / f"{name}.o"))
-        cbuild.run_cc([*cbuild.host_cc(), *cbuild.STRICT_CFLAGS, "-O2", "-fPIC", *plain, "-I",
+        cbuild.run_cc([*cbuild.host_cc(), *cbuild.STRICT_CFLAGS, "-O2", "-fPIC", "-I",
                        str(runtime_dir()), "-c", str(C_DIR / f"{name}.c"), "-o", objs[-1]])
     ffi.set_source("_ecmgen_exp_test", "", extra_objects=objs)
     so = ffi.compile(tmpdir=str(d))

@@ -355,10 +355,12 @@ def test_effects_sanitized_build_has_no_undefined_behaviour(tmp_path, family):
             model = replace(model, surface_soc_gain=0.5)
         generate_c(model, tmp_path, prefix=prefix, numeric=numeric, dt_s=dt_s)
         src = (tmp_path / file_names(prefix, numeric)["config"]).read_text()
-        assert "ECMRT_FX_HYST 1" in src
-        assert ("ECMRT_SURFACE 1" in src) == (family == "surface")
+        features = src[src.index("Features:"):src.index("*/", src.index("Features:"))]
+        assert "hysteresis" in features
+        assert ("surface SOC" in features) == (family == "surface")
         if family != "effects":
-            assert all(f"ECMRT_{k} 1" in src for k in ("TEMP", "DIFF", "BV", "FX_ARR")), prefix
+            assert all(k in features for k in ("temperature rows", "diffusion pair",
+                                                "Butler-Volmer branch", "temperature_dependence")), prefix
         srcs.append(tmp_path / file_names(prefix, numeric)["source"])
     run = _sanitized_run(cc, tmp_path, srcs, SAN_MAIN,
                          "5000000" if family == "effects" else "2000000", fx=True)

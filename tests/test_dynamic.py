@@ -12,7 +12,7 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import REPO, SHARED_DATA, need
+from conftest import REPO, SHARED_DATA, a123_example, need
 from ecmgen.data.dynamic import find_blocks
 from ecmgen.data.measure import TimeSeries
 
@@ -103,7 +103,7 @@ def test_dynamic_config_defaults_to_the_curve_method(tmp_path):
 
 
 @pytest.mark.slow
-def test_a123_model_from_the_ocv_scripts_and_the_dynamic_test(tmp_path):
+def test_a123_model_from_the_ocv_scripts_and_the_dynamic_test(tmp_path_factory):
     """examples/a123-dynamic: the four OCV scripts as shared and the s1 dynamic test, no
     conversion; its tables pass the quality checks; validated on the held-out s3 run (a CC
     charge, then a dithered 3.6 V hold) and on s1 itself. Figures at the time of writing:
@@ -115,11 +115,9 @@ def test_a123_model_from_the_ocv_scripts_and_the_dynamic_test(tmp_path):
     from ecmgen.pipeline import read_series
 
     need(A123)
-    out = tmp_path / "out"
-    r = subprocess.run([sys.executable, "-m", "ecmgen.cli", "build", str(EXAMPLE), "--out",
-                        str(out), "--json", "-q"], capture_output=True, text=True, cwd=REPO)
-    assert r.returncode == 0, r.stderr
-    got = json.loads(r.stdout)
+    built = a123_example(tmp_path_factory)     # `build --json -q`, shared with other tests
+    out = built / "out"
+    got = json.loads((built / "build.json").read_text())
     quality = got["quality"]["curve"]
     assert quality["passes"] and quality["non_positive"] == 0
     notes = "\n".join(got["notes"])

@@ -437,9 +437,10 @@ def test_a_third_pair_faster_than_the_diffusion_range_is_kept():
     assert fit.rms_error_v < two.rms_error_v
 
 
-def test_the_node_sets_side_by_side_give_the_fit_of_one_after_the_other(monkeypatch):
-    """The two OCV-offset node sets are fitted on threads sharing their response blocks:
-    the fit is bit for bit the one of one node set after the other, each with its own."""
+def test_the_node_sets_sharing_their_responses_give_the_fit_of_each_with_its_own(monkeypatch):
+    """The second OCV-offset node set (judged at the first's time constants, then searched
+    where it predicts better there) shares the first's response blocks: the fit is bit for
+    bit the one of each node set with its own."""
     import ecmgen.fit.curve as curve
 
     truth = synthetic_nca_model(tau_fast_s=2.0, tau_slow_s=60.0)
@@ -451,13 +452,12 @@ def test_the_node_sets_side_by_side_give_the_fit_of_one_after_the_other(monkeypa
         return fit_pulse_curves(series, pulses, truth.ocv, truth.capacity_ah,
                                 CurveOptions(diffusion=False))
 
-    side_by_side = fit()
-    monkeypatch.setattr(curve._cr, "THREADS_BYTES", -1)
+    shared = fit()
     monkeypatch.setattr(curve._cr, "share_responses", lambda prob, other: None)
     alone = fit()
-    assert side_by_side.notes == alone.notes
+    assert shared.notes == alone.notes
     for d in ("charge", "discharge"):
-        for k, v in side_by_side.rc_columns(d).items():
+        for k, v in shared.rc_columns(d).items():
             assert np.array_equal(v, alone.rc_columns(d)[k]), (d, k)
 
 

@@ -8,12 +8,9 @@ table's end)."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import pytest
 
-from conftest import REPO, SHARED_DATA, built_once, need
+from conftest import SHARED_DATA, a123_example, need
 from ecmgen.data.columns import ColumnMap
 from ecmgen.data.measure import read_timeseries
 from ecmgen.model.model import load_model
@@ -33,15 +30,7 @@ def _foreign(v) -> list[str]:
 
 @pytest.fixture(scope="module")
 def a123_model(tmp_path_factory):
-    need(A123)
-
-    def build(folder):
-        r = subprocess.run([sys.executable, "-m", "ecmgen.cli", "build",
-                            str(REPO / "examples" / "a123-dynamic" / "config.toml"), "--out",
-                            str(folder / "out"), "-q"], capture_output=True, text=True, cwd=REPO)
-        assert r.returncode == 0, r.stderr
-
-    return load_model(built_once(tmp_path_factory, "a123-example", build) / "out" / "model.json")
+    return load_model(a123_example(tmp_path_factory) / "out" / "model.json")
 
 
 def test_another_a123_cell_at_a_moderate_error_is_named_by_its_rests(a123_model):

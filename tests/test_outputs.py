@@ -207,7 +207,7 @@ def test_every_runtime_symbol_is_in_the_namespace_prefixes_may_not_use():
     from ecmgen.config import C_RUNTIME_NAMESPACE
 
     names = runtime_symbols()
-    assert len(names) > 50 and "ecmrt_f32_step" in names and "ecmrt_q_grid_t" in names
+    assert len(names) > 50 and "ecmrt_f32_count" in names and "ecmrt_q_grid_t" in names
     outside = sorted(n for n in names if not n.lower().startswith(C_RUNTIME_NAMESPACE))
     assert outside == []
 

@@ -1,11 +1,13 @@
 """What a reviewer checks in the C by hand, checked on every runtime header and on the
 generated files of a model with every switch on: everything inside its include guard, no
 #define or #undef inside a function body, function-like macros read only their parameters
-(and other macros), and one list of switches shared by the generator and the runtime."""
+(and other macros), and no model switch in the runtime (the generator chooses what a model
+has: each runtime header compiles alone)."""
 
 from __future__ import annotations
 
 import re
+import subprocess
 
 import numpy as np
 import pytest
@@ -15,7 +17,9 @@ from ecmgen.c.codegen import prepare, render
 from ecmgen.c.estc import prepare_estimator
 from ecmgen.c.estgolden import render_est_vectors
 from ecmgen.c.golden import drive_segment, edge_segment, render_vectors
-from ecmgen.c.runtime import runtime_dir, switches
+from ecmgen.c.cbuild import STRICT_CFLAGS, host_cc
+from ecmgen.c.runtime import runtime_dir
+from ecmgen.c.spec import SWITCHES
 from ecmgen.config import EstimatorConfig
 from test_estimate import ALL_EFFECTS, model_over_temperature
 
@@ -86,12 +90,21 @@ def test_generated_files(numeric):
     assert problems == []
 
 
-def test_one_switch_list():
-    """The generator's switches are ecmrt_config.h's; no other runtime header lists them."""
-    names = switches()
-    assert len(names) >= 14 and "SURFACE" in names and "VARIABLE_DT" in names
+def test_the_runtime_has_no_model_switch(tmp_path):
+    """What a model has is chosen when its C is generated (ecmgen.c.spec.SWITCHES): no runtime
+    header tests a switch or reads a model's macro, so each compiles as it is, alone."""
+    names = set(SWITCHES)
+    assert len(names) >= 15 and "SURFACE" in names and "VARIABLE_DT" in names
     for path in runtime_dir().glob("*.h"):
-        if path.name == "ecmrt_config.h":
-            continue
-        checked = re.findall(r"defined\(ECMRT_(\w+)\)", path.read_text())
-        assert not set(checked) & set(names), (path.name, set(checked) & set(names))
+        conds = re.findall(r"^\s*#\s*(?:if|ifdef|ifndef|elif)\b(.*)$", path.read_text(), re.M)
+        tested = {w for c in conds for w in re.findall(r"\bECMRT_(\w+)", c)}
+        assert not tested & names, (path.name, tested & names)
+    for header, pre in (("ecmrt_f32.h", ""), ("ecmrt_q.h", ""),
+                        ("ecmrt_est_f32.h", "#define ECMRT_EST_N 5u\n")):
+        src = tmp_path / f"alone_{header}.c"
+        src.write_text(f"{pre}#include \"{header}\"\nint ecmrt_alone(void);\n"
+                       "int ecmrt_alone(void) { return 0; }\n")
+        proc = subprocess.run([*host_cc(), *STRICT_CFLAGS, "-O2", "-I", str(runtime_dir()), "-c",
+                               str(src), "-o", str(tmp_path / "alone.o")],
+                              capture_output=True, text=True)
+        assert proc.returncode == 0, (header, proc.stderr)

@@ -92,20 +92,6 @@ def run_collected(fn: Callable, args: tuple) -> tuple:
     return status, value, messages, found
 
 
-def in_threads(fn: Callable, arg_tuples: list, threads: bool = True) -> list:
-    """``fn`` over every argument tuple, side by side on threads of this process (one
-    after the other without ``threads``); the results in order. For independent pieces of
-    work in numpy's linear algebra, which lets go of the interpreter lock (no second
-    process to start, nothing to pickle)."""
-    if len(arg_tuples) < 2 or not threads:
-        return [fn(*a) for a in arg_tuples]
-    from concurrent.futures import ThreadPoolExecutor
-
-    with ThreadPoolExecutor(len(arg_tuples)) as pool:
-        tasks = [pool.submit(fn, *a) for a in arg_tuples]
-        return [t.result() for t in tasks]
-
-
 class Task:
     """One submitted task; :meth:`result` gives its value (in this process)."""
 
@@ -190,6 +176,19 @@ class Workers:
 # forked from, instead of in each freshly started worker
 PRELOAD = ["ecmgen.pipeline", "ecmgen.validation", "ecmgen.fit.curve", "scipy.optimize",
            "matplotlib.pyplot"]
+
+
+def start_fork_server() -> None:
+    """Start the fork server the workers are forked from now (where the platform has one),
+    so that it loads PRELOAD beside the caller's own work (a command line's imports)
+    rather than when the first task is given: the pool's first fork finds it running."""
+    from multiprocessing import forkserver
+
+    ctx = _context()
+    if ctx.get_start_method() != "forkserver":
+        return
+    with _worker_environment():
+        forkserver.ensure_running()
 
 
 def _adopt_environment(env: dict) -> None:

@@ -1,15 +1,8 @@
 /* SPDX-License-Identifier: MIT */
-/* The float runtime's 1 - exp(-x), called directly (tests/test_codegen_equiv.py). The
- * switches come from the compiler's command line (all 0 but ECMRT_VARIABLE_DT, from
- * ecmgen.c.runtime.switches()): a plain model's configuration. */
+/* The float runtime's 1 - exp(-x), called directly (tests/test_codegen_equiv.py): the runtime
+ * headers compile as they are, with no model's configuration. */
 #include <stddef.h>
 #include <stdint.h>
-
-typedef struct {
-    float soc, soc_c, u_fast, u_slow;
-    uint8_t charging, k_ocv, k_dir[2];
-} fstate_t;
-#define ECMRT_STATE fstate_t
 #include "ecmrt_f32.h"
 
 void t_f32(const float *x, float *out, size_t n);

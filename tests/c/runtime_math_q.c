@@ -1,26 +1,12 @@
 /* SPDX-License-Identifier: MIT */
 /* The fixed-point runtime's c = 1 - exp(-dt/tau) and reciprocal, called directly
- * (tests/test_codegen_equiv.py). The switches come from the compiler's command line (all
- * 0 but ECMRT_VARIABLE_DT); the formats are those of a typical model. */
+ * (tests/test_codegen_equiv.py): the runtime headers compile as they are, with no model's
+ * configuration; the time constants' format is a typical model's. */
 #include <stddef.h>
 #include <stdint.h>
-
-typedef struct {
-    int64_t soc_rem;
-    int32_t soc, u_fast, u_slow;
-    uint8_t charging, k_ocv, k_dir[2];
-} qstate_t;
-#define ECMRT_STATE qstate_t
-#define ECMRT_Q_I 24
-#define ECMRT_Q_V 27
-#define ECMRT_Q_G 27
-#define ECMRT_Q_R0 36
-#define ECMRT_Q_RF 36
-#define ECMRT_Q_RS 36
-#define ECMRT_Q_T 21
-#define ECMRT_SH_RATE 31
-#define ECMRT_SH_DSOC 23
 #include "ecmrt_q.h"
+
+#define T_Q_T 21    /* tau in Q21 s */
 
 void t_q(const int32_t *dt, const int32_t *tau, int32_t *out, size_t n);
 void t_recip(const uint32_t *d, uint32_t *r, uint32_t *sh, size_t n);
@@ -29,7 +15,7 @@ void t_q(const int32_t *dt, const int32_t *tau, int32_t *out, size_t n)
 {
     size_t k;
     for (k = 0; k < n; k++) {
-        out[k] = ecmrt_q_c_dt_tau(dt[k], tau[k]);
+        out[k] = ecmrt_q_c_dt_tau(dt[k], tau[k], T_Q_T);
     }
 }
 

@@ -1,12 +1,12 @@
 """model.json -> C for BMS microcontrollers: ``<prefix>_ecm_<s>.h`` / ``.c`` (names:
 :mod:`ecmgen.c.names`).
 
-The generated C holds only the ``const`` tables (``<prefix>_model_<s>``), the model's state
-type and three thin functions, and ``<prefix>_ecm_<s>_config.h`` the runtime's switches for
-the model (:mod:`ecmgen.c.runtime`); the step itself is the hand-written runtime in ``c_runtime/`` (copied beside the
-generated files), one body for every model with compile-time switches for what the model
-has (temperature axis, diffusion pair, Butler-Volmer branch, diagnose effects). Two
-numerics:
+The generated C holds the ``const`` tables (``<prefix>_model_<s>``), the model's state type,
+``<prefix>_ecm_<s>_config.h`` the layout of its tables, and its init, set_age and step: the
+calls, in the step's order, of the units of the hand-written runtime in ``c_runtime/``
+(copied beside the generated files) that this model has (temperature axis, diffusion pair,
+Butler-Volmer branch, surface SOC, ageing law, diagnose effects: ``CSpec.switches``), so the
+runtime has no compile-time switch and a model's C nothing of what it lacks. Two numerics:
 
 ``float``  IEEE binary32 tables, literals with 9 significant digits (they round-trip).
 ``fixed``  int32 tables in Q formats chosen from the model's value ranges; int64
@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import functools
 import math
+import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -46,7 +47,7 @@ import numpy as np
 
 from ..files import write_atomic
 from .names import c_names
-from .runtime import optional_switches, runtime_dir, templates_dir
+from .runtime import runtime_dir, templates_dir
 from .qformat import INT32_MAX, Q30, Q_D, Q_TEMP, quantize
 from .spec import (C_EFFECTS, FX_FIXED_KEYS, FX_FLOAT_KEYS, NUMERICS, CDir, CGrid, CSpec,
                    _as_model, begin, prepare_float, state_fields)
@@ -56,10 +57,8 @@ __all__ = ["C_EFFECTS", "NUMERICS", "CDir", "CGrid", "CSpec", "c_float", "descri
            "_as_model"]
 
 # the runtime headers a model's .c needs, the one it includes last
-RUNTIME_FILES = {"float": ("ecmrt.h", "ecmrt_config.h", "ecmrt_state.h", "ecmrt_f32_step.h",
-                           "ecmrt_f32.h"),
-                 "fixed": ("ecmrt.h", "ecmrt_config.h", "ecmrt_state.h", "ecmrt_q_exp.h",
-                           "ecmrt_q_step.h", "ecmrt_q.h")}
+RUNTIME_FILES = {"float": ("ecmrt.h", "ecmrt_f32_step.h", "ecmrt_f32.h"),
+                 "fixed": ("ecmrt.h", "ecmrt_q_exp.h", "ecmrt_q_step.h", "ecmrt_q.h")}
 
 
 def prepare(model, numeric: str = "float", dt_s: float | None = None, prefix: str = "ecm",
@@ -152,7 +151,7 @@ def _pairs(a: np.ndarray, axis: int) -> np.ndarray:
 def table_rows(spec: CSpec, d: CDir) -> np.ndarray:
     """A direction's parameter table as the runtime reads it: [temperature row][SOC point]
     [r0, r_fast, k_fast, r_slow, k_slow (, ocv when the OCV shares the grid)], without the
-    k columns when the time constants depend on temperature only (ECMRT_TAU_T: they are in
+    k columns when the time constants depend on temperature only (switch TAU_T: they are in
     :func:`tau_rows`); float: each a pair along SOC (one row) or along temperature (the
     runtime interpolates in temperature first)."""
     cols = ([d.r0, d.r_fast, d.r_slow] if spec.tau_t else
@@ -163,7 +162,7 @@ def table_rows(spec: CSpec, d: CDir) -> np.ndarray:
 
 
 def tau_rows(spec: CSpec, d: CDir) -> np.ndarray | None:
-    """ECMRT_TAU_T: [temperature row][k_fast, k_slow], float: pairs along temperature."""
+    """Switch TAU_T: [temperature row][k_fast, k_slow], float: pairs along temperature."""
     if not spec.tau_t:
         return None
     cols = [d.k_fast[:, 0], d.k_slow[:, 0]]
@@ -380,9 +379,10 @@ def _scalars(spec: CSpec, arrays: "_Arrays") -> list[tuple[str, str, str]]:
     return scalars
 
 
-def _fixed_macros(spec: CSpec, nm: dict, macros: dict) -> list:
-    """The fixed-point formats' macros (into ``macros``); returns (macro, Q) of the formats
-    the report lists."""
+def _fixed_macros(spec: CSpec, nm: dict) -> tuple[list, dict, list]:
+    """The fixed-point formats: (macro, Q) of the formats the header defines (but Q_I and
+    Q_V, which it defines as the API's), {format key: its macro} for the step's template, and
+    (macro, value) of the effects' and the Butler-Volmer branch's shifts for the config."""
     names = ["Q_I", "Q_V", "Q_G", "Q_R0", "Q_RF", "Q_RS", "SH_DSOC"]
     names += ["Q_T", "SH_RATE"] if spec.variable_dt else ["Q_DF", "Q_DS", "Q_CF", "Q_CS"]
     names += ["Q_GT"] if spec.temp else []
@@ -394,12 +394,94 @@ def _fixed_macros(spec: CSpec, nm: dict, macros: dict) -> list:
     names += ["Q_SV"] if spec.surface is not None else []
     names += ["Q_GA", "Q_AR", "Q_AQ"] if spec.age is not None else []
     fmts = {n: f"{nm['M']}_{n[2:] if n.startswith('Q_') else n}" for n in names}
-    macros.update({f"ECMRT_{n}": v for n, v in fmts.items()})
+    extra = {}
     if spec.has_bv:
-        macros.update(ECMRT_BV_QX=spec.bv["QX"], ECMRT_BV_K=spec.bv["K"])
-    macros.update({f"ECMRT_FX_{k}": v for k, v in spec.fx.items()
-                   if k.startswith(("SH_", "CDR_Q", "ARR_Q"))})
-    return [(v, spec.q[n]) for n, v in fmts.items() if n not in ("Q_I", "Q_V")]
+        extra.update(BV_QX=spec.bv["QX"], BV_K=spec.bv["K"])
+    extra.update({f"FX_{k}": v for k, v in spec.fx.items() if k.startswith(("SH_", "CDR_Q", "ARR_Q"))})
+    fmts.update({k: f"{nm['M']}_{k}" for k in extra})
+    qm = dict.fromkeys(("Q_T", "SH_RATE", "Q_DF", "Q_DS", "Q_CF", "Q_CS", "Q_GT", "Q_KR", "Q_GU",
+                        "Q_GUO", "Q_RD", "Q_DD", "Q_CD", "Q_I0", "Q_SV", "Q_GA", "Q_AR", "Q_AQ"),
+                       "none") | fmts        # what the model lacks renders as "none": no C
+    return ([(v, spec.q[n]) for n, v in fmts.items() if n in spec.q and n not in ("Q_I", "Q_V")],
+            qm, [(fmts[k], v) for k, v in extra.items()])
+
+
+def _layout(spec: CSpec) -> dict:
+    """Where the step finds each parameter: per SOC point of a direction's rows (float: pairs,
+    so twice the offsets), per temperature row of its branch table; the state's hints."""
+    w = 1 if spec.fixed else 2
+    names = (["r0", "r_fast", "r_slow"] if spec.tau_t else ["r0", "r_fast", "k_fast", "r_slow", "k_slow"]) + \
+        (["ocv"] if spec.ocv_shared else [])
+    key = {"r0": "r0", "r_fast": "rf", "k_fast": "kf", "r_slow": "rs", "k_slow": "ks", "ocv": "ocv"}
+    p = {key[n]: w * j for j, n in enumerate(names)}
+    p.setdefault("kf", None)
+    p.setdefault("ks", None)
+    p.setdefault("ocv", None)
+    branch = [n for n, on in (("r_diff", spec.diff), ("k_diff", spec.diff), ("i0", spec.has_bv)) if on]
+    b = {k: w * branch.index(n) if n in branch else None for k, n in
+         (("rd", "r_diff"), ("kd", "k_diff"), ("i0", "i0"))}
+    kname = ("tau_fast", "tau_slow", "tau_diff") if spec.variable_dt else ("D_fast", "D_slow", "D_diff")
+    shown = {"k_fast": kname[0], "k_slow": kname[1], "k_diff": kname[2]}
+    return {"npar": w * len(names), "p": p, "nb": w * len(branch), "b": b,
+            "names": [shown.get(n, n) for n in names], "branch_names": [shown.get(n, n) for n in branch],
+            "k_ocv": not spec.ocv_shared and not spec.ocv_uniform}
+
+
+def _model_members(spec: CSpec) -> list[tuple[str, str]]:
+    """The runtime's model struct for this model, as the config declares it: (declaration,
+    comment), in the order of the tables' initialiser (templates/ecm.c.j2)."""
+    fixed, rt = spec.fixed, "ecmrt_q" if spec.fixed else "ecmrt_f32"
+    vt = "int32_t" if fixed else "float"
+    out = []
+    if spec.temp:
+        out.append((f"{rt}_grid_t t;", "temperature breakpoints" + (" (Q8 degC)" if fixed else ", degC") +
+                    ", of every table"))
+    if not spec.ocv_shared:
+        out += [(f"{rt}_{'ugrid_t' if spec.ocv_uniform else 'grid_t'} ocv_g;", "SOC breakpoints of the OCV"),
+                (f"const {vt} *ocv;", "Q_V, temperature row after row" if fixed else
+                 "pairs (ocv[k], ocv[k+1] - ocv[k]), temperature row after row")]
+    if spec.surface is not None:
+        out.append((f"const {vt} *sv;", ("Q_SV 1/V (>= 0)" if fixed else "1/V") +
+                    " at the OCV's breakpoints, laid out as ocv"))
+    out.append((f"{rt}_dir_t dir[2];", "[ECMRT_DISCHARGE], [ECMRT_CHARGE]"))
+    if fixed:
+        out += [("int32_t deadband;", "Q_I, >= 0"),
+                ("int32_t k_soc;", ("1/(3600 Q)" if spec.variable_dt else "dt/(3600 Q)") + ", scaled")]
+    else:
+        out += [("float deadband_a;", "|i| <= deadband keeps the last direction"),
+                ("float i_max_a;", "the current is saturated to [-i_max_a, i_max_a]"),
+                ("float k_soc;", "1/(3600 Q) per A s" if spec.variable_dt else "dt/(3600 Q) per A")]
+    if fixed and spec.has_bv:
+        out.append(("const int32_t *bv_tab;", "asinh(x)/x in Q30 at the nodes of ecmrt_q_gtab"))
+    docs = {"h_init": "hysteresis: initial_state" + (", Q30" if fixed else ""),
+            "h_k": "1/(3600 decay_ah) per A s" if spec.variable_dt else "dt/(3600 decay_ah) per A",
+            "h_m": "m_v", "h_m0": "m0_v", "h_ref": "ocv_table_state" + (", Q30" if fixed else ""),
+            "x_r": "extra_rc: r_ohm",
+            "x_k": ("tau_s" + (" in Q_T" if fixed else "")) if spec.variable_dt else
+            ("c_x = 1 - exp(-dt/tau_s) in Q30" if fixed else "D = 1/(1 - exp(-dt/tau_s))"),
+            "g_scale": "current_dependent_resistance: scale_at_zero", "g_inv_i0": "1 / i0_a",
+            "g_k": "current_dependent_resistance: 1/i0_a",
+            "g_tab": "scale asinh(x)/x in Q(CDR_QG) at the nodes of ecmrt_q_gtab",
+            "a_k": "temperature_dependence: activation_k, K", "a_inv_ref": "1 / (t_ref_c + 273.15)",
+            "a_b": "temperature_dependence: B = activation_k / 233.15 K, Q(ARR_QB)",
+            "a_fmax": "F = the factor at -40 degC, Q(ARR_QF)"}
+    for flag, names in (FX_FIXED_KEYS if fixed else FX_FLOAT_KEYS).items():
+        if spec.fx.get(flag):
+            out += [(f"const int32_t *{k};" if k == "g_tab" else f"{vt} {k};", docs[k]) for k in names]
+    if spec.age is not None:
+        out += [(f"{rt}_grid_t age;", "ageing law: equivalent full cycles" + (", Q8" if fixed else "")),
+                (f"const {vt} *age_scale;", "per breakpoint: resistance scale, 1 / capacity scale" +
+                 (" (Q_AR, Q_AQ)" if fixed else " (pairs)"))]
+    return out
+
+
+def _features_text(spec: CSpec) -> str:
+    """The model's features as the config header lists them: comment lines, a feature's
+    name never split."""
+    words = [f.replace(" ", "\0") for f in spec.features] or ["none\0(the\02RC\0step\0alone)"]
+    text = textwrap.fill(", ".join(words) + ".", 90, initial_indent=" *   ",
+                         subsequent_indent=" *   ", break_on_hyphens=False, break_long_words=False)
+    return text.replace("\0", " ")
 
 
 def _context(spec: CSpec) -> dict:
@@ -420,10 +502,7 @@ def _context(spec: CSpec) -> dict:
                                          rows_note)
     dirs = _dir_contexts(spec, arrays)
     scalars = _scalars(spec, arrays)
-    # an optional switch is written only when on: the C of a model without it is as before
-    macros = {f"ECMRT_{k}": v for k, v in spec.switches.items()
-              if v or k not in optional_switches()}
-    qfmt = _fixed_macros(spec, nm, macros) if fixed else []
+    qfmt, qm, fx_macros = _fixed_macros(spec, nm) if fixed else ([], {}, [])
     return {
         "p": p, "P": p.upper(), "nm": nm, "M": nm["M"], "fixed": fixed,
         "qtypes": _qtypes(spec) if fixed else [], "qfmt_macros": qfmt,
@@ -440,7 +519,9 @@ def _context(spec: CSpec) -> dict:
         "n_dis": spec.dirs[0].grid.n, "n_chg": spec.dirs[1].grid.n,
         "runtime": RUNTIME_FILES[spec.numeric][-1], "notes": spec.notes,
         "rt": "ecmrt_q" if fixed else "ecmrt_f32", "vt": "int32_t" if fixed else "float",
-        "macros": macros, "state": state_fields(spec), "sw": spec.switches,
+        "qm": qm, "fx_macros": fx_macros, "lay": _layout(spec), "members": _model_members(spec),
+        "features_text": _features_text(spec),
+        "state": state_fields(spec), "sw": spec.switches,
         "diff": spec.diff, "bv": spec.has_bv, "fx": spec.fx, "age": spec.age is not None,
         "age_range": None if spec.age is None else
         tuple(float(x) / (256.0 if fixed else 1.0) for x in spec.age["grid"].x[[0, -1]]),

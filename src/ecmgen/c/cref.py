@@ -1,11 +1,11 @@
 """Python references of exactly what the generated C computes.
 
-``simulate_f32``    float32, operation for operation as ``c_runtime/ecmrt_f32_step.h`` (its
-                    units by the same names; the maths in :mod:`ecmgen.c.cref_math`)
+``simulate_f32``    float32, operation for operation as the generated step (the units of
+                    ``c_runtime/ecmrt_f32_step.h`` it calls, by the same names; the maths in :mod:`ecmgen.c.cref_math`)
                     (numpy float32 arithmetic is IEEE binary32 with one rounding per
                     operation, as is the C built with -ffp-contract=off);
-``simulate_fixed``  bit-true integers (numpy int64 / Python int) as ``c_runtime/ecmrt_q_step.h``,
-                    with the same rounding (half up) and saturation.
+``simulate_fixed``  bit-true integers (numpy int64 / Python int) as the generated fixed-point
+                    step (``c_runtime/ecmrt_q_step.h``'s units), with the same rounding (half up) and saturation.
 
 Both read a :class:`ecmgen.c.spec.CSpec` - the very numbers written into the C - so a
 difference between C and reference is a bug in one of them, never in the constants.
@@ -132,7 +132,7 @@ def _tv_f32(b, kt, wt):
 
 
 def _soc_f32(soc0: np.float32, d: np.ndarray) -> np.ndarray:
-    """Kahan-compensated, saturated SOC sum, as ecmrt_f32_step step 2."""
+    """Kahan-compensated, saturated SOC sum, as ecmrt_f32_count (the step's stage 2)."""
     lo, hi, zero = F32(-SOC_LIM), F32(SOC_LIM), F32(0.0)
     out = np.empty_like(d)
     s, c = F32(soc0), zero
@@ -171,7 +171,7 @@ def _pick(chg, per_dir, name):
 
 def _branch_f32(spec: CSpec, d, kt, wt) -> dict:
     """A direction's per-temperature values at the temperature (k_diff as 1/tau or 1/D
-    with ECMRT_TAU_T, as ecmrt_f32_coefs keeps it)."""
+    with time constants of the temperature only, as <prefix>_coefs_f32 keeps it)."""
     p = {name: _tv_f32(getattr(d, name), kt, wt) for name in ("r_diff", "k_diff", "i0")
          if getattr(d, name) is not None}
     if spec.tau_t and "k_diff" in p:
@@ -202,7 +202,8 @@ def _u_diff_f32(spec: CSpec, per_dir, chg, i, dt, age_r=None) -> np.ndarray:
     return _rc_f32(kd, t, divide=True)
 
 
-# The step's units (c_runtime/ecmrt_f32_step.h), one per stage and effect, over the whole
+# The step's units (c_runtime/ecmrt_f32_step.h, called by the generated step of a model
+# that has them, templates/ecm_step_f32.c.j2), one per stage and effect, over the whole
 # record at once; an effect that is off leaves p as it is or gives -0.0 (NO_TERM_F32).
 NO_TERM_F32 = F32(-0.0)
 
@@ -238,8 +239,9 @@ def _age_r_f32(age_r, p: dict) -> None:
 
 
 def _rc_pair_f32(spec: CSpec, k, t, dt) -> np.ndarray:
-    """ECMRT_F32_ZOH with ECMRT_F32_COEF: one pair's voltage after every step, k its 1/tau or
-    c (ECMRT_TAU_T), its tau (variable dt) or its D."""
+    """ecmrt_f32_zoh (or _zoh_d) with the step's coefficient: one pair's voltage after every
+    step, k its 1/tau or c (time constants of the temperature only), its tau (variable dt) or
+    its D."""
     if spec.tau_t:
         if spec.variable_dt:
             with np.errstate(all="ignore"):
@@ -332,7 +334,7 @@ def simulate_f32(spec: CSpec, current_a, dt_s=None, soc0: float = 1.0,
     p = {name: _pick(chg, per_dir, name).astype(F32) for name in per_dir[0]}
     fx = spec.fx
     ai = np.abs(i).astype(F32)
-    # 3'. parameter effects, in ecmrt_f32_step's order
+    # 3'. parameter effects, in the generated step's order
     _fx_cdr_f32(fx, ai, p)
     _fx_arr_f32(fx, temp, p)
     _bv_f32(spec, ai, p)
@@ -435,7 +437,7 @@ def inv_d_q(d_raw, qcd: int) -> np.ndarray:
     return _rshr(r, sh - qcd)
 
 
-CDR_K = 6          # ECMRT_G_K: 2^6 table segments per binade
+CDR_K = 6          # ECMRT_G_K (ecmrt_q.h): 2^6 table segments per binade
 
 
 def gtab_q(tab, x, qx: int) -> np.ndarray:
@@ -510,7 +512,7 @@ def _tv_q(b, kt, wt):
 
 
 def _soc_q(soc0: int, inc: np.ndarray, sh: int) -> np.ndarray:
-    """SOC with the sub-LSB remainder carried (ecmrt_q_step step 2): without saturation
+    """SOC with the sub-LSB remainder carried (ecmrt_q_count, the step's stage 2): without saturation
     soc_k = soc0 + floor(sum(inc[:k+1]) / 2^sh) exactly."""
     n = inc.size
     if n and int(np.max(np.abs(inc))) < 2**62 // n:
@@ -530,7 +532,7 @@ def _soc_q(soc0: int, inc: np.ndarray, sh: int) -> np.ndarray:
 
 def _branch_q(spec: CSpec, d, kt, wt) -> dict:
     """A direction's per-temperature values at the temperature (k_diff as 1/tau in Q_KR with
-    ECMRT_TAU_T at variable dt, as ecmrt_q_coefs keeps it)."""
+    time constants of the temperature only at variable dt, as <prefix>_coefs_q keeps it)."""
     p = {name: _tv_q(getattr(d, name), kt, wt) for name in ("r_diff", "k_diff", "i0")
          if getattr(d, name) is not None}
     if spec.tau_t and spec.variable_dt and "k_diff" in p:
@@ -567,12 +569,13 @@ def _u_diff_q(spec: CSpec, per_dir, chg, i, dt, age_r=None) -> np.ndarray:
     return _rc_q(cd, _aged_q(spec, t, age_r), qcd)
 
 
-# The fixed-point step's units (c_runtime/ecmrt_q_step.h), over the whole record; an
+# The fixed-point step's units (c_runtime/ecmrt_q_step.h, templates/ecm_step_q.c.j2), over the whole record; an
 # effect that is off leaves r i as it is or adds 0.
 
 def _coef_q(spec: CSpec, p: dict, dt, name: str, pair: str):
     """ECMRT_Q_COEF: the pair's coefficient c of ECMRT_Q_RC and its Q (1/tau in the state
-    with ECMRT_TAU_T, the time constant at variable dt, c = 1/D at fixed dt)."""
+    of time constants of the temperature only, the time constant at variable dt, c = 1/D at
+    fixed dt)."""
     q = spec.q
     if spec.tau_t and spec.variable_dt:
         return c_kr_q(dt, p[name], q["Q_KR"]), Q30
@@ -688,7 +691,7 @@ def simulate_fixed_raw(spec: CSpec, i_raw, dt_raw=None, soc0_raw: int = ONE30,
     t0 = _rshr(p["r0"] * i, q["Q_R0"] + q_i - q_v)
     tf = _rshr(p["r_fast"] * i, q["Q_RF"] + q_i - q_v)
     ts = _rshr(p["r_slow"] * i, q["Q_RS"] + q_i - q_v)
-    # 3'. parameter effects, in ecmrt_q_step's order, each scaling r i
+    # 3'. parameter effects, in the generated step's order, each scaling r i
     t0, tf = _fx_cdr_q(fx, ai, t0, tf)
     t0, tf, ts = _fx_arr_q(fx, temp, t0, tf, ts)
     tf = _bv_q(spec, ai, p, tf)

@@ -13,7 +13,7 @@ in as float32 constants. A model's diagnose effects are taken: the hysteresis st
 extra RC pair are states of the filter (the layout of :mod:`ecmgen.estimate.process`), the
 parameter effects scale the resistances in its Jacobians; ``offset_state`` adds the current
 sensor's offset as the last state (held in ``<prefix>_est_t.offset_a``); ``ocv_slope_spread``
-above 0 compiles the OCV's secant over the SOC's spread into H (``ECMRT_EST_SPREAD``; two more
+above 0 generates the OCV's secant over the SOC's spread into H (two more
 OCV lookups and a square root per update and per relinearisation).
 
 Float32 only, by decision: the covariance spans 0.09 (the start SOC's variance) down to
@@ -50,10 +50,10 @@ NOISE_FIELDS = (("p0_soc", "initial SOC variance, soc0_sigma^2"),
                 ("start_a", "the RC voltages' start sigma is r_j times this current, A"),
                 ("mem_k", "1 / error_memory_s (0: the model error has no memory), 1/s"),
                 ("pol_s2", "polarization_soc_sigma^2 (0: the RC noise is not scaled)"))
-# with a hysteresis effect (ECMRT_FX_HYST) only; with the offset state (ECMRT_EST_OFFSET) only
+# with a hysteresis effect only; with the offset state only
 HYST_FIELDS = (("p0_h", "hysteresis_sigma^2: h's initial variance and noise scale"),)
 OFFSET_FIELDS = (("p0_b", "offset_a^2: the offset state's initial variance, A^2"),)
-# with ocv_slope_spread > 0 (ECMRT_EST_SPREAD) only
+# with ocv_slope_spread > 0 only
 SPREAD_FIELDS = (("ocv_k", "ocv_slope_spread: H's OCV slope is the secant over soc +- k sigma"),)
 # where <prefix>_est_t holds each filter state (ecmgen.estimate.process.state_layout names)
 STATE_FIELDS = {"soc": "m.soc", "u_fast_v": "m.u_fast", "u_slow_v": "m.u_slow",
@@ -85,7 +85,7 @@ class EstSpec:
 
     @property
     def spread(self) -> bool:
-        """H's OCV slope is the secant over the SOC's spread (ECMRT_EST_SPREAD)."""
+        """H's OCV slope is the secant over the SOC's spread (generated only then)."""
         return self.settings.ocv_slope_spread > 0
 
     @property
@@ -146,7 +146,7 @@ def render_estimator(env, ctx: dict, est: EstSpec, c_float) -> dict[str, str]:
     # a start anywhere: the hysteresis state at 0, variance 1/3 (ecmgen.estimate.ekf)
     h_start = (c_float(np.float32(HYSTERESIS_START_VAR))
                if "h" in est.names and est.noise["start_a"] != 0.0 else None)
-    ectx = dict(ctx, n=est.n, names=est.names, offset=est.offset, h_start=h_start,
+    ectx = dict(ctx, n=est.n, names=est.names, fields=est.fields, offset=est.offset, h_start=h_start,
                 slopes=est.settings.resistance_slopes, spread=est.spread, memory=est.memory,
                 noise=[(k, c_float(est.noise[k]), c) for k, c in est.noise_fields])
     files = ctx["files"]

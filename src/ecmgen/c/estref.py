@@ -1,9 +1,10 @@
-"""Float32 reference of the generated SOC estimator (``c_runtime/ecmrt_est_f32.h`` around
-the model's step of ``ecmrt_f32.h``), operation for operation: bit-identical to the C at
+"""Float32 reference of the generated SOC estimator (``<prefix>_est_f32.c``: the model side
+of ``templates/est_model.c.j2`` and ``est.c.j2`` with the units of ``c_runtime/ecmrt_est_f32*.h``,
+around the model's step), operation for operation: bit-identical to the C at
 every step (tests/test_codegen_estimator.py, through cffi and under QEMU).
 
-Written as the C is: one function per unit of ``ecmrt_est_f32_update`` and
-``ecmrt_est_f32_rows.h`` (``_factors``, ``_rows_rc``, ``_rows_states``, ``_rows_soc``,
+Written as the C is: one function per generated function of the update (``<prefix>_est_update``
+and the model's rows: ``_factors``, ``_rows_rc``, ``_rows_states``, ``_rows_soc``,
 ``_predict``, ``_measurement``, ``_relinearise``, ``_correct``) around ``_model_step``. The
 model's step is mirrored here per sample (the filter changes the state between steps, so
 :func:`ecmgen.c.cref.simulate_f32`, which runs a whole record at once, cannot drive it); what does not depend on the state (the sanitised inputs, the direction, the
@@ -166,14 +167,14 @@ class _Run:
         self.n, self.N = self.inp["i"].size, est.n
         N = self.N
         nz = self.nz = {k: F32(v) for k, v in est.noise.items()}
-        self.spread_k = nz.get("ocv_k", ZERO)      # ECMRT_EST_SPREAD 0: the tangent
+        self.spread_k = nz.get("ocv_k", ZERO)      # no ocv_slope_spread: the tangent
         self.diff, self.bv, self.tau_t = spec.diff, spec.has_bv, spec.tau_t
-        self.surf = spec.surface is not None        # ECMRT_SURFACE (with the diffusion pair)
+        self.surf = spec.surface is not None        # the surface SOC (with the diffusion pair)
         self.flat = not est.settings.resistance_slopes
         fx = self.fx = spec.fx
         self.cdr, self.arr, self.hyst, self.xrc = (bool(fx.get(k))
                                                    for k in ("cdr", "arr", "hyst", "xrc"))
-        self.ix = 3 + int(self.diff)                # ECMRT_EST_IX, ECMRT_EST_IH, ECMRT_EST_IB
+        self.ix = 3 + int(self.diff)                # u_x's, h's and the offset's indices
         self.ih = self.ix + int(self.xrc)
         self.ib = N - 1
         self.k_soc = F32(spec.k_soc)
@@ -231,7 +232,7 @@ def _sample_inputs(run: _Run, t: int) -> _Sample:
 
 
 def _model_step(run: _Run, s: _Sample) -> None:
-    """ecmrt_f32_step on the run's state: the SOC, the RC voltages, the predicted voltage
+    """The model's step (<prefix>_step_f32) on the run's state: the SOC, the RC voltages, the predicted voltage
     s.vp; keeps what the filter reads (the tables at the new SOC with their slopes, the
     coefficients, the effects' factors)."""
     i, d, t, dt, kt, wt, src, u = s.i, s.d, s.t, s.dt, s.kt, s.wt, s.src, run.u
@@ -253,7 +254,7 @@ def _model_step(run: _Run, s: _Sample) -> None:
         r0, rf, rs = r0 * s.fa, rf * s.fa, rs * s.fa
     if run.bv:
         rf = rf * s.cur["g_bv"]
-    if run.flat:                     # ECMRT_EST_SLOPES 0: the RC tables flat in SOC
+    if run.flat:                     # resistance_slopes false: the RC tables flat in SOC
         pa = {k: (v[0], ZERO) if k != "ocv" else v for k, v in pa.items()}
     s.pa = pa
     if run.tau_t:            # the state's coefficients kc = 1/tau(T), for step and filter
@@ -538,7 +539,7 @@ def _simulate(spec, est, current_a, dt_s, voltage_v, soc0, temperature_c, jacobi
     h_out = np.zeros((n, N), dtype=F32) if jacobians else None
     for t in range(n):
         s = _sample_inputs(run, t)
-        _model_step(run, s)                      # ecmrt_f32_step
+        _model_step(run, s)                      # <prefix>_step_f32
         x0 = [run.soc] + run.u[1:]               # ecmrt_est_f32_update from here
         _factors(run, s)
         s.a, s.f, s.q = [ONE] + [ZERO] * (N - 1), [ZERO] * N, [ZERO] * N

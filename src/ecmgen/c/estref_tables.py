@@ -1,5 +1,5 @@
-"""The estimator reference's table accessor (``c_runtime/ecmrt_est_f32_tables.h``,
-``ecmrt_est_f32_params``) in float32 scalars: a direction's parameters and their SOC
+"""The estimator reference's table accessor (the generated ``<prefix>_est_params`` with the
+units of ``c_runtime/ecmrt_est_f32_tables.h``) in float32 scalars: a direction's parameters and their SOC
 slopes at one SOC (and temperature row and weight), the surface SOC the step reads them at,
 and the grids' segment search; used by :mod:`ecmgen.c.estref`."""
 
@@ -17,7 +17,7 @@ ZERO, ONE = F32(0.0), F32(1.0)
 
 
 def _offsets(spec: CSpec) -> dict:
-    """ECMRT_P_*: where each parameter's pair sits in a table row."""
+    """Where each parameter's pair sits in a table row (codegen._layout's "p")."""
     if spec.tau_t:
         return {"r0": 0, "rf": 2, "rs": 4, "ocv": 6}
     return {"r0": 0, "rf": 2, "tf": 4, "rs": 6, "ts": 8, "ocv": 10}

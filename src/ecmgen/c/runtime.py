@@ -1,14 +1,12 @@
-"""Where the templates and the hand-written C runtime are, and the runtime's switch list.
+"""Where the templates and the hand-written C runtime are.
 
-The compile-time switches (``ECMRT_<name>``, each 0 or 1) are listed once, in
-``c_runtime/ecmrt_config.h``; :data:`SWITCHES` is read from there, so the generator, the
-runtime headers and the tests' hand-written configurations cannot drift apart.
+The runtime has no compile-time switches: what a model has is chosen when its C is
+generated (:data:`ecmgen.c.spec.SWITCHES`), its tables' struct, state fields and unit calls
+rendered by the templates.
 """
 
 from __future__ import annotations
 
-import functools
-import re
 from pathlib import Path
 
 
@@ -30,23 +28,3 @@ def templates_dir() -> Path:
 
 def runtime_dir() -> Path:
     return _find_dir("c_runtime")
-
-
-@functools.lru_cache(maxsize=None)
-def switches() -> tuple[str, ...]:
-    """The switch names (without ``ECMRT_``) in ecmrt_config.h's order: the ``defined()``
-    checks after its "the switches" comment."""
-    text = (runtime_dir() / "ecmrt_config.h").read_text()
-    block = text[text.index("/* the switches"):]
-    block = block[:block.index("#error")]
-    return tuple(re.findall(r"defined\(ECMRT_(\w+)\)", block)) + optional_switches()
-
-
-@functools.lru_cache(maxsize=None)
-def optional_switches() -> tuple[str, ...]:
-    """The switches ecmrt_config.h sets to 0 when a config leaves them out (the generator
-    writes them only when 1): the ``defined()`` checks after its "the optional switches"
-    comment."""
-    text = (runtime_dir() / "ecmrt_config.h").read_text()
-    block = text[text.index("/* the optional switches"):]
-    return tuple(re.findall(r"!defined\(ECMRT_(\w+)\)", block))

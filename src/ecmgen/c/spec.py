@@ -33,7 +33,6 @@ from ..errors import InputError
 from ..model.model_schema import check_model_ranges
 from ..model.model import DIRECTIONS, RC_FIELDS, EcmModel, _grid_weights, load_model
 from .qformat import Q_TEMP, quantize
-from .runtime import switches
 
 NUMERICS = ("float", "fixed")
 # effects (ecmgen.model.effects) the generated C implements, per numeric
@@ -46,6 +45,41 @@ MAX_POINTS = 255            # segment hints are uint8_t
 DEFAULT_I_MAX_C = 32.0      # default current range: 32 C, rounded up to a power of two
 ARR_T_RANGE_C = (-40.0, 85.0)   # temperature_dependence: the C saturates T to this range
 KELVIN = 273.15
+# What a model's C may have, chosen when it is generated (CSpec.switches): the name, what 1
+# means (and the state fields it adds). The generated C of a model holds the tables, the
+# state fields and the unit calls of its features, and nothing of the others.
+SWITCHES = {
+    "VARIABLE_DT": "variable dt: step(state, i, T, dt), c = 1 - exp(-dt/tau) at run time (else "
+                   "step(state, i, T), D = 1/(1 - exp(-dt/tau)) precomputed for the build's dt)",
+    "TEMP": "temperature rows: tables over (temperature, SOC) on one temperature grid (t_in, w_t, "
+            "k_t, pc[], pc_key, and oc[2], oc_key unless OCV_SHARED)",
+    "OCV_SHARED": "the OCV is the last parameter of the RC tables' rows (their SOC grid, segment "
+                  "and weight; no k_ocv)",
+    "RC_UNIFORM": "uniform RC SOC grids: O(1) lookup (no k_dir[])",
+    "OCV_UNIFORM": "the OCV's own SOC grid is uniform: O(1) lookup (no k_ocv)",
+    "TAU_T": "time constants of the temperature only: one value per temperature row (table tk), "
+             "their coefficients kept in the state (kc[2][2 or 3])",
+    "TAU_SAME": "with TAU_T, both directions have the same time constants (kc[1][2 or 3])",
+    "DIFF": "the diffusion RC pair, r_diff and tau_diff per temperature (u_diff)",
+    "BV": "the Butler-Volmer fast branch: r_fast times asinh(x)/x, x = |i| / i0(T)",
+    "FX_HYST": "effect hysteresis (h)",
+    "FX_XRC": "effect extra_rc (u_x)",
+    "FX_CDR": "effect current_dependent_resistance",
+    "FX_ARR": "effect temperature_dependence (Arrhenius factor on r0, r_fast, r_slow)",
+    "SURFACE": "(with DIFF, never OCV_SHARED) the RC tables read at the surface SOC clamp(soc + "
+               "sv u_diff, 0, 1), sv = lam / max(dOCV/dSOC, 0.3 V) a table on the OCV's grid",
+    "AGE": "an ageing law: set_age(state, equivalent full cycles) scales every resistance and "
+           "the capacity (age_r, k_soc)",
+}
+# capacity_error needs no switch: the generator folds it into k_soc.
+# the features as the generated config names them (switches that are 1)
+FEATURE_NAMES = {"VARIABLE_DT": "variable dt", "TEMP": "temperature rows",
+                 "OCV_SHARED": "OCV on the RC grid", "RC_UNIFORM": "uniform RC grids",
+                 "OCV_UNIFORM": "uniform OCV grid", "TAU_T": "time constants of T only",
+                 "TAU_SAME": "the same in both directions", "DIFF": "diffusion pair",
+                 "BV": "Butler-Volmer branch", "FX_HYST": "hysteresis", "FX_XRC": "extra_rc",
+                 "FX_CDR": "current_dependent_resistance", "FX_ARR": "temperature_dependence",
+                 "SURFACE": "surface SOC", "AGE": "ageing law"}
 
 
 
@@ -134,11 +168,11 @@ class CSpec:
                                              # their constants ({} for a model without)
     bv: dict = field(default_factory=dict)   # fixed point, Butler-Volmer: table and formats
     # surface SOC (model.surface_soc_gain): lam / max(dOCV/dSOC, 0.3 V) at the OCV's
-    # breakpoints, (n_t, n_ocv), 1/V; None: off (ECMRT_SURFACE)
+    # breakpoints, (n_t, n_ocv), 1/V; None: off (switch SURFACE)
     surface: np.ndarray | None = None
     # ageing law (model.ageing): {"grid": CGrid of equivalent full cycles (float32, or Q8 raw),
     # "r": resistance scales, "iq": 1 / capacity scales (float32, or raw in Q_AR / Q_AQ)};
-    # None: off (ECMRT_AGE)
+    # None: off (switch AGE)
     age: dict | None = None
 
     @property
@@ -147,12 +181,12 @@ class CSpec:
 
     @property
     def temp(self) -> bool:
-        """The tables have a temperature axis (ECMRT_TEMP)."""
+        """The tables have a temperature axis (switch TEMP)."""
         return self.temp_grid is not None
 
     @property
     def ocv_shared(self) -> bool:
-        """The OCV is on the SOC grid of both directions' tables (ECMRT_OCV_SHARED: it takes
+        """The OCV is on the SOC grid of both directions' tables (switch OCV_SHARED: it takes
         their segment and weight)."""
         x = self.ocv_grid.x
         return self.surface is None and all(d.grid.x.shape == x.shape and
@@ -162,14 +196,14 @@ class CSpec:
     def tau_t(self) -> bool:
         """Every time constant (tau, or D at fixed dt) depends on the temperature only: each
         table row is constant along SOC, in both directions (the curve fit's tables).
-        ECMRT_TAU_T: one value per temperature row, and the step's coefficients kept in the
+        Switch TAU_T: one value per temperature row, and the step's coefficients kept in the
         state per temperature. Exact: a bilinear interpolation of such a table is the linear
         one in temperature, bit for bit in both numerics."""
         return all(np.all(k == k[:, :1]) for d in self.dirs for k in (d.k_fast, d.k_slow))
 
     @property
     def tau_same(self) -> bool:
-        """ECMRT_TAU_SAME: with tau_t, both directions have the same time constants (the
+        """Switch TAU_SAME: with tau_t, both directions have the same time constants (the
         curve fit's): one set of coefficients in the state."""
         d0, d1 = self.dirs
         return self.tau_t and all(
@@ -179,12 +213,12 @@ class CSpec:
 
     @property
     def rc_uniform(self) -> bool:
-        """ECMRT_RC_UNIFORM: both directions' SOC grids are uniform (O(1) lookup)."""
+        """Switch RC_UNIFORM: both directions' SOC grids are uniform (O(1) lookup)."""
         return all(d.grid.uniform for d in self.dirs)
 
     @property
     def ocv_uniform(self) -> bool:
-        """ECMRT_OCV_UNIFORM: the OCV has its own SOC grid, uniform (O(1) lookup)."""
+        """Switch OCV_UNIFORM: the OCV has its own SOC grid, uniform (O(1) lookup)."""
         return not self.ocv_shared and self.ocv_grid.uniform
 
     @property
@@ -207,8 +241,8 @@ class CSpec:
 
     @property
     def switches(self) -> dict[str, int]:
-        """The runtime's compile-time switches (ECMRT_<name>), in ecmrt_config.h's order
-        (the one list, :func:`ecmgen.c.runtime.switches`)."""
+        """What this model's C has (:data:`SWITCHES`, in its order), each 0 or 1: the
+        generator renders the tables, state fields and unit calls of those that are 1."""
         fx = self.fx
         on = {"VARIABLE_DT": int(self.variable_dt), "TEMP": int(self.temp), "OCV_SHARED": int(self.ocv_shared),
                 "RC_UNIFORM": int(self.rc_uniform), "OCV_UNIFORM": int(self.ocv_uniform),
@@ -217,11 +251,12 @@ class CSpec:
                 "FX_HYST": int(bool(fx.get("hyst"))), "FX_XRC": int(bool(fx.get("xrc"))),
                 "FX_CDR": int(bool(fx.get("cdr"))), "FX_ARR": int(bool(fx.get("arr"))),
                 "SURFACE": int(self.surface is not None), "AGE": int(self.age is not None)}
-        names = switches()
-        if set(on) != set(names):
-            raise AssertionError(f"the generator's switches {sorted(on)} are not "
-                                 f"ecmrt_config.h's {sorted(names)}")
-        return {k: on[k] for k in names}
+        return {k: on[k] for k in SWITCHES}
+
+    @property
+    def features(self) -> list[str]:
+        """The switches that are 1, in words (the generated config lists them)."""
+        return [FEATURE_NAMES[k] for k, v in self.switches.items() if v]
 
 
 def state_fields(spec: CSpec) -> list[tuple[str, str, str]]:

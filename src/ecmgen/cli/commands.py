@@ -54,11 +54,17 @@ def _progress(enabled: bool):
 
 def cmd_build(args) -> int:
     from ..config import load_config
+
+    cfg = load_config(args.config)
+    if len(cfg.pulse_tests) > 1:
+        # the build's workers load their modules while this process loads its own
+        from ..parallel import start_fork_server
+
+        start_fork_server()
     from ..console import build_summary, cycle_table, note_lines
     from ..pipeline import build
     from ..report import build_json, pulse_test_table, validation_rows
 
-    cfg = load_config(args.config)
     out = Path(args.out) if args.out else cfg.path.parent / "ecmgen-out"
     check_output_folder(out, _given(cfg))
     progress = _progress(not args.quiet)

@@ -27,7 +27,10 @@ model does not keep. An OCV table a few mV off, a SOC that drifts with a wrong c
 hysteresis offset is absorbed there instead of in r_slow and tau_slow, as if each pulse were
 referenced to the rest before it. The offsets sit at the levels or, where that predicts a
 left-out level better (a SOC move through a curved stretch of an OCV interpolated between
-the rests), also half-way between them. Rows count only over the SOC the pulses reached
+the rests), also half-way between them: the half-way set is judged first at the time
+constants found with the levels' set, and searched for its own only where it predicts a
+left-out level better there (on none of the shared data's configurations, each of which
+keeps the levels' set, bench/accuracy_matrix.py). Rows count only over the SOC the pulses reached
 (``SPAN_MARGIN`` beyond): past it the OCV is extrapolated. The tables are free at the
 levels and hold the end level's value beyond them; a node within ``SPAN_MARGIN`` of the
 levels' mid-pulse SOC range is identified (``converged`` in the tables).
@@ -101,7 +104,7 @@ from ..data.measure import TimeSeries
 from ..data.ocv import OcvTable
 from ..data.steps import merge_soc_steps
 from ..errors import InputError
-from ..parallel import in_threads, one_blas_thread
+from ..parallel import one_blas_thread
 from .curve_levels import (CV_TIE, both_ways, choose_penalty, data_tau_ranges,
                            level_fit_windows, level_nodes, level_windows, log_penalty,
                            log_references, node_error, ocv_node_sets, pulse_sampling_s, r0_holds,
@@ -513,8 +516,7 @@ def fit_pulse_curves(series: TimeSeries, pulses: list[Pulse], ocv: OcvTable,
 
 
 def _checked_ranges(options: CurveOptions, i0_a, current_factor) -> dict:
-    """The time-constant ranges searched ({"fast", "slow"} and "diff" with the diffusion
-    pair), each 0 < lo < hi; ValueError for a bad range or a bad i0_a."""
+    """The time-constant ranges searched (and "diff" with the diffusion pair), checked."""
     if i0_a is not None and current_factor is not None:
         raise ValueError("give i0_a or current_factor, not both")
     if i0_a is not None and not (np.isfinite(i0_a) and i0_a > 0):
@@ -572,22 +574,26 @@ def _fit_problem(rec: Record, complete, directions, capacity_ah: float, i0_a, sp
             _cr.share_responses(prob, probs[0])
         prob.searches = _cr.node_set_searches(searches, len(probs))
         probs.append(prob)
-    # each node set's fit is its own: side by side on threads (as one after the other)
-    # where two searches' grid designs at once take little memory
-    fits = list(zip(probs, in_threads(_fit_time_constants, [
-        (prob, ranges, progress if k == 0 else None, neighbour_taus)
-        for k, prob in enumerate(probs)], _cr.grid_bytes(probs[0], ranges) <= _cr.THREADS_BYTES)))
-    if len(fits) == 1:
-        return fits[0][0], fits[0][1], []
-    (p0, f0), (p1, f1) = fits
-    use_mid = p1.cv_sse < p0.cv_sse
-    prob, got = fits[1] if use_mid else fits[0]
+    p0 = probs[0]
+    f0 = _fit_time_constants(p0, ranges, progress, neighbour_taus)
+    if len(probs) == 1:
+        return p0, f0, []
+    p1 = probs[1]
+    # the offsets half-way too, judged first at the time constants just found: their own
+    # search only where they predict a left-out level better there (else they cannot win)
+    cv_at = _held_out(p1, list(f0[5]), f0[0])[2]
+    p1._taus.restore({})            # the screen leaves no time constant met behind
+    f1 = _fit_time_constants(p1, ranges, None, neighbour_taus) if cv_at < p0.cv_sse else None
+    use_mid = f1 is not None and p1.cv_sse < p0.cv_sse
+    prob, got = (p1, f1) if use_mid else (p0, f0)
     notes = []
     if np.isfinite(p0.cv_sse) and p0.cv_sse > 0:
+        ratio = (p1.cv_sse if f1 is not None else cv_at) / p0.cv_sse
         notes.append(f"curve: OCV offsets {'also half-way between' if use_mid else 'at'} the "
-                     f"levels (leaving one level out: {p1.cv_sse / p0.cv_sse:.3g} x the "
-                     "error of offsets at the levels only)")
-    return prob, got[:3] + (f0[3] + f1[3],) + got[4:], notes
+                     f"levels (leaving one level out: {ratio:.3g} x the error of offsets at "
+                     "the levels only" + ("" if f1 is not None else ", at their time constants")
+                     + ")")
+    return prob, got[:3] + (f0[3] + (f1[3] if f1 is not None else 0),) + got[4:], notes
 
 
 def _direction_fits(prob: _Problem, x: np.ndarray, kinds, nodes: np.ndarray, spans: dict,

@@ -13,13 +13,8 @@ from scipy.linalg import lapack
 from ..data.measure import TimeSeries, charging_direction
 from ..data.ocv import OcvTable
 from ..data.steps import pulse_test_gaps
-from .lsq import log_grid
 
 W_SPAN_S = (1.0, 300.0)    # a row's weight is sqrt(the seconds it stands for), within these
-# the two OCV-offset node sets are fitted side by side (threads) where a search's grid design
-# is at most this large: two at once of the A123 dynamic test's (98 MB) would set the
-# build's peak memory
-THREADS_BYTES = 64 * 2 ** 20
 
 
 @dataclass(frozen=True)
@@ -306,13 +301,6 @@ def share_responses(prob, other) -> None:
     if same:
         prob.u_fast, prob.u_slow, prob.u_diff = other.u_fast, other.u_slow, other.u_diff
         prob._cache = other._cache
-
-
-def grid_bytes(prob, ranges: dict) -> int:
-    """The size of a problem's time-constant search grid design (every grid block side by
-    side, :func:`ecmgen.fit.curve._search`)."""
-    cols = prob.r0w.shape[1] + sum(prob.width(k) * log_grid(*ranges[k]).size for k in ranges)
-    return 8 * prob.rows.size * cols
 
 
 # a sign test at 99 %: the level diagnose's rest-hysteresis F test uses too

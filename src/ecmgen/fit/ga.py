@@ -138,7 +138,6 @@ _GA = dict(eta_c=2.0, p_sbx=0.5, line_ext=0.5, p_mut=0.5, sigma0=0.2, sigma_half
            decades=5.0, floor=1e-3)
 
 
-@one_blas_thread
 def _repair_and_score(u, arrs, space):
     """Repaired genes and their fitness (Eq. 5 plus constraint penalties); ``space`` is
     (lo, hi, width, the resistances' box, exact L1 resistances)."""
@@ -208,6 +207,7 @@ def _survivors(u, fit, kids, kfit, pop: int):
     return u, fit
 
 
+@one_blas_thread
 def fit_ga(t_s, r_ohm, *, bounds: Bounds | None = None, seed: int = 0, population: int = 48,
            max_generations: int = 2000, stall_generations: int = 50,
            function_tolerance: float = 1e-6, progress: Progress | None = None) -> PointFit:
