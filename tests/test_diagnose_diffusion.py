@@ -52,7 +52,7 @@ def test_the_pulse_test_names_the_shape_it_fits_better():
     def refit(v):
         return None, float(np.sqrt(np.mean((v - truth) ** 2) + 1e-6))
 
-    for pair_rms, want in ((1.2e-3, None), (0.9e-3, "extra_rc"), (0.98e-3, None)):
+    for pair_rms, want in ((1.2e-3, None), (0.9e-3, "extra_rc"), (0.995e-3, None)):
         shape = dd.pair_or_diffusion(refit, Series, np.zeros_like(t), pair_rms, 0.0035,
                                      9000.0 / dd.ROOTS[0] ** 2 / 1.3)
         assert shape.name == want, shape
