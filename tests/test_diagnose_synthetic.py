@@ -29,11 +29,9 @@ CONTROLS = (FIRST_SEED + PER_KIND * len(KINDS), FIRST_SEED + PER_KIND * len(KIND
 # pulse test that makes the base shows the effect too, and the base fitted on it leaves a
 # held-out error within 3x the noise, so nothing is named (for the extra RC the base's slow
 # pair came out at 314 s, against 41 s true; the base refitted with a third pair takes the
-# held-out error from 1.72 to 0.97 mV, a gain below the 1.15 mV noise); the other extra RC
-# passes as the pulse test's third pair, but the test does not tell it from solid diffusion
+# held-out error from 1.72 to 0.97 mV, a gain below the 1.15 mV noise)
 KNOWN_MISSES = {
     9400002: "extra RC of 408 s not named: held-out gain 0.75 mV, below 1.15 mV noise",
-    9400003: "extra RC of 1302 s: extra_rc or diffusion, the pulse test cannot tell",
     9400004: "current-dependent resistance (i0 0.55 A) not named: held-out error 1.63 mV "
              "against 1.05 mV noise",
     9400005: "current-dependent resistance (i0 0.10 A) not named: held-out error 1.94 mV "
