@@ -140,3 +140,45 @@ def test_a_lag_shorter_than_a_sample_is_not_one_the_record_shows():
     assert not cx.unresolved(cx.VoltageLag(1.0, 0.0), 1.0)
     assert not cx.unresolved(cx.VoltageLag(0.0, 0.6), 0.5)
     assert not cx.unresolved(cx.OcvError(0.0, 1.0), 1.0)
+
+
+def test_a_current_offset_is_what_the_rests_read():
+    """A sensor's offset is what it reads at zero current: the rests of a record (runs of a
+    minute or more of a small, flat current) give it to the noise's precision; a record
+    whose rests read zero, one that logs them as exactly zero, and one without rests give
+    nothing to read (zero, and None twice), and a slow taper (a constant-voltage end of
+    charge) is not a rest."""
+    from ecmgen.data.measure import TimeSeries
+
+    rng = np.random.default_rng(1)
+    t, i = _profile()
+    q = 2.9
+
+    def rec(current):
+        return TimeSeries(t, current, np.full_like(t, 3.7), None, None, "x.csv")
+
+    noisy = i + 6e-4 * rng.standard_normal(t.size)
+    assert cx.rest_current(rec(noisy + 0.03), q) == pytest.approx(0.03, abs=1e-4)
+    assert cx.rest_current(rec(noisy - 0.05), q) == pytest.approx(-0.05, abs=1e-4)
+    assert abs(cx.rest_current(rec(noisy), q)) < 1e-4
+    assert cx.rest_current(rec(i), q) is None                       # rests logged as 0
+    assert cx.rest_current(rec(np.full_like(t, -q)), q) is None     # no rest at all
+    taper = np.where(i == 0.0, 0.1 * q * np.exp(-(t % 300) / 200.0), i)
+    assert cx.rest_current(rec(taper), q) is None
+
+
+def test_an_entropic_term_has_its_nodes_where_the_record_is():
+    """dOCV/dT is linear between nodes spread over the SOC the fit part covers and constant
+    beyond; the corrected OCV moves by it per kelvin from the reference temperature."""
+    from conftest import synthetic_nca_model
+
+    e = cx.EntropicOcv(0.4, 0.7, -4e-4, -2e-4, 0.0, 3e-4, 25.0)
+    assert np.allclose(e.soc_nodes(), [0.4, 0.5, 0.6, 0.7])
+    assert np.allclose(e.d_v_per_k([0.0, 0.4, 0.45, 0.7, 1.0]),
+                       [-4e-4, -4e-4, -3e-4, 3e-4, 3e-4])
+    soc = np.linspace(0.0, 1.0, 11)
+    m = synthetic_nca_model()
+    fixed = cx.corrected_model(m, [e])
+    base = m.ocv.ocv_at(soc)
+    assert np.allclose(fixed.ocv.ocv_at(soc, 35.0) - base, 10.0 * e.d_v_per_k(soc), atol=1e-9)
+    assert np.allclose(fixed.ocv.ocv_at(soc, 25.0), base, atol=1e-9)

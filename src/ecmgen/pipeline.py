@@ -224,11 +224,13 @@ def _common(cfg: BuildConfig, inputs: Inputs) -> dict:
 
 def curve_model(cfg: BuildConfig, inputs: Inputs, common: dict, progress: Progress = _quiet,
                 current_factor=None, tau_ranges: dict | None = None,
-                neighbour_taus: dict | None = None, searches: list | None = None):
+                neighbour_taus: dict | None = None, searches: list | None = None,
+                butler_volmer: bool = True):
     """The curve method's model of a prepared test: (model, its CurveFit, its flags).
     ``current_factor``: a current-dependent resistance the fit takes as given
     (:func:`ecmgen.fit.curve.fit_pulse_curves`; then no Butler-Volmer branch);
-    ``tau_ranges``: time-constant search ranges in place of the defaults."""
+    ``tau_ranges``: time-constant search ranges in place of the defaults;
+    ``butler_volmer`` False: the diffusion pair of ``cfg.curve_branches`` alone."""
     from .fit.checks import curve_fit_flags, flag_notes
     from .fit.curve import CurveOptions, fit_pulse_curves
     from .data.dynamic import DYNAMIC_TAU_RANGES
@@ -238,8 +240,8 @@ def curve_model(cfg: BuildConfig, inputs: Inputs, common: dict, progress: Progre
     # the diffusion pair and the Butler-Volmer fast branch: [fit] curve_branches
     branches = cfg.curve_branches
     # i0 comes from the C-rates of pulses at one level: a dynamic test has no DC-IR
-    bv = fit_exchange_current(inputs.dcir, inputs.capacity_ah) \
-        if branches and len(inputs.dcir) and current_factor is None else None
+    bv = fit_exchange_current(inputs.dcir, inputs.capacity_ah) if branches and butler_volmer \
+        and len(inputs.dcir) and current_factor is None else None
     relax = dcir_mod.relaxation_s(inputs.pulses_series,
                                   [p for p in inputs.pulses if not p.cut_short], cfg.relax_s)
     progress(f"whole-test fit of the pulse test ({len(inputs.pulses)} pulses, "
@@ -712,10 +714,13 @@ def _pulse_refit(cfg: BuildConfig, inputs: Inputs, base_fit, base: EcmModel):
     common = _common(cfg, inputs)
     series = inputs.pulses_series
 
-    def refit(voltage_v):
+    def refit(voltage_v, third_pair: bool = False):
+        # third_pair: with the diffusion pair (a third RC pair), no Butler-Volmer branch
         inp = replace(inputs, pulses_series=replace(series,
                                                     voltage_v=series.voltage_v - voltage_v))
-        model, cf, _ = curve_model(cfg, inp, common)
+        model, cf, _ = (curve_model(replace(cfg, curve_branches=True), inp, common,
+                                    butler_volmer=False) if third_pair
+                        else curve_model(cfg, inp, common))
         return model, cf.rms_error_v
 
     return PulseRefit(series, base_fit.rms_error_v, refit, inputs.capacity_ah,

@@ -17,8 +17,9 @@ what the logger wrote:
                       SOC scale anchored at full, where a charge ends)
 - ``entropic_ocv``    the table lacks the OCV's move with temperature: true OCV(soc, T) =
                       table(soc) + dOCV/dT(soc) (T - t_ref_c), dOCV/dT linear between its
-                      values at ENTROPIC_SOC (a shape the record's SOC range can pin down
-                      where it goes, and leaves at 0 where it does not); model.json carries
+                      values at nodes spread over the SOC the fit part covers, constant
+                      beyond (a node outside it would have nothing to pin it down, and a
+                      fit drifts it to its bound); model.json carries
                       it as an OCV over temperature (rows at ENTROPIC_T_C, linear between)
 
 Each has a few parameters: they are fitted by scipy's bounded least squares (the
@@ -108,29 +109,33 @@ class OcvError(_Correction):
 
 @dataclass(frozen=True)
 class EntropicOcv(_Correction):
-    at0_v_per_k: float
-    at25_v_per_k: float
-    at50_v_per_k: float
-    at75_v_per_k: float
-    at100_v_per_k: float
+    soc_lo: float
+    soc_hi: float
+    at1_v_per_k: float
+    at2_v_per_k: float
+    at3_v_per_k: float
+    at4_v_per_k: float
     t_ref_c: float
     name: ClassVar[str] = "entropic_ocv"
     kind: ClassVar[str] = "ocv"
 
     def words(self) -> str:
-        return (f"the OCV moves with temperature: {1e3 * self.at50_v_per_k:+.3f} mV/K at 50 % "
-                "SOC")
+        lo, hi = self.d_v_per_k(np.array([self.soc_lo, self.soc_hi]))
+        return (f"the OCV moves with temperature: {1e3 * lo:+.3f} mV/K at "
+                f"{100 * self.soc_lo:.0f} % SOC, {1e3 * hi:+.3f} at {100 * self.soc_hi:.0f} %")
+
+    def soc_nodes(self) -> np.ndarray:
+        return np.linspace(self.soc_lo, self.soc_hi, len(ENTROPIC_KEYS))
 
     def d_v_per_k(self, soc) -> np.ndarray:
-        return np.interp(soc, ENTROPIC_SOC, [getattr(self, k) for k in ENTROPIC_KEYS])
+        return np.interp(soc, self.soc_nodes(), [getattr(self, k) for k in ENTROPIC_KEYS])
 
 
 # the temperature rows of an OCV with an entropic term (linear between: a cell's range), and
-# the SOC nodes of its dOCV/dT
+# its dOCV/dT's values: at nodes spread evenly over the SOC the fit part covers (a node
+# outside it has no data to pin it down), linear between, constant beyond
 ENTROPIC_T_C = (-40.0, 80.0)
-ENTROPIC_SOC = (0.0, 0.25, 0.5, 0.75, 1.0)
-ENTROPIC_KEYS = ("at0_v_per_k", "at25_v_per_k", "at50_v_per_k", "at75_v_per_k",
-                 "at100_v_per_k")
+ENTROPIC_KEYS = ("at1_v_per_k", "at2_v_per_k", "at3_v_per_k", "at4_v_per_k")
 
 CORRECTION_TYPES: dict[str, type] = {c.name: c for c in (CurrentOffset, CurrentGain, OcvError,
                                                           EntropicOcv, VoltageLag)}
@@ -242,11 +247,45 @@ def starts(name: str, capacity_scale: float) -> list[dict[str, float]]:
     return [{"offset_v": 0.0, "soc_scale": 1.0}, {"offset_v": 0.0, "soc_scale": 1.0 / k}]
 
 
+# a rest: a run of at least REST_MIN_S whose current stays within the offset's bound (5 % of
+# 1C, with a margin) and changes by at most REST_STEP of 1C (or 5 sigmas of its noise) a sample
+REST_MIN_S = 60.0
+REST_STEP = 0.002
+
+
+def rest_current(series: TimeSeries, capacity_ah: float) -> float | None:
+    """The current the record logs where the cell rests: the mean over its rests (runs of
+    at least REST_MIN_S of a small, flat current), or None where it has none or logs them
+    as exactly zero (a logger that zeroes small currents shows no offset).
+
+    A current sensor's offset is what it reads at zero current: a record with rests shows
+    it there, whatever the voltage does (an OCV that moves with temperature drifts the
+    voltage of a rest as an offset's SOC drift does, but its rests read zero)."""
+    t, i = series.time_s, series.current_a
+    small = np.abs(i) <= 1.2 * 0.05 * capacity_ah
+    di = np.abs(np.diff(i))
+    low = small[1:] & small[:-1]
+    if not low.any():
+        return None
+    noise = 1.4826 * float(np.median(di[low])) / np.sqrt(2.0)
+    step = max(REST_STEP * capacity_ah, 5 * noise)
+    flat = np.concatenate([[False], low & (di <= step)])
+    # runs of flat steps, each with the sample before its first step; a slow taper (a
+    # constant-voltage end of charge) is no rest: its current drifts by more than a step
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], flat.astype(int), [0]])))
+    runs = [i[a - 1:b] for a, b in zip(edges[::2], edges[1::2])
+            if t[b - 1] - t[a - 1] >= REST_MIN_S and np.ptp(i[a - 1:b]) <= 2 * step]
+    if not runs:
+        return None
+    rested = np.concatenate(runs)
+    return float(np.mean(rested)) if np.any(rested) else None
+
+
 def fit(name: str, model: EcmModel, data: TimeSeries, soc0: float, rows: np.ndarray,
         capacity_scale: float, f_scale: float, max_nfev: int = 40,
-        t_ref_c: float = 25.0) -> _Correction:
+        t_ref_c: float = 25.0, soc_range: tuple[float, float] = (0.0, 1.0)) -> _Correction:
     """The correction ``name`` that best fits ``data`` (its ``rows``) with ``model``
-    (an entropic term about ``t_ref_c``)."""
+    (an entropic term about ``t_ref_c``, its nodes over ``soc_range``)."""
     from scipy.optimize import least_squares
 
     if name == VoltageLag.name:
@@ -258,7 +297,9 @@ def fit(name: str, model: EcmModel, data: TimeSeries, soc0: float, rows: np.ndar
     span = hi - lo
     cls = CORRECTION_TYPES[name]
 
-    fixed = {"t_ref_c": t_ref_c} if name == EntropicOcv.name else {}
+    fixed = {"t_ref_c": t_ref_c, "soc_lo": float(soc_range[0]),
+             "soc_hi": float(max(soc_range[1], soc_range[0] + 0.01))} \
+        if name == EntropicOcv.name else {}
 
     def make(z):
         return cls(**dict(zip(keys, lo + span * np.asarray(z, dtype=np.float64))), **fixed)

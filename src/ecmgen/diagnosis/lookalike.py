@@ -15,6 +15,8 @@ import math
 
 import numpy as np
 
+from .signatures import _on_bound
+
 
 def block_bootstrap_low(d: np.ndarray, block: int, confidence: float, n_boot: int = 2000,
                         seed: int = 0) -> float:
@@ -99,4 +101,47 @@ def told_apart(steps, alikes, swapped, final, block: int, confidence: float,
                 still.append(other)
         if still:
             groups.append((steps[k].name, *still))
+    return groups
+
+
+def beyond_bounds(tried: list, win: tuple, block: int, confidence: float,
+                  seed: int) -> list[tuple[tuple, str]]:
+    """The candidates of a round (rows of the search: passed at [0], values at [3], specs at
+    [4], held-out error at [7]) that did not pass only because they ended on a bound, yet
+    beat its winner ``win`` on the held-out part by the test a candidate must pass, each
+    with the parameter on its bound. The record shows more of such an effect than it can
+    be, and the winner is then no more than a look-alike of it (an OCV that moves by 2.5
+    mV/K with temperature, beyond the entropic term's 1.5, described better than by the
+    capacity error that won)."""
+    out = []
+    for c in tried:
+        bound = "" if c[0] or c[2] == win[2] else _on_bound(c[3][-1], c[4])
+        if bound and _beats(c[7], win[7], block, confidence, seed):
+            out.append((c, bound))
+    return out
+
+
+def near_rivals(tried: list, win: tuple, taken, valid, block: int, confidence: float,
+                seed: int) -> list[str]:
+    """The candidates of a round that did not pass their test against what was there, but
+    that its winner ``win`` does not beat either (:func:`alike`): as much its look-alikes as
+    those that passed. ``taken``: names it has already; ``valid(row)``: the fit is one the
+    effect can be (one beyond its bounds is :func:`beyond_bounds`'s)."""
+    return [c[2] for c in tried if not c[0] and c[2] != win[2] and c[2] not in taken and
+            valid(c) and alike((win[7], win[12]), (c[7], c[12]), block, confidence, seed)]
+
+
+def with_beyond(groups: list, steps, beyond: dict) -> list:
+    """``groups`` with each step's look-alikes beyond their bounds (``beyond``: step name ->
+    names, :func:`beyond_bounds`) joined to the step's group, or as a group of their own;
+    one that is named itself is no alternative to it."""
+    named = {st.name for st in steps}
+    groups = list(groups)
+    for step in steps:
+        extra = [n for n in beyond.get(step.name, ()) if n not in named]
+        k = next((k for k, g in enumerate(groups) if g[0] == step.name), None)
+        if extra and k is not None:
+            groups[k] += tuple(n for n in extra if n not in groups[k])
+        elif extra:
+            groups.append((step.name, *extra))
     return groups

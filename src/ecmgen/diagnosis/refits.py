@@ -1,4 +1,5 @@
-"""The base model refitted on the pulse test that made it, with a hysteresis taken out.
+"""The base model refitted on the pulse test that made it, with a hysteresis taken out, or
+with a third RC pair (an extra RC as the test shows it, :func:`third_pair`).
 
 A 10 s pulse moves a hysteresis state by tens of per cent and a 10 % SOC move sets it to
 one branch, so the pulse test shows a hysteresis as a voltage that follows the direction of
@@ -40,8 +41,9 @@ class PulseRefit:
 
     series      the pulse test as the base fit read it
     rms_v       the base fit's RMS on it
-    refit       ``refit(voltage_v)`` -> (model, rms_v): the whole-test fit on ``series``
-                with ``voltage_v`` subtracted from its voltage
+    refit       ``refit(voltage_v, third_pair=False)`` -> (model, rms_v): the whole-test
+                fit on ``series`` with ``voltage_v`` subtracted from its voltage (with
+                ``third_pair``: with a third RC pair, the tables' diffusion pair)
     capacity_ah the capacity of the base
     deadband_a  the base's direction deadband
     pulses      the pulses found in it (ecmgen.data.dcir.Pulse)
@@ -170,3 +172,61 @@ def hysteresis_on_refitted_base(pr: PulseRefit, ocv, fitted: fx.Hysteresis, fit_
         if best is None or fit_mae_v < best[0]:
             best = (fit_mae_v, base, note, kept)
     return None if best is None else best[1:]
+
+
+def _without_third_pair(model):
+    """``model`` with its tables' diffusion pair taken out."""
+    def plain(t):
+        return replace(t, r_diff_ohm=None, tau_diff_s=None)
+    return replace(model, charge=plain(model.charge), discharge=plain(model.discharge))
+
+
+@dataclass(frozen=True)
+class ThirdPair:
+    """An extra RC pair as the pulse test shows it (:func:`third_pair`): the base tables of
+    the test's fit with it (the pair taken out of them), the pair, a note, that fit's RMS and
+    the voltage taken out of the test before it (a hysteresis found, or zeros)."""
+
+    base: object
+    effect: fx.ExtraRc
+    note: str
+    rms_v: float
+    voltage_v: np.ndarray
+
+
+def third_pair(pr: PulseRefit, hysteresis: fx.Hysteresis | None = None) -> ThirdPair | None:
+    """An extra RC pair as the pulse test shows it: the whole-test fit with a third RC
+    pair (the diffusion pair of the build's ``curve_branches``), with ``hysteresis``'s
+    voltage taken out (the test starting on the branch that fits better); the pair as an
+    extra RC is its time constant and the mean of the two directions' resistances. None
+    where the pair is dropped (its time constant on a bound) or the test fits no better
+    with it (MIN_RMS_GAIN) than the plain 2RC fitted on the same voltage.
+
+    The pulse test shows a pair of minutes in its rests (5-60 min after pulses and SOC
+    moves); a plain 2RC fit lumps it with its slow pair (a slow pair of 218 s where the
+    cell has 88 s and 588 s), and an extra RC fitted on the cycle above that slow pair has
+    nothing left to describe."""
+    key = ("third_pair", None if hysteresis is None else tuple(hysteresis.params().values()))
+    if key in pr.memo:
+        return pr.memo[key]
+    best = None
+    for h0 in (1.0, -1.0) if hysteresis is not None else (None,):
+        v = np.zeros(len(pr.series)) if h0 is None else \
+            _voltage_from(hysteresis, pr.series, pr.deadband_a, h0)
+        model, rms = pr.refit(v, third_pair=True)
+        if best is None or rms < best[1]:
+            best = (model, rms, v)
+    model, rms, v = best
+    plain_rms = pr.rms_v if hysteresis is None else pr.refit(v)[1]
+    out = None
+    tab = model.discharge
+    if tab.r_diff_ohm is not None and rms < (1.0 - MIN_RMS_GAIN) * plain_rms:
+        r = 0.5 * float(tab.r_diff_ohm[0] + model.charge.r_diff_ohm[0])
+        tau = float(tab.tau_diff_s[0])
+        if r > 0:
+            out = ThirdPair(_without_third_pair(model), fx.ExtraRc(r, tau),
+                            f"extra_rc: the base tables refitted on the pulse test with a "
+                            f"third RC pair ({tau:.0f} s; fit RMS {1e3 * plain_rms:.2f} -> "
+                            f"{1e3 * rms:.2f} mV)", rms, v)
+    pr.memo[key] = out
+    return out

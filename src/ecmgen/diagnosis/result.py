@@ -23,6 +23,7 @@ UNEXPLAINED_RATIO = 3.0
 TELLS = {
     "hysteresis": "long rests after a charge and after a discharge at one SOC",
     "extra_rc": "a rest of an hour after a long current",
+    "diffusion": "rests of an hour after currents of several lengths",
     "current_dependent_resistance": "pulses at several C-rates",
     "capacity_error": "a full charge and discharge between rested voltages",
     "temperature_dependence": "the same pulses at two temperatures",

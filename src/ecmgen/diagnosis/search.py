@@ -26,11 +26,14 @@
 
 Besides the model's effects, the faults of the record are candidates
 (:mod:`ecmgen.diagnosis.corrections`: a current sensor's offset and gain, an OCV table
-that is off); one that is added corrects the data the later rounds fit and judge. A
-candidate is named only where it beats its look-alikes (the other candidates that passed
-in its round, each judged again in its place among all that was added at the end) by the
-held-out test; otherwise the verdict is "X or Y - the data cannot tell them apart"
-(:mod:`ecmgen.diagnosis.lookalike`).
+that is off); one that is added corrects the data the later rounds fit and judge (an
+offset the record's rests read goes first). A candidate is named only where it beats its
+look-alikes (the other candidates of its round that it does not beat, each judged again in
+its place among all that was added at the end, and those that beat it beyond their bounds)
+by the held-out test; otherwise the verdict is "X or Y - the data cannot tell them apart"
+(:mod:`ecmgen.diagnosis.lookalike`). An extra RC found as a third pair of the pulse test
+is named only where that test's shape tells it from solid diffusion
+(:mod:`ecmgen.diagnosis.diffusion`).
 
 The held-out part is ``judge_series`` when given (a second cycle), else the last
 ``1 - split`` of the fit cycle's duration (the model is simulated over the whole cycle;
@@ -57,10 +60,12 @@ from ..model.simulate import initial_soc, simulate
 from ..parallel import one_blas_thread
 from . import corrections as cx
 from .options import CANDIDATE_NAMES, diagnose_options  # noqa: F401
-from .lookalike import block_bootstrap_low, lookalikes, rivals, told_apart  # noqa: F401
+from .lookalike import (beyond_bounds, block_bootstrap_low, lookalikes,  # noqa: F401
+                        near_rivals, rivals, told_apart, with_beyond)
 from .prune import Fitted, still_needed
 from .problems import _Problem, _fit, _fixed, _specs
-from .refits import PulseRefit, hysteresis_on_refitted_base
+from .diffusion import told_from_diffusion
+from .refits import PulseRefit, hysteresis_on_refitted_base, third_pair
 from .result import (UNEXPLAINED_RATIO, Candidate, DiagnoseResult, DiagnoseStep,  # noqa: F401
                      Signature, explained_floor)
 from .signatures import (JUDGE_SOC_MIN, MIN_JUDGED, NothingToJudge,  # noqa: F401
@@ -149,6 +154,7 @@ def diagnose(base_model: EcmModel, fit_series: TimeSeries,
         search.prune()
     search.name_only_what_explains()
     search.tell_apart()
+    search.pair_or_diffusion()
     return search.result()
 
 
@@ -170,6 +176,8 @@ class _Search:
         self.refitted: dict = {}
         self.base_notes: dict[str, str] = {}
         self.pulse_refit = pulse_refit
+        self.base_by: list[str] = []     # the candidates whose pulse-test refit is the base
+        self.third_seen = self.pair_refit = None    # an extra RC's pulse-test refit
         unknown = [c for c in settings.candidates if c not in CANDIDATE_NAMES]
         if unknown:
             raise ValueError(f"unknown effect(s) {unknown}; known: {list(CANDIDATE_NAMES)}")
@@ -188,6 +196,7 @@ class _Search:
         self.notes: list[str] = []
         self.applied: list = []     # the record's faults found so far (corrected in the data)
         self.alikes: list = []      # per step: (its look-alikes in its round, on a refitted base)
+        self.beyond: dict = {}      # step -> the candidates of its round better on a bound
         self.dropped: list = []
         self.prune_ties: list = []
         self.not_named: tuple = ()
@@ -234,6 +243,7 @@ class _Search:
         self.block = max(1, int(round(block_s / max(np.median(np.diff(tj)), 1e-6))))
         # the records as read (the faults found are not corrected in these)
         self.fit_record, self.judge_record = fit_series, judge
+        self.rest_a = cx.rest_current(fit_series.slice(0, fit_stop), base_model.capacity_ah)
 
     def _judge_the_base(self) -> None:
         """The base simulated on both parts, the held-out samples judged, its errors."""
@@ -246,6 +256,8 @@ class _Search:
             self.split_words += (f", above {100 * self.st.judge_soc_min:.0f} % SOC ({below} "
                                  "samples below left out)")
         self.vj = self.judge.voltage_v[judge_start:][self.keep]
+        soc = self.base_fit_sim.soc[:fit_stop]
+        self.soc_range = (float(np.min(soc)), float(np.max(soc)))
         self.e_fit0 = (self.base_fit_sim.voltage_v[:fit_stop]
                        - self.fit_series.voltage_v[:fit_stop])
         self.e_j0 = self.base_judge_sim.voltage_v[judge_start:][self.keep] - self.vj
@@ -323,10 +335,16 @@ class _Search:
         if name == cx.VoltageLag.name:
             data = cx.apply_all(self.fit_record, fixes).slice(0, self.fit_stop)
             at = np.arange(self.fit_stop)
+        elif name == cx.CurrentOffset.name and self.rest_a is not None:
+            # what the sensor reads at rest is its offset (the other faults found so far
+            # corrected: a gain scales it)
+            return cx.CurrentOffset(self.rest_a if not fixes else cx.rest_current(
+                cx.apply_all(self.fit_record, fixes).slice(0, self.fit_stop),
+                self.base_model.capacity_ah) or 0.0)
         else:
             data, at = self.fit_data_for(fixes), self.rows
         return cx.fit(name, model, data, self.soc0, at, self.cap_scale, self.f_scale,
-                      self.st.max_nfev, self.ctx["t_ref_c"])
+                      self.st.max_nfev, self.ctx["t_ref_c"], self.soc_range)
 
     def fitted(self, layout, starts_native, fixed, base=None, fixes=None):
         """Fit the free parameters of the last layout entry (and of any other entry
@@ -365,8 +383,38 @@ class _Search:
         passing = [c for c in tried if c[0]]
         if not passing:
             return False
+        read = [c for c in passing if c[2] == cx.CurrentOffset.name and self.rest_a is not None]
+        if read:
+            # a fault the record shows where the current is zero goes before what the
+            # voltage alone suggests (a capacity error takes up an offset's SOC drift)
+            self._add(read)
+            return True
         self._add(passing)
+        win, st = passing[0], self.st
+        self.alikes[-1][0].extend(near_rivals(tried, win, self.alikes[-1][0], self._valid,
+                                              self.block, st.confidence, st.seed + self.rnd))
+        self._beyond_bounds(tried, win)
         return True
+
+    def _valid(self, c) -> bool:
+        """A candidate's fit is one the effect can be: finite, inside its bounds, a lag the
+        record resolves."""
+        return bool(np.isfinite(c[1]) and not _on_bound(c[3][-1], c[4]) and not (
+            c[11] is not None and hasattr(c[11], "words") and cx.unresolved(c[11],
+                                                                            self.sample_s)))
+
+    def _beyond_bounds(self, tried, win) -> None:
+        """The round's candidates that beat its winner ``win`` but end on a bound are its
+        look-alikes at the end (:func:`.lookalike.beyond_bounds`, :meth:`tell_apart`)."""
+        st = self.st
+        out = beyond_bounds(tried, win, self.block, st.confidence, st.seed + self.rnd)
+        for c, bound in out:
+            self.notes.append(f"{c[2]}: held-out MAE {c[1] * 1e3:.2f} mV against "
+                              f"{win[1] * 1e3:.2f} with {win[2]}, but with {bound} on its "
+                              "bound")
+            self.say(self.notes[-1])
+        if out:
+            self.beyond[win[2]] = [c[2] for c, _ in out]
 
     def _try(self, name):
         """Candidate ``name`` fitted with what was added so far kept as it is, and judged:
@@ -409,6 +457,11 @@ class _Search:
             if alt is not None and alt[2][1][4] < fit_mae1:
                 new_base, self.base_notes[name] = alt[0], alt[1]
                 (vals, effects, specs), (model, sj, e1, mae1, fit_mae1, ef1) = alt[2]
+        if name == fx.ExtraRc.name:
+            alt = self._third_pair(layout)
+            if alt is not None and (alt[2][1][4] < fit_mae1 or _on_bound(vals[-1], specs)):
+                new_base, self.base_notes[name] = alt[0], alt[1]
+                (vals, effects, specs), (model, sj, e1, mae1, fit_mae1, ef1) = alt[2]
         ok, low, gain, rel, why = self._test(e1, mae1, vals[-1], specs, corr)
         new = corr if corr is not None else effects[-1]
         self.cands.append(Candidate(self.rnd, name, new, fit_mae1, mae1, gain, rel, low, ok,
@@ -418,6 +471,34 @@ class _Search:
                  f"fit MAE {fit_mae1 * 1e3:.2f} mV [{_time.perf_counter() - t0:.1f} s] "
                  f"{new.summary()}")
         return (ok, mae1, name, vals, specs, model, sj, e1, low, fit_mae1, new_base, new, ef1)
+
+    def _third_pair(self, layout):
+        """The extra RC on the base refitted on its pulse test with a third RC pair
+        (:func:`.refits.third_pair`; a hysteresis found on a refitted base taken out of the
+        test first): (base, note, ((values, effects, specs), what :meth:`judged` gives)) of
+        the pair as the test gives it or fitted on the cycle's fit part from there, whichever
+        fits the fit part better; None without a pulse test, on a base refitted for another
+        effect, or where the test shows no third pair."""
+        if self.pulse_refit is None or set(self.base_by) - {fx.Hysteresis.name} or \
+                self.base0.discharge.has_diffusion:
+            return None
+        hyst = next((e for e in self.current.effects if e.name == fx.Hysteresis.name),
+                    None) if self.base_by else None
+        got = third_pair(self.pulse_refit, hyst)
+        if got is None:
+            return None
+        self.third_seen = got
+        base, effect, note = got.base, got.effect, got.note
+        as_is = list(self.current.effects) + [effect]
+        options = [(([dict(v) for _, v, _ in layout] + [effect.params()], as_is, {}),
+                    self.judged(as_is, base))]
+        try:
+            _, _, (fitted, judged) = self.refit_on(base, layout, fx.ExtraRc.name, effect)
+            if not _on_bound(fitted[0][-1], fitted[2]):
+                options.append((fitted, judged))
+        except FIT_ERRORS:
+            pass
+        return base, note, min(options, key=lambda o: o[1][4])
 
     def _test(self, e1, mae1, values, specs, corr):
         """The held-out test of a candidate (module doc): (passes, the bootstrap's lower
@@ -430,7 +511,10 @@ class _Search:
         rel = gain / self.mae_cur if self.mae_cur > 0 else 0.0
         bound = _on_bound(values, specs)
         short = "" if corr is None else cx.unresolved(corr, self.sample_s)
-        ok = bool(np.isfinite(mae1) and rel >= st.min_rel_gain and low > 0.0
+        # an offset the rests read is not chosen by the voltage: the bootstrap's question,
+        # whether noise could give its gain, is not its test
+        read = isinstance(corr, cx.CurrentOffset) and self.rest_a is not None
+        ok = bool(np.isfinite(mae1) and rel >= st.min_rel_gain and (low > 0.0 or read)
                   and gain >= self.floor_v and not bound and not short)
         if ok:
             why = ""
@@ -468,11 +552,20 @@ class _Search:
         _, mae1, name, vals, specs, model, sj, e1, low, fit_mae1, new_base, new, ef1 = passing[0]
         # the others that passed are judged again at the end, each in the winner's place
         # among all that was added (a winner on a refitted base: its look-alikes here)
-        self.alikes.append((lookalikes(passing, self.block, st.confidence, st.seed + self.rnd)
-                            if new_base is not None else rivals(passing), new_base is not None))
+        if name == cx.CurrentOffset.name and self.rest_a is not None:
+            # what the rests read is the offset itself, whatever else the voltage allows
+            self.alikes.append(([], True))
+        else:
+            self.alikes.append((lookalikes(passing, self.block, st.confidence,
+                                           st.seed + self.rnd)
+                                if new_base is not None else rivals(passing),
+                                new_base is not None))
         if new_base is not None:
             # the effect came with its own base tables: later candidates build on them
             self.base_model = new_base
+            self.base_by.append(name)
+            if name == fx.ExtraRc.name:
+                self.pair_refit = self.third_seen
             self.notes.append(self.base_notes.get(name) or self.refitted[name][2])
         n_fixed = len(self.fixed_effects)
         if name in cx.CORRECTION_TYPES:
@@ -653,6 +746,7 @@ class _Search:
             self.cannot_tell = told_apart(
                 self.steps, self.alikes, self.swapped, (self.e_cur, self.ef_cur), self.block,
                 self.st.confidence, self.st.seed) + [g for g in self.prune_ties if g[0] in named]
+            self.cannot_tell = with_beyond(self.cannot_tell, self.steps, self.beyond)
             for group in self.cannot_tell:
                 self.say(f"{' or '.join(group)}: the data cannot tell them apart")
         if self.cannot_tell:
@@ -660,6 +754,28 @@ class _Search:
             self._back_to_the_base()
             tied = {n for g in self.cannot_tell for n in g}
             self.steps = [st for st in self.steps if st.name not in tied]
+
+    def pair_or_diffusion(self) -> None:
+        """An extra RC found as a third pair of the pulse test is named only where the
+        test's shape tells it from solid diffusion (:func:`.diffusion.told_from_diffusion`);
+        otherwise "extra_rc or diffusion" (or its group with diffusion), the model the base."""
+        g = next((g for g, group in enumerate(self.cannot_tell) if fx.ExtraRc.name in group),
+                 None)
+        if g is not None and self.third_seen is not None:
+            # not named anyway: what it cannot be told from includes diffusion
+            self.cannot_tell[g] += ("diffusion",) * ("diffusion" not in self.cannot_tell[g])
+        k = next((k for k, st in enumerate(self.steps) if st.name == fx.ExtraRc.name), None)
+        if k is None or self.pair_refit is None or fx.ExtraRc.name not in self.base_by:
+            return
+        told, note = told_from_diffusion([st.name for st in self.steps], self.pulse_refit,
+                                         self.pair_refit)
+        self.notes.append(note)
+        self.say(note)
+        if not told:
+            self.cannot_tell.append((fx.ExtraRc.name, "diffusion"))
+            self.left_v = self.mae_cur if self.left_v is None else self.left_v
+            self._back_to_the_base()
+            del self.steps[k]
 
     def result(self) -> DiagnoseResult:
         return DiagnoseResult(
