@@ -142,6 +142,18 @@ def test_two_models_link_into_one_program(tmp_path, synthetic_model):
     assert 3.0 < va < 4.3 and 3.0 < vb < 4.3 and abs(va - vb) < 0.01
 
 
+def test_two_models_tables_meet_in_one_file(tmp_path, synthetic_model):
+    """Each model's table types carry its prefix (<prefix>_model_<s>_t): a file that holds
+    two models' tables, as an application reading both cells' parameters would, compiles
+    (one shared type name would be a redefinition, an error in C99)."""
+    generate_c(synthetic_model, tmp_path, prefix="cellA", numeric="float")
+    generate_c(synthetic_model, tmp_path, prefix="cellB", numeric="float")
+    both = tmp_path / "both.c"
+    both.write_text('#include "cellA_ecm_f32_config.h"\n#include "cellB_ecm_f32_config.h"\n'
+                    "float r0_ohm(void) { return cellA_model_f32.dir[0].rows[0] "
+                    "+ cellB_model_f32.dir[0].rows[0]; }\n")
+    _cc([*STRICT_CFLAGS, "-O2", "-I", tmp_path, "-c", both, "-o", tmp_path / "both.o"])
+
 def _strip_comments(text: str) -> str:
     text = re.sub(r"/\*.*?\*/", " ", text, flags=re.S)
     text = re.sub(r'"[^"\n]*"', '""', text)            # string literals (version, hash)

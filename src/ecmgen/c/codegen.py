@@ -443,7 +443,8 @@ def _model_members(spec: CSpec) -> list[tuple[str, str]]:
     if spec.surface is not None:
         out.append((f"const {vt} *sv;", ("Q_SV 1/V (>= 0)" if fixed else "1/V") +
                     " at the OCV's breakpoints, laid out as ocv"))
-    out.append((f"{rt}_dir_t dir[2];", "[ECMRT_DISCHARGE], [ECMRT_CHARGE]"))
+    out.append((f"{c_names(spec.prefix, spec.numeric)['dir_t']} dir[2];",
+                "[ECMRT_DISCHARGE], [ECMRT_CHARGE]"))
     if fixed:
         out += [("int32_t deadband;", "Q_I, >= 0"),
                 ("int32_t k_soc;", ("1/(3600 Q)" if spec.variable_dt else "dt/(3600 Q)") + ", scaled")]

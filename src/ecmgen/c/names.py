@@ -19,7 +19,9 @@ The SOC estimator (float32): ``<prefix>_est_f32.h`` / ``.c``, ``<prefix>_est_f32
 ``<prefix>_est_init_f32`` / ``<prefix>_est_step_f32``, macros ``<PREFIX>_EST_F32_*``.
 Internal to the generated C (not for the firmware's own code): ``<prefix>_ecm_<s>_config.h``
 (the runtime configured for the model, included by the model's and the estimator's ``.c``)
-and ``<prefix>_model_<s>``, the model's tables (``const``; the estimator reads them). The
+and ``<prefix>_model_<s>``, the model's tables (``const``; the estimator reads them), of
+the type ``<prefix>_model_<s>_t`` (its tables per direction ``<prefix>_dir_<s>_t``): one
+model's layout, so two models' headers meet in one file without a clash. The
 runtime headers (``ecmrt*.h``) have no external symbols (static inline only).
 """
 
@@ -38,6 +40,7 @@ def c_names(prefix: str, numeric: str) -> dict[str, str]:
         "filelist": f"{prefix}_ecm_{s}_files.mk", "report": f"{prefix}_ecm_{s}_report.md",
         "config": f"{prefix}_ecm_{s}_config.h", "tables": f"{prefix}_model_{s}",
         "state": f"{prefix}_state_{s}_t", "init": f"{prefix}_init_{s}",
+        "model_t": f"{prefix}_model_{s}_t", "dir_t": f"{prefix}_dir_{s}_t",
         "step": f"{prefix}_step_{s}", "run": f"{prefix}_run_{s}",
         "set_age": f"{prefix}_set_age_{s}",
         "M": f"{P}_ECM_{s.upper()}",

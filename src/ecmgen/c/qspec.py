@@ -75,7 +75,7 @@ def _g_table_bins(i_lim: float, i0_min: float, x_raw) -> int:
 
 
 def _fx_fixed(by_name: dict, q: dict, dt_s: float | None, i_lim: float) -> dict:
-    """Constants (raw integers) and shifts of the effects in ecmrt_q_model_t."""
+    """Constants (raw integers) and shifts of the effects in <prefix>_model_q_t."""
     q_i, q_v = q["Q_I"], q["Q_V"]
     fx = {"hyst": 0, "xrc": 0, "cdr": 0, "arr": 0}
     hyst, xrc = by_name.get("hysteresis"), by_name.get("extra_rc")

@@ -525,7 +525,7 @@ def _f32(values, name: str) -> np.ndarray:
     return a
 
 
-# fields of the effects in ecmrt_f32_model_t / ecmrt_q_model_t, per effect, in order
+# fields of the effects in <prefix>_model_f32_t / <prefix>_model_q_t, per effect, in order
 FX_FLOAT_KEYS = {"hyst": ("h_init", "h_k", "h_m", "h_m0", "h_ref"), "xrc": ("x_r", "x_k"),
                  "cdr": ("g_scale", "g_inv_i0"), "arr": ("a_k", "a_inv_ref")}
 FX_FIXED_KEYS = {"hyst": ("h_init", "h_k", "h_m", "h_m0", "h_ref"), "xrc": ("x_r", "x_k"),
@@ -533,7 +533,7 @@ FX_FIXED_KEYS = {"hyst": ("h_init", "h_k", "h_m", "h_m0", "h_ref"), "xrc": ("x_r
 
 
 def _fx_float(by_name: dict, dt_s: float | None) -> dict:
-    """Constants of the effects in ecmrt_f32_model_t ({} when the model has none with code)."""
+    """Constants of the effects in <prefix>_model_f32_t ({} when the model has none with code)."""
     fx = {"hyst": 0, "xrc": 0, "cdr": 0, "arr": 0}
     h = by_name.get("hysteresis")
     if h is not None:
