@@ -2,7 +2,7 @@
 shared record it may honestly be judged on, against a committed baseline.
 
     python bench/accuracy_matrix.py [--only NAME,...] [--workers N] [--json PATH]
-                                    [--check BASELINE] [--update BASELINE]
+                                    [--check BASELINE] [--update BASELINE] [--models DIR]
 
 One table: a row per (configuration, record) with the MAE, the MAE above 10 % SOC (simulated)
 and the max |error| in mV, and per configuration its build time (``ecmgen.pipeline.build``,
@@ -234,8 +234,10 @@ def judge(model, cfg, rec: Record) -> dict:
             "soc0": round(float(v.soc0), 4)}
 
 
-def run_configuration(name: str, build_workers: int = 2, progress=None) -> dict:
-    """Build one configuration (in a temporary folder) and judge it on its records."""
+def run_configuration(name: str, build_workers: int = 2, models_dir: Path | None = None,
+                      progress=None) -> dict:
+    """Build one configuration (in a temporary folder) and judge it on its records;
+    ``models_dir``: its model*.json copied to ``models_dir / name``."""
     from ecmgen.config import load_config
     from ecmgen.pipeline import build
 
@@ -250,10 +252,16 @@ def run_configuration(name: str, build_workers: int = 2, progress=None) -> dict:
         seconds = time.perf_counter() - t0
         model = result.models[result.best]
         records = {rec.label: judge(model, cfg, rec) for rec in conf.records}
+        if models_dir is not None:
+            keep = Path(models_dir) / name
+            keep.mkdir(parents=True, exist_ok=True)
+            for f in sorted((Path(tmp) / "out").glob("model*.json")):
+                (keep / f.name).write_bytes(f.read_bytes())
     return {"build_s": round(seconds, 1), "records": records}
 
 
-def run(names: list[str], workers: int = 1, progress=print) -> dict:
+def run(names: list[str], workers: int = 1, progress=print,
+        models_dir: Path | None = None) -> dict:
     """Every named configuration: side by side on ``workers`` processes (each build then
     on one), else one after the other (each build over temperature on two)."""
     from ecmgen.parallel import Workers
@@ -261,10 +269,10 @@ def run(names: list[str], workers: int = 1, progress=print) -> dict:
     out = {}
     with Workers(workers) as pool:
         build_workers = 1 if pool.parallel else 2
-        tasks = {n: pool.submit(run_configuration, n, build_workers)
+        tasks = {n: pool.submit(run_configuration, n, build_workers, models_dir)
                  for n in (names if pool.parallel else ())}
         for n in names:     # one after the other: each runs when submitted
-            task = tasks[n] if pool.parallel else pool.submit(run_configuration, n, 2)
+            task = tasks[n] if pool.parallel else pool.submit(run_configuration, n, 2, models_dir)
             out[n] = task.result()
             progress(f"{n}: built in {out[n]['build_s']:.1f} s")
     return out
@@ -345,6 +353,9 @@ def main(argv=None) -> int:
     ap.add_argument("--json", type=Path, help="write the results here")
     ap.add_argument("--check", type=Path, help="exit 1 on a cell worse than this baseline")
     ap.add_argument("--update", type=Path, help="write the results as this baseline")
+    ap.add_argument("--models", type=Path, metavar="DIR",
+                    help="keep each configuration's model*.json in DIR/NAME (to compare "
+                         "two trees' tables)")
     args = ap.parse_args(argv)
     names = args.only.split(",") if args.only else list(configurations())
     unknown = [n for n in names if n not in configurations()]
@@ -363,7 +374,8 @@ def main(argv=None) -> int:
             print(doc, file=sys.stderr)
             return 2
     t0 = time.perf_counter()
-    results = run(names, args.workers, lambda m: print(m, file=sys.stderr, flush=True))
+    results = run(names, args.workers, lambda m: print(m, file=sys.stderr, flush=True),
+                  args.models)
     print(table(results))
     print(f"{len(names)} configurations in {time.perf_counter() - t0:.0f} s "
           f"({args.workers} side by side)")
