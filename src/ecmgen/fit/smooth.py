@@ -286,19 +286,22 @@ def _named(tf, ts, rf, rs):
     return np.where(cross, mean / gap, tf), np.where(cross, mean * gap, ts), rf, rs
 
 
-def _choose(prob: _Direction, x_full: dict) -> float:
-    """The smoothing weight by leaving one interior level out: for each weight, from the
-    joint fit of every level at that weight the fit without each interior level in turn
-    (:func:`_descend`), and the left-out level's error."""
+def _choose(prob: _Direction, x0: np.ndarray) -> float:
+    """The smoothing weight by leaving one interior level out: for each weight, the joint
+    fit of every level at that weight from ``x0``, from there the fit without each interior
+    level in turn (both :func:`_descend`), and the left-out level's error."""
     if prob.n < 4:
         return SMOOTHING[-1]
+    n_lam = len(SMOOTHING)
+    x_full = _descend(prob, np.repeat(x0[None, :], n_lam, axis=0), np.asarray(SMOOTHING),
+                      np.ones((n_lam, prob.n)), FULL_STEPS)
     left_out = np.arange(1, prob.n - 1)
     folds = left_out.size
     weights = np.ones((folds, prob.n))
     weights[np.arange(folds), left_out] = 0.0
     lams = np.repeat(np.asarray(SMOOTHING), folds)
-    xs = _descend(prob, np.repeat(np.stack([x_full[lam] for lam in SMOOTHING]), folds, axis=0),
-                  lams, np.tile(weights, (len(SMOOTHING), 1)), LOO_STEPS)
+    xs = _descend(prob, np.repeat(x_full, folds, axis=0), lams,
+                  np.tile(weights, (n_lam, 1)), LOO_STEPS)
     held = np.array([prob.held_out(x, k) for x, k in zip(xs, np.tile(left_out, len(SMOOTHING)))])
     errors = dict(zip(SMOOTHING, held.reshape(len(SMOOTHING), folds).sum(axis=1)))
     best = min(errors.values())
@@ -324,13 +327,7 @@ def smooth_point_fit(t_s, r_ohm, soc, direction, fit: PointFit,
         ix = ix[np.argsort(soc[ix])]
         prob = _Direction(data, ix, soc[ix], b)
         x0 = _start(fit, ix, b)
-        # every weight's joint fit by the cheap batched descent, the starts of the choice;
-        # the exact solver for the weight chosen alone
-        k = len(SMOOTHING)
-        x_full = dict(zip(SMOOTHING, _descend(prob, np.repeat(x0[None, :], k, axis=0),
-                                              np.asarray(SMOOTHING), np.ones((k, prob.n)),
-                                              FULL_STEPS)))
-        lam = _choose(prob, x_full)
+        lam = _choose(prob, x0)     # by the cheap batched descent; the exact solver here
         tf, ts, rf, rs = prob.parts(prob.solve(x0, lam, np.ones(prob.n)))
         tf, ts, rf, rs = _named(tf, ts, rf, rs)
         for key, v in zip(("tau_fast_s", "tau_slow_s", "r_fast_ohm", "r_slow_ohm"),
